@@ -1,0 +1,172 @@
+"""`rba build | train | eval | render | serve`: the command line over the library.
+
+Bad input prints one line naming the valid choices and exits with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+
+log = logging.getLogger("rba")
+
+PRESETS = ("default", "tiny")
+
+
+def _domain(name: str) -> str:
+    from rba.domains import domain_names
+
+    if name not in domain_names():
+        raise argparse.ArgumentTypeError(f"unknown domain {name!r}; valid: {', '.join(domain_names())}")
+    return name
+
+
+def _positive(text: str) -> int:
+    value = int(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
+    return value
+
+
+def _noise(text: str) -> float:
+    value = float(text)
+    if not 0 <= value < 0.5:
+        raise argparse.ArgumentTypeError(f"must be in [0, 0.5), got {text}")
+    return value
+
+
+def cmd_build(args) -> int:
+    from rba.library import build_all
+
+    sizes = {"train": args.train, "serve": args.serve, "test": args.test}
+    libs = build_all(args.domain, seed=args.seed, sizes=sizes, workers=args.workers)
+    for split, lib in libs.items():
+        m = lib.meta
+        print(f"{args.domain}/{split}: {len(lib)} rollouts, success {m['success_rate']:.1%} of {m['attempted']}, "
+              f"{m['build_seconds']:.1f} s, version {lib.version}")
+    return 0
+
+
+def train_config(preset: str, seed: int):
+    from rba.learn.global_reward import GlobalRewardConfig
+    from rba.learn.ranker import RankerConfig
+    from rba.training import GlobalTrainConfig
+
+    if preset == "tiny":
+        return GlobalTrainConfig(RankerConfig(steps=150, hidden=64, seed=seed),
+                                 GlobalRewardConfig(steps=200, hidden=64, seed=seed))
+    return GlobalTrainConfig(RankerConfig(seed=seed), GlobalRewardConfig(seed=seed))
+
+
+def cmd_train(args) -> int:
+    from rba.training import train_global
+
+    reps = ("onehot", "language") if args.rep == "all" else (args.rep,)
+    for rep in reps:
+        metrics = train_global(args.domain, rep, train_config(args.preset, args.seed))
+        print(json.dumps({"domain": args.domain, "rep": rep, **metrics}, indent=2))
+    return 0
+
+
+def cmd_eval(args) -> int:
+    from rba.evaluate import evaluate, format_table
+    from rba.storage import save_json
+
+    result = evaluate(args.domain, args.method, args.rep, args.targets, args.seed, args.precision, args.noise)
+    print(format_table([result]))
+    if args.json:
+        save_json(Path(args.json), result.to_json())
+    return 0
+
+
+def cmd_render(args) -> int:
+    from rba.domains import get_domain
+    from rba.library import SPLITS, SkillLibrary
+    from rba.video import write_mp4
+
+    split = args.rollout_id.split("-", 1)[0]
+    if split not in SPLITS:
+        raise LookupError(f"unknown rollout id {args.rollout_id!r}; ids look like serve-00012 "
+                          f"(splits: {', '.join(SPLITS)})")
+    lib = SkillLibrary.load(args.domain, split)
+    rollout = lib.rollout(lib.index_of(args.rollout_id))
+    domain = get_domain(args.domain)
+    n = write_mp4(domain.render(rollout, args.width, args.height), Path(args.out), domain.frame_rate)
+    print(f"wrote {args.out}: {n} frames at {domain.frame_rate:g} fps, proxies {rollout.proxies}")
+    return 0
+
+
+def cmd_serve(args) -> int:
+    from server.main import run
+
+    run(host=args.host, port=args.port)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from rba.embed import REPRESENTATIONS
+    from rba.interact import METHODS
+
+    p = argparse.ArgumentParser(prog="rba", description="RBA Studio: tune agent behaviour by relative attributes.")
+    p.add_argument("-v", "--verbose", action="store_true", help="log progress at INFO level")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    b = sub.add_parser("build", help="simulate the train / serve / test skill libraries")
+    b.add_argument("domain", type=_domain)
+    b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--train", type=_positive, default=300, help="rollouts in train (labels come from these)")
+    b.add_argument("--serve", type=_positive, default=1200, help="rollouts the agent chooses from")
+    b.add_argument("--test", type=_positive, default=120, help="held-out target behaviours")
+    b.add_argument("--workers", type=_positive, default=2, help="simulation processes")
+    b.set_defaults(func=cmd_build)
+
+    t = sub.add_parser("train", help="train ζσ and rθ (RBA-Global) and write model cards")
+    t.add_argument("domain", type=_domain)
+    t.add_argument("--rep", choices=(*REPRESENTATIONS, "all"), default="all")
+    t.add_argument("--preset", choices=PRESETS, default="default", help="'tiny' is the CI smoke preset")
+    t.add_argument("--seed", type=int, default=0)
+    t.set_defaults(func=cmd_train)
+
+    e = sub.add_parser("eval", help="run the paper's protocol with simulated users")
+    e.add_argument("--domain", type=_domain, required=True)
+    e.add_argument("--method", choices=tuple(METHODS), default="global")
+    e.add_argument("--rep", choices=REPRESENTATIONS, default="onehot")
+    e.add_argument("--targets", type=_positive, default=20)
+    e.add_argument("--seed", type=int, default=0)
+    e.add_argument("--precision", choices=("normal", "high"), default="normal")
+    e.add_argument("--noise", type=_noise, default=0.0, help="probability of flipping each answer")
+    e.add_argument("--json", help="write the full result (trials included) here")
+    e.set_defaults(func=cmd_eval)
+
+    r = sub.add_parser("render", help="render a library rollout to an MP4 (H.264)")
+    r.add_argument("domain", type=_domain)
+    r.add_argument("rollout_id", help="e.g. serve-00012")
+    r.add_argument("out", help="output .mp4 path")
+    r.add_argument("--width", type=_positive, default=320)
+    r.add_argument("--height", type=_positive, default=240)
+    r.set_defaults(func=cmd_render)
+
+    s = sub.add_parser("serve", help="start the web app")
+    s.add_argument("--host", default=None)
+    s.add_argument("--port", type=int, default=None)
+    s.set_defaults(func=cmd_serve)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    try:
+        return args.func(args)
+    except (LookupError, ValueError, FileNotFoundError, OSError) as exc:
+        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+        print(f"rba: error: {msg}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,80 @@
+"""The Domain contract (DESIGN §3): a simulator, a scripted parameterised skill, and proxies.
+
+A domain turns skill parameters into a physically simulated :class:`Rollout` whose
+``states`` are what the learned models see and whose ``replay`` is what rendering needs.
+Proxies are ground truth used only to make labels, simulate users and evaluate; agents
+never read them.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class AttributeSpec:
+    """One relative behavioural attribute; its proxy grows with the attribute."""
+
+    name: str  # snake_case id, e.g. "step_size"
+    description: str  # one sentence; the source of the language embedding
+    unit: str  # unit of the proxy, e.g. "m"
+    epsilon: float  # success tolerance (splits the proxy range into 5-10 buckets)
+    high_precision_epsilon: float  # 5-10x finer (the paper's Table 2)
+
+
+@dataclass
+class Rollout:
+    """One simulated behaviour clip."""
+
+    id: str
+    domain: str
+    params: dict[str, float]
+    seed: int
+    states: np.ndarray  # float32[T, state_dim]: what models see
+    replay: np.ndarray  # float64[F, R]: per rendered frame, what render() needs (e.g. qpos)
+    proxies: dict[str, float]  # attribute name -> measured proxy value
+    success: bool
+    info: dict[str, float] = field(default_factory=dict)  # extra diagnostics (not a contract)
+
+
+class Domain(ABC):
+    """A simulator plus a scripted skill; subclasses are registered in ``rba.domains``."""
+
+    name: str
+    attributes: tuple[AttributeSpec, ...]
+    state_dim: int
+    param_names: tuple[str, ...]  # keys of sample_params(), in a fixed order
+    frame_rate: float  # frames per second of ``replay`` (and of rendered clips)
+
+    @abstractmethod
+    def sample_params(self, rng: np.random.Generator) -> dict[str, float]:
+        """Draw skill parameters that cover the attribute space."""
+
+    @abstractmethod
+    def rollout(self, params: dict[str, float], seed: int) -> Rollout:
+        """Simulate the skill; equal (params, seed) give equal rollouts. ``id`` is left ''."""
+
+    @abstractmethod
+    def render(self, rollout: Rollout, width: int, height: int) -> Iterator[np.ndarray]:
+        """Yield HxWx3 uint8 frames off-screen, deterministically, from ``rollout.replay``."""
+
+    @property
+    def attribute_names(self) -> tuple[str, ...]:
+        return tuple(a.name for a in self.attributes)
+
+    def attribute(self, name: str) -> AttributeSpec:
+        for spec in self.attributes:
+            if spec.name == name:
+                return spec
+        raise KeyError(f"unknown attribute {name!r} for domain {self.name!r}; valid: {', '.join(self.attribute_names)}")
+
+    def epsilons(self, precision: str = "normal") -> np.ndarray:
+        """Per-attribute success tolerance, float64[k]."""
+        if precision not in ("normal", "high"):
+            raise ValueError(f"unknown precision {precision!r}; valid: normal, high")
+        attr = "epsilon" if precision == "normal" else "high_precision_epsilon"
+        return np.array([getattr(a, attr) for a in self.attributes])

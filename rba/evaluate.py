@@ -1,0 +1,98 @@
+"""The paper's protocol (DESIGN §5): simulated users chase held-out targets; SR and AF."""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from rba.domains import get_domain
+from rba.interact import SATISFIED, load_context, new_agent
+from rba.interact.users import SimulatedUser
+from rba.library import SkillLibrary
+
+log = logging.getLogger(__name__)
+
+MAX_FEEDBACK = 500  # attribute-level feedbacks before a trial is a failure (the paper's budget)
+
+
+@dataclass
+class Trial:
+    target: dict[str, float]
+    success: bool
+    feedback_count: int
+    shown: list[dict[str, float]] = field(default_factory=list)  # proxies of each shown rollout
+    shown_ids: list[str] = field(default_factory=list)
+
+
+@dataclass
+class EvalResult:
+    domain: str
+    method: str
+    rep: str
+    precision: str
+    noise: float
+    seed: int
+    success_rate: float
+    avg_feedback: float | None  # over successful trials
+    std_feedback: float | None
+    seconds: float
+    trials: list[Trial]
+
+    def to_json(self) -> dict:
+        return asdict(self)
+
+
+def run_trial(agent, user: SimulatedUser, serve: SkillLibrary, max_feedback: int = MAX_FEEDBACK) -> Trial:
+    """Show, listen, update until the user is satisfied or the feedback budget is spent."""
+    trial = Trial(target=dict(zip(serve.attribute_names, map(float, user.target), strict=True)),
+                  success=False, feedback_count=0)
+    rid = agent.first_query()
+    while True:
+        i = serve.index_of(rid)
+        trial.shown_ids.append(rid)
+        trial.shown.append(serve.proxies_of(i))
+        answer = user.respond(i)
+        if answer == SATISFIED:
+            trial.success = True
+            return trial
+        trial.feedback_count += len(answer)
+        if trial.feedback_count >= max_feedback:
+            return trial
+        rid = agent.update(answer)
+
+
+def evaluate(domain_name: str, method: str, rep: str = "onehot", targets: int = 20, seed: int = 0,
+             precision: str = "normal", noise: float = 0.0, data_root=None, models_root=None,
+             context=None) -> EvalResult:
+    domain = get_domain(domain_name)
+    eps = domain.epsilons(precision)
+    test = SkillLibrary.load(domain_name, "test", data_root)
+    context = context or load_context(domain_name, method, rep, data_root, models_root)
+    serve = context.serve
+    rng = np.random.default_rng(seed)
+    chosen = rng.choice(len(test), size=min(targets, len(test)), replace=False)
+    start = time.perf_counter()
+    trials = []
+    for n, t in enumerate(chosen):
+        user = SimulatedUser(test.proxies[t], eps, serve.attribute_names, serve.proxies, noise,
+                             seed=seed * 1000 + n)
+        trials.append(run_trial(new_agent(method, context), user, serve))
+    fb = np.array([t.feedback_count for t in trials if t.success], dtype=float)
+    return EvalResult(domain_name, method, rep, precision, noise, seed,
+                      success_rate=float(np.mean([t.success for t in trials])),
+                      avg_feedback=float(fb.mean()) if len(fb) else None,
+                      std_feedback=float(fb.std()) if len(fb) else None,
+                      seconds=round(time.perf_counter() - start, 2), trials=trials)
+
+
+def format_table(results: list[EvalResult]) -> str:
+    """A Markdown table of SR / AF (std), one row per result."""
+    rows = ["| domain | method | rep | precision | noise | SR | AF (std) |", "|---|---|---|---|---|---|---|"]
+    for r in results:
+        af = "–" if r.avg_feedback is None else f"{r.avg_feedback:.2f} ({r.std_feedback:.2f})"
+        cells = (r.domain, r.method, r.rep, r.precision, f"{r.noise:g}", f"{r.success_rate:.2f}", af)
+        rows.append("| " + " | ".join(cells) + " |")
+    return "\n".join(rows)

@@ -1,0 +1,75 @@
+"""The Agent contract (DESIGN §3) and the feedback records that drive it.
+
+An agent turns feedback into the next rollout to show. It never reads proxies. Its whole
+state is a JSON-able dict, so a web session survives a server restart; the heavy,
+shareable parts (models, the serve library) live in a separate *context* object.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import ClassVar, Literal, Protocol
+
+SATISFIED: Literal["satisfied"] = "satisfied"
+
+
+@dataclass(frozen=True)
+class AttributeFeedback:
+    """"More" (+1) or "less" (-1) of one attribute."""
+
+    attribute: str
+    direction: int
+
+    def __post_init__(self) -> None:
+        if self.direction not in (1, -1):
+            raise ValueError(f"direction must be +1 (more) or -1 (less), got {self.direction!r}")
+
+
+Feedback = list[AttributeFeedback] | Literal["satisfied"]
+
+
+class FeedbackSource(Protocol):
+    """Whoever judges a shown rollout: a simulated user in evaluation, a person on the web."""
+
+    def respond(self, rollout_index: int) -> Feedback: ...
+
+
+class Agent(ABC):
+    """A small state machine over rollouts of the ``serve`` library (ids are library ids)."""
+
+    method: ClassVar[str]
+
+    @abstractmethod
+    def first_query(self) -> str:
+        """The first rollout to show."""
+
+    @abstractmethod
+    def update(self, feedback: Feedback) -> str:
+        """Take one round of feedback about the rollout shown last; return the next to show."""
+
+    @abstractmethod
+    def state_dict(self) -> dict:
+        """Everything needed to resume, as plain JSON types."""
+
+    @classmethod
+    @abstractmethod
+    def from_state(cls, state: dict, context) -> Agent:
+        """Rebuild an agent from ``state_dict()`` output and a loaded context."""
+
+
+def validate_feedback(feedback: Feedback, attribute_names: tuple[str, ...]) -> Feedback:
+    """Check attribute names and that no attribute is asked both ways; raise ValueError if not."""
+    if feedback == SATISFIED:
+        return feedback
+    if not feedback:
+        raise ValueError(f"feedback is empty; give at least one (attribute, more|less) or 'satisfied'; "
+                         f"attributes: {', '.join(attribute_names)}")
+    seen: dict[str, int] = {}
+    for fb in feedback:
+        if fb.attribute not in attribute_names:
+            raise ValueError(f"unknown attribute {fb.attribute!r}; valid: {', '.join(attribute_names)}")
+        if seen.get(fb.attribute, fb.direction) != fb.direction:
+            raise ValueError(f"attribute {fb.attribute!r} asked both more and less in one round")
+        seen[fb.attribute] = fb.direction
+    return feedback

@@ -1,0 +1,1 @@
+"""Learned models: ζσ ranker, global reward rθ (and later local reward, PbRL)."""

@@ -1,0 +1,132 @@
+"""RBA-Global step 1: the attribute strength estimator ζσ(τ, α) = clip(Σ_t fσ([s_t, e_α])).
+
+Trained with the Bradley-Terry loss on attribute orderings of at most ``max_labelled``
+``train`` clips (paper §4.2, eq. 3), the orderings coming from the domain's proxies (the
+stand-in for an agent designer's labels).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import torch
+from scipy.stats import kendalltau
+from torch import nn
+
+from rba.learn.common import Normalizer, Ragged, bradley_terry_loss, check_shape, mlp, seed_everything, segment_sum
+from rba.library import SkillLibrary
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class RankerConfig:
+    """Options of ζσ training (CLI flags map onto these)."""
+
+    hidden: int = 256  # MLP width (the paper's 512/1024 is ~4x slower on 2 CPU cores for no accuracy gain here)
+    layers: int = 3  # fully connected layers
+    clip: float = 20.0  # ζ is clipped to [-clip, clip] as in the paper
+    max_labelled: int = 200  # labelled train clips (the paper's label budget)
+    steps: int = 1500  # gradient steps
+    batch_pairs: int = 64  # ordered pairs per step and attribute
+    lr: float = 1e-3
+    weight_decay: float = 1e-5
+    seed: int = 0
+
+
+class AttributeRanker(nn.Module):
+    """fσ([s, e_α]) summed over a trajectory; ``attr_embed`` holds e_α for every attribute."""
+
+    def __init__(self, state_dim: int, attr_embed: torch.Tensor, hidden: int = 256, layers: int = 3,
+                 clip: float = 20.0) -> None:
+        super().__init__()
+        self.state_dim = state_dim
+        self.clip = clip
+        self.register_buffer("attr_embed", torch.as_tensor(attr_embed, dtype=torch.float32))
+        self.norm = Normalizer(state_dim)
+        self.f = mlp(state_dim + self.attr_embed.shape[1], hidden, layers)
+
+    @property
+    def num_attributes(self) -> int:
+        return self.attr_embed.shape[0]
+
+    def per_state(self, states: torch.Tensor, attr: int) -> torch.Tensor:
+        """fσ for each state: float32[N] for float32[N, state_dim]."""
+        check_shape(states, None, self.state_dim, name="states")
+        e = self.attr_embed[attr].expand(len(states), -1)
+        return self.f(torch.cat([self.norm(states), e], 1)).squeeze(1)
+
+    def trajectory_scores(self, states: torch.Tensor, seg: torch.Tensor, n: int, attr: int) -> torch.Tensor:
+        """ζσ for ``n`` trajectories whose states are tagged by ``seg``: float32[n]."""
+        return segment_sum(self.per_state(states, attr), seg, n).clamp(-self.clip, self.clip)
+
+    @torch.no_grad()
+    def score(self, data: Ragged, batch_states: int = 65536) -> np.ndarray:
+        """ζσ(τ, α) for every trajectory and attribute: float64[N, k] (vectorised, batched)."""
+        self.eval()
+        out = torch.zeros(len(data), self.num_attributes)
+        seg = data.segment_ids()
+        for a in range(self.num_attributes):
+            for lo in range(0, len(data.states), batch_states):
+                out[:, a] += segment_sum(self.per_state(data.states[lo:lo + batch_states], a),
+                                         seg[lo:lo + batch_states], len(data))
+        return out.clamp(-self.clip, self.clip).double().numpy()
+
+    def score_library(self, lib: SkillLibrary) -> np.ndarray:
+        return self.score(Ragged.from_numpy(lib.states, lib.state_offsets))
+
+
+def labelled_subset(lib: SkillLibrary, max_labelled: int, seed: int) -> np.ndarray:
+    """Indices of the train clips an agent designer would label (a seeded random subset)."""
+    rng = np.random.default_rng(seed)
+    n = min(max_labelled, len(lib))
+    return np.sort(rng.choice(len(lib), size=n, replace=False))
+
+
+def train_ranker(train: SkillLibrary, attr_embed: np.ndarray, cfg: RankerConfig,
+                 progress=None) -> tuple[AttributeRanker, dict]:
+    """Fit ζσ on orderings (by proxy) of ``cfg.max_labelled`` train clips; returns the model and stats."""
+    gen = seed_everything(cfg.seed)
+    torch.set_num_threads(2)
+    idx = labelled_subset(train, cfg.max_labelled, cfg.seed)
+    lab = train.subset(idx)
+    data = Ragged.from_numpy(lab.states, lab.state_offsets)
+    proxies = torch.as_tensor(lab.proxies, dtype=torch.float32)
+    model = AttributeRanker(train.states.shape[1], torch.as_tensor(attr_embed), cfg.hidden, cfg.layers, cfg.clip)
+    model.norm.fit(lab.states)
+    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    k, n = proxies.shape[1], len(lab)
+    loss_val = float("nan")
+    for step in range(cfg.steps):
+        loss = torch.zeros(())
+        for a in range(k):
+            i = torch.randint(n, (cfg.batch_pairs,), generator=gen)
+            j = torch.randint(n, (cfg.batch_pairs,), generator=gen)
+            keep = proxies[i, a] != proxies[j, a]
+            i, j = i[keep], j[keep]
+            states, seg = data.select(torch.cat([i, j]))
+            z = model.trajectory_scores(states, seg, 2 * len(i), a)
+            pref = (proxies[i, a] > proxies[j, a]).float()
+            loss = loss + bradley_terry_loss(z[: len(i)], z[len(i):], pref)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        loss_val = loss.item() / k
+        if progress and (step % 50 == 0 or step == cfg.steps - 1):
+            progress(step + 1, cfg.steps, loss_val)
+    model.eval()
+    return model, {"labelled_clips": int(n), "final_loss": round(loss_val, 5), "config": asdict(cfg)}
+
+
+def ranking_metrics(zeta: np.ndarray, proxies: np.ndarray, attribute_names) -> dict[str, dict[str, float]]:
+    """Per attribute: pairwise ordering accuracy and Kendall τ between ζσ and the proxy."""
+    out = {}
+    for a, name in enumerate(attribute_names):
+        z, p = zeta[:, a], proxies[:, a]
+        dz, dp = np.sign(z[:, None] - z[None, :]), np.sign(p[:, None] - p[None, :])
+        mask = dp != 0
+        acc = float((dz[mask] == dp[mask]).mean())
+        out[name] = {"pairwise_accuracy": round(acc, 4), "kendall_tau": round(float(kendalltau(z, p).statistic), 4)}
+    return out

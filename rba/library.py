@@ -1,0 +1,234 @@
+"""SkillLibrary: many rollouts of a domain's skill, stored as ragged arrays (npz + JSON).
+
+Layout on disk: ``<data_dir>/<domain>/<split>.npz`` holds only numeric arrays (states and
+replay concatenated over rollouts with offsets), ``<split>.json`` the metadata. Loading
+never unpickles.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import multiprocessing as mp
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from rba.domains import Rollout, domain_target, get_domain, load_domain
+from rba.paths import data_dir
+from rba.storage import load_json, load_npz, save_json, save_npz
+
+log = logging.getLogger(__name__)
+
+SPLITS = ("train", "serve", "test")
+DEFAULT_SIZES = {"train": 300, "serve": 1200, "test": 120}
+FORMAT_VERSION = 1
+
+
+class LibraryNotFoundError(FileNotFoundError):
+    pass
+
+
+@dataclass
+class SkillLibrary:
+    """Rollouts of one split; row i of every array belongs to ``ids[i]``."""
+
+    domain: str
+    split: str
+    ids: list[str]
+    param_names: tuple[str, ...]
+    attribute_names: tuple[str, ...]
+    params: np.ndarray  # float64[N, P]
+    seeds: np.ndarray  # int64[N]
+    proxies: np.ndarray  # float64[N, k], columns in attribute_names order
+    success: np.ndarray  # bool[N]
+    state_offsets: np.ndarray  # int64[N + 1]
+    states: np.ndarray  # float32[sum T, state_dim]
+    replay_offsets: np.ndarray  # int64[N + 1]
+    replay: np.ndarray  # float64[sum F, R]
+    meta: dict = field(default_factory=dict)
+    _index: dict[str, int] = field(default_factory=dict, repr=False)
+
+    def __post_init__(self) -> None:
+        self._index = {rid: i for i, rid in enumerate(self.ids)}
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    @property
+    def version(self) -> str:
+        """Content hash: changes whenever any array changes (clip cache key, model cards)."""
+        return self.meta.get("version") or _content_hash(self)
+
+    @property
+    def lengths(self) -> np.ndarray:
+        return np.diff(self.state_offsets)
+
+    def index_of(self, rollout_id: str) -> int:
+        try:
+            return self._index[rollout_id]
+        except KeyError:
+            raise KeyError(f"unknown rollout id {rollout_id!r} in {self.domain}/{self.split}") from None
+
+    def __contains__(self, rollout_id: str) -> bool:
+        return rollout_id in self._index
+
+    def trajectory(self, i: int) -> np.ndarray:
+        return self.states[self.state_offsets[i] : self.state_offsets[i + 1]]
+
+    def proxies_of(self, i: int) -> dict[str, float]:
+        return {a: float(v) for a, v in zip(self.attribute_names, self.proxies[i], strict=True)}
+
+    def rollout(self, i: int) -> Rollout:
+        return Rollout(
+            id=self.ids[i],
+            domain=self.domain,
+            params=dict(zip(self.param_names, map(float, self.params[i]), strict=True)),
+            seed=int(self.seeds[i]),
+            states=self.trajectory(i),
+            replay=self.replay[self.replay_offsets[i] : self.replay_offsets[i + 1]],
+            proxies=self.proxies_of(i),
+            success=bool(self.success[i]),
+        )
+
+    def subset(self, indices) -> SkillLibrary:
+        idx = np.asarray(indices, dtype=np.int64)
+        return SkillLibrary.from_rollouts([self.rollout(int(i)) for i in idx], self.split, self.param_names,
+                                          self.attribute_names, dict(self.meta, version=None))
+
+    @classmethod
+    def from_rollouts(cls, rollouts: list[Rollout], split: str, param_names, attribute_names,
+                      meta: dict | None = None) -> SkillLibrary:
+        if not rollouts:
+            raise ValueError("a library needs at least one rollout")
+
+        def offsets(arrays):
+            return np.concatenate([[0], np.cumsum([len(a) for a in arrays])]).astype(np.int64)
+
+        lib = cls(
+            domain=rollouts[0].domain,
+            split=split,
+            ids=[r.id for r in rollouts],
+            param_names=tuple(param_names),
+            attribute_names=tuple(attribute_names),
+            params=np.array([[r.params[p] for p in param_names] for r in rollouts], dtype=np.float64),
+            seeds=np.array([r.seed for r in rollouts], dtype=np.int64),
+            proxies=np.array([[r.proxies[a] for a in attribute_names] for r in rollouts], dtype=np.float64),
+            success=np.array([r.success for r in rollouts], dtype=bool),
+            state_offsets=offsets([r.states for r in rollouts]),
+            states=np.concatenate([r.states for r in rollouts]).astype(np.float32),
+            replay_offsets=offsets([r.replay for r in rollouts]),
+            replay=np.concatenate([r.replay for r in rollouts]).astype(np.float64),
+            meta=dict(meta or {}),
+        )
+        lib.meta["version"] = _content_hash(lib)
+        return lib
+
+    # -- persistence -------------------------------------------------------------------
+    _ARRAYS = ("params", "seeds", "proxies", "success", "state_offsets", "states", "replay_offsets", "replay")
+
+    def save(self, root: Path | None = None) -> Path:
+        folder = (root or data_dir()) / self.domain
+        save_npz(folder / f"{self.split}.npz", {k: getattr(self, k) for k in self._ARRAYS})
+        meta = dict(self.meta, format=FORMAT_VERSION, domain=self.domain, split=self.split, ids=self.ids,
+                    param_names=list(self.param_names), attribute_names=list(self.attribute_names),
+                    version=self.version)
+        # JSON last: a library is complete only when its metadata names the arrays' hash.
+        save_json(folder / f"{self.split}.json", meta)
+        return folder
+
+    @classmethod
+    def load(cls, domain: str, split: str, root: Path | None = None) -> SkillLibrary:
+        if split not in SPLITS:
+            raise ValueError(f"unknown split {split!r}; valid: {', '.join(SPLITS)}")
+        folder = (root or data_dir()) / domain
+        npz, js = folder / f"{split}.npz", folder / f"{split}.json"
+        if not npz.exists() or not js.exists():
+            raise LibraryNotFoundError(f"no {split} library for {domain!r} under {folder}; run `rba build {domain}`")
+        meta = load_json(js)
+        arrays = load_npz(npz)
+        lib = cls(domain=meta["domain"], split=meta["split"], ids=list(meta["ids"]),
+                  param_names=tuple(meta["param_names"]), attribute_names=tuple(meta["attribute_names"]),
+                  meta={k: v for k, v in meta.items() if k not in ("ids",)}, **arrays)
+        if _content_hash(lib) != meta["version"]:
+            raise ValueError(f"{npz} does not match its metadata (version {meta['version']}); rebuild it")
+        return lib
+
+
+def _content_hash(lib: SkillLibrary) -> str:
+    h = hashlib.sha256()
+    for name in SkillLibrary._ARRAYS:
+        a = np.ascontiguousarray(getattr(lib, name))
+        h.update(name.encode() + str(a.dtype).encode() + str(a.shape).encode() + a.tobytes())
+    h.update("\n".join(lib.ids).encode())
+    return h.hexdigest()[:12]
+
+
+# -- generation ------------------------------------------------------------------------
+
+def _simulate(job: tuple[str, dict[str, float], int]) -> Rollout:
+    target, params, seed = job
+    return load_domain(target).rollout(params, seed)
+
+
+def generate(domain_name: str, split: str, n: int, seed: int = 0, workers: int = 2,
+             progress: bool = True) -> SkillLibrary:
+    """Simulate ``n`` successful rollouts for ``split`` (failures are counted, not kept).
+
+    Each split draws parameters from its own seeded stream, so test parameters never repeat
+    train parameters.
+    """
+    from tqdm import tqdm
+
+    if split not in SPLITS:
+        raise ValueError(f"unknown split {split!r}; valid: {', '.join(SPLITS)}")
+    domain, target = get_domain(domain_name), domain_target(domain_name)
+    split_code = SPLITS.index(split)
+    rng = np.random.default_rng([seed, split_code])
+    start = time.perf_counter()
+    kept: list[Rollout] = []
+    attempted = 0
+    max_attempts = 3 * n + 10
+    pool = mp.get_context("spawn").Pool(workers) if workers > 1 else None
+    bar = tqdm(total=n, desc=f"{domain_name}/{split}", unit="rollout", disable=not progress)
+    try:
+        while len(kept) < n and attempted < max_attempts:
+            batch = max(n - len(kept), 1)
+            jobs = []
+            for _ in range(batch):
+                jobs.append((target, domain.sample_params(rng), seed * 10_000_000 + split_code * 1_000_000 + attempted))
+                attempted += 1
+            results = pool.imap(_simulate, jobs, chunksize=4) if pool else map(_simulate, jobs)
+            for r in results:
+                if r.success and len(kept) < n:
+                    r.id = f"{split}-{len(kept):05d}"
+                    kept.append(r)
+                    bar.update(1)
+    finally:
+        bar.close()
+        if pool:
+            pool.close()
+            pool.join()
+    if len(kept) < n:
+        raise RuntimeError(f"only {len(kept)} of {attempted} {domain_name} rollouts succeeded; wanted {n}")
+    seconds = time.perf_counter() - start
+    meta = {"seed": seed, "attempted": attempted, "succeeded": len(kept), "success_rate": len(kept) / attempted,
+            "build_seconds": round(seconds, 2), "workers": workers}
+    log.info("%s/%s: %d rollouts (%d attempted) in %.1f s", domain_name, split, n, attempted, seconds)
+    return SkillLibrary.from_rollouts(kept, split, domain.param_names, domain.attribute_names, meta)
+
+
+def build_all(domain_name: str, seed: int = 0, sizes: dict[str, int] | None = None, workers: int = 2,
+              root: Path | None = None, progress: bool = True) -> dict[str, SkillLibrary]:
+    """Generate and save every split; check that no test parameters occur in train."""
+    sizes = {**DEFAULT_SIZES, **(sizes or {})}
+    libs = {s: generate(domain_name, s, sizes[s], seed, workers, progress) for s in SPLITS}
+    train_rows = {tuple(row) for row in libs["train"].params}
+    leaked = sum(tuple(row) in train_rows for row in libs["test"].params)
+    if leaked:
+        raise RuntimeError(f"{leaked} test rollouts repeat train parameters")
+    for lib in libs.values():
+        lib.save(root)
+    return libs

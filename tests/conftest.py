@@ -1,0 +1,28 @@
+"""Shared fixtures: the toy domain registered, and a tiny trained toy pipeline on disk."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+from rba.domains import register
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+register("toy", "tests.toy:Toy")
+
+
+@pytest.fixture(scope="session")
+def toy_roots(tmp_path_factory):
+    """(data_root, models_root) with toy libraries and one-hot global models trained on them."""
+    from rba.learn.global_reward import GlobalRewardConfig
+    from rba.learn.ranker import RankerConfig
+    from rba.library import build_all
+    from rba.training import GlobalTrainConfig, train_global
+
+    root = tmp_path_factory.mktemp("toy")
+    data, models = root / "data", root / "models"
+    build_all("toy", seed=0, sizes={"train": 120, "serve": 300, "test": 40}, workers=1, root=data, progress=False)
+    cfg = GlobalTrainConfig(RankerConfig(steps=200, hidden=64), GlobalRewardConfig(steps=400, hidden=64))
+    metrics = train_global("toy", "onehot", cfg, data_root=data, models_root=models)
+    return data, models, metrics
