@@ -1,0 +1,52 @@
+"""The CLI: bad input is one line naming the valid choices, exit status 2."""
+
+import json
+
+import pytest
+
+from rba.cli import main
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["build", "atlantis"], "unknown domain 'atlantis'; valid: walker"),
+        (["eval", "--domain", "walker", "--method", "magic"], "invalid choice: 'magic'"),
+        (["eval", "--domain", "walker", "--noise", "0.7"], "must be in [0, 0.5)"),
+        (["train", "walker", "--rep", "braille"], "invalid choice: 'braille'"),
+    ],
+)
+def test_bad_arguments_exit_2(argv, message, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_unknown_rollout_id_exits_2(capsys, tmp_path, monkeypatch):
+    monkeypatch.setenv("RBA_DATA_DIR", str(tmp_path))
+    assert main(["render", "walker", "../../etc/passwd", str(tmp_path / "x.mp4")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("rba: error: unknown rollout id '../../etc/passwd'") and err.count("\n") == 1
+
+
+def test_missing_library_exits_2(capsys, tmp_path, monkeypatch):
+    monkeypatch.setenv("RBA_DATA_DIR", str(tmp_path))
+    assert main(["render", "walker", "serve-00001", str(tmp_path / "x.mp4")]) == 2
+    assert "run `rba build walker`" in capsys.readouterr().err
+
+
+def test_eval_and_render_on_toy(toy_roots, tmp_path, monkeypatch, capsys):
+    data, models, _ = toy_roots
+    monkeypatch.setenv("RBA_DATA_DIR", str(data))
+    monkeypatch.setenv("RBA_MODELS_DIR", str(models))
+    out = tmp_path / "r.json"
+    assert main(["eval", "--domain", "toy", "--targets", "3", "--json", str(out)]) == 0
+    result = json.loads(out.read_text())
+    assert set(result) >= {"success_rate", "avg_feedback", "std_feedback", "trials"}
+    assert len(result["trials"]) == 3 and "shown" in result["trials"][0]
+    assert "| toy | global | onehot | normal |" in capsys.readouterr().out
+    clip = tmp_path / "c.mp4"
+    assert main(["render", "toy", "serve-00003", str(clip)]) == 0
+    head = clip.read_bytes()[:64]
+    assert b"ftyp" in head and b"moov" in clip.read_bytes()[:4096]  # faststart: moov before mdat
