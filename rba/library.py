@@ -47,7 +47,7 @@ class SkillLibrary:
     state_offsets: np.ndarray  # int64[N + 1]
     states: np.ndarray  # float32[sum T, state_dim]
     replay_offsets: np.ndarray  # int64[N + 1]
-    replay: np.ndarray  # float64[sum F, R]
+    replay: np.ndarray  # float32[sum F, R] (float32 on disk: plenty for rendering, half the size)
     meta: dict = field(default_factory=dict)
     _index: dict[str, int] = field(default_factory=dict, repr=False)
 
@@ -120,7 +120,7 @@ class SkillLibrary:
             state_offsets=offsets([r.states for r in rollouts]),
             states=np.concatenate([r.states for r in rollouts]).astype(np.float32),
             replay_offsets=offsets([r.replay for r in rollouts]),
-            replay=np.concatenate([r.replay for r in rollouts]).astype(np.float64),
+            replay=np.concatenate([r.replay for r in rollouts]).astype(np.float32),
             meta=dict(meta or {}),
         )
         lib.meta["version"] = _content_hash(lib)

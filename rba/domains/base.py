@@ -35,7 +35,7 @@ class Rollout:
     params: dict[str, float]
     seed: int
     states: np.ndarray  # float32[T, state_dim]: what models see
-    replay: np.ndarray  # float64[F, R]: per rendered frame, what render() needs (e.g. qpos)
+    replay: np.ndarray  # float[F, R]: per rendered frame, what render() needs (e.g. qpos)
     proxies: dict[str, float]  # attribute name -> measured proxy value
     success: bool
     info: dict[str, float] = field(default_factory=dict)  # extra diagnostics (not a contract)

@@ -106,7 +106,7 @@ MIN_TORSO_HEIGHT = 0.7  # torso centre height (m)
 MAX_PITCH = 1.0  # |torso pitch| (rad)
 
 # ---------------------------------------------------------------- sampling & recording
-STATE_EVERY = 20  # physics steps per state sample (20 Hz)
+STATE_EVERY = 40  # physics steps per state sample (10 Hz: foot speed features carry the fast part)
 FRAME_RATE = 30.0  # replay / rendered frames per second
 
 PARAM_RANGES = {
@@ -356,7 +356,7 @@ class Walker(Domain):
             if sp_l > peak_l:
                 peak_l = sp_l
 
-            # ---- record (replay frames at 30 fps, states at 20 Hz)
+            # ---- record (replay frames at 30 fps, states at 10 Hz)
             if step == next_frame_step:
                 frames.append(q)
                 n_frame += 1

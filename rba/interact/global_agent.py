@@ -1,10 +1,13 @@
-"""RBA-Global agent: binary search per attribute in ζσ space (paper appendix), query = argmax rθ.
+"""RBA-Global agent: a search per attribute in ζσ space (paper appendix), query = argmax rθ.
 
-State per attribute: a belief interval [lower, upper] for the user's target score and the
-current target v_t. "More α" about a shown rollout with score z means the target lies
-above z: lower ← z (and symmetrically for "less"); the new target is the interval's
-midpoint. When feedback contradicts the interval (z beyond the other bound) the interval
-extrapolates past z by a quarter of its initial width.
+The paper bisects an interval [lower, upper] per attribute. A single wrong answer then
+excludes the true target for good, so we run *probabilistic* bisection instead: a belief
+over a grid of ζ values per attribute, uniform over the ζ range seen in ``train`` (with a
+thin tail beyond it, so targets outside can still be reached). "More α" about a shown
+rollout with score z multiplies the belief above z by (1 − p) and below z by p, where p is
+the assumed error rate; the new target is the belief's median. With a small p this moves
+almost exactly like bisection (no extra feedback when users are right), and a wrong answer
+is outvoted by the next right ones instead of trapping the search.
 
 Guard against the paper's failure mode (rθ returns the same behaviour for a nudged
 target): if the argmax is the rollout just shown, or does not move the asked attributes
@@ -25,6 +28,10 @@ from rba.learn.global_reward import LibraryScorer
 from rba.library import SkillLibrary
 
 MAX_PUSHES = 8  # doublings of the push step before giving up on a move
+GRID = 401  # belief grid points per attribute
+TAIL = 0.5  # the grid extends this fraction of the train ζ range beyond each end
+TAIL_DENSITY = 0.05  # prior density beyond the train range, relative to inside it
+ERROR_RATE = 0.1  # assumed probability that an answer is wrong
 
 
 @dataclass
@@ -52,22 +59,46 @@ class GlobalContext:
         return cls(domain, rep, serve.attribute_names, serve, zeta, bounds,
                    LibraryScorer(reward.model, data), version)
 
+    def grid(self, a: int) -> np.ndarray:
+        lo, hi = self.bounds[:, a]
+        return np.linspace(lo - TAIL * (hi - lo), hi + TAIL * (hi - lo), GRID)
+
+    def prior(self, a: int) -> np.ndarray:
+        g = self.grid(a)
+        inside = (g >= self.bounds[0, a]) & (g <= self.bounds[1, a])
+        return np.log(np.where(inside, 1.0, TAIL_DENSITY))
+
 
 class GlobalAgent(Agent):
     method = "global"
 
-    def __init__(self, ctx: GlobalContext, lower=None, upper=None, target=None, shown: int | None = None,
-                 rejected: list[int] | None = None) -> None:
+    def __init__(self, ctx: GlobalContext, target=None, answers: list | None = None, shown: int | None = None,
+                 rejected: list[int] | None = None, error_rate: float = ERROR_RATE) -> None:
         self.ctx = ctx
-        self.lower = np.array(ctx.bounds[0] if lower is None else lower, dtype=np.float64)
-        self.upper = np.array(ctx.bounds[1] if upper is None else upper, dtype=np.float64)
-        self.target = (self.lower + self.upper) / 2 if target is None else np.array(target, dtype=np.float64)
+        self.error_rate = error_rate
+        self.answers: list[tuple[int, float, int]] = [tuple(x) for x in (answers or [])]  # (attribute, z, ±1)
+        self.target = (np.array([self._median(a) for a in range(len(ctx.attribute_names))]) if target is None
+                       else np.array(target, dtype=np.float64))
         self.shown = shown
         self.rejected = list(rejected or [])
 
-    @property
-    def _width0(self) -> np.ndarray:
-        return self.ctx.bounds[1] - self.ctx.bounds[0]
+    def belief(self, a: int) -> np.ndarray:
+        """Posterior over ``ctx.grid(a)`` given every answer about attribute ``a`` (normalised)."""
+        log_p = self.ctx.prior(a)
+        grid = self.ctx.grid(a)
+        right, wrong = np.log(1 - self.error_rate), np.log(self.error_rate)
+        for attr, z, h in self.answers:
+            if attr == a:
+                log_p = log_p + np.where(h * (grid - z) > 0, right, wrong)
+        p = np.exp(log_p - log_p.max())
+        return p / p.sum()
+
+    def _quantile(self, a: int, q: float) -> float:
+        cdf = np.cumsum(self.belief(a))
+        return float(np.interp(q, cdf, self.ctx.grid(a)))
+
+    def _median(self, a: int) -> float:
+        return self._quantile(a, 0.5)
 
     def _argmax(self) -> int:
         exclude = np.zeros(len(self.ctx.serve), dtype=bool)
@@ -87,21 +118,14 @@ class GlobalAgent(Agent):
         z = self.ctx.serve_zeta[self.shown]
         asked = [(self.ctx.attribute_names.index(fb.attribute), fb.direction) for fb in feedback]
         for a, h in asked:
-            if h > 0:
-                self.lower[a] = z[a]
-                if self.upper[a] <= z[a]:
-                    self.upper[a] = z[a] + self._width0[a] / 4
-            else:
-                self.upper[a] = z[a]
-                if self.lower[a] >= z[a]:
-                    self.lower[a] = z[a] - self._width0[a] / 4
-            self.target[a] = (self.lower[a] + self.upper[a]) / 2
+            self.answers.append((a, float(z[a]), h))
+            self.target[a] = self._median(a)
         self.rejected.append(self.shown)
         nxt = self._argmax()
-        step = {a: (self.upper[a] - self.lower[a]) / 4 for a, _ in asked}
+        width = self.ctx.bounds[1] - self.ctx.bounds[0]
+        step = {a: max(self._quantile(a, 0.75) - self._quantile(a, 0.25), 0.01 * width[a]) / 2 for a, _ in asked}
         for _ in range(MAX_PUSHES):
-            moved = all(h * (self.ctx.serve_zeta[nxt, a] - z[a]) > 0 for a, h in asked)
-            if moved:
+            if all(h * (self.ctx.serve_zeta[nxt, a] - z[a]) > 0 for a, h in asked):
                 break
             for a, h in asked:
                 self.target[a] += h * step[a]
@@ -111,9 +135,10 @@ class GlobalAgent(Agent):
         return self.ctx.serve.ids[nxt]
 
     def state_dict(self) -> dict:
-        return {"method": self.method, "lower": self.lower.tolist(), "upper": self.upper.tolist(),
-                "target": self.target.tolist(), "shown": self.shown, "rejected": list(self.rejected)}
+        return {"method": self.method, "target": self.target.tolist(), "answers": [list(x) for x in self.answers],
+                "shown": self.shown, "rejected": list(self.rejected), "error_rate": self.error_rate}
 
     @classmethod
     def from_state(cls, state: dict, context: GlobalContext) -> GlobalAgent:
-        return cls(context, state["lower"], state["upper"], state["target"], state["shown"], state["rejected"])
+        return cls(context, state["target"], state["answers"], state["shown"], state["rejected"],
+                   state["error_rate"])

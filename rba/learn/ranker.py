@@ -1,5 +1,9 @@
 """RBA-Global step 1: the attribute strength estimator ζσ(τ, α) = clip(Σ_t fσ([s_t, e_α])).
 
+The clip is soft (c·tanh(x / c), c = 20 as in the paper): a hard clamp has zero gradient
+once a sum saturates, and with ~100 states per clip a freshly initialised fσ saturates at
+once and never recovers. The last layer also starts small, so sums start near zero.
+
 Trained with the Bradley-Terry loss on attribute orderings of at most ``max_labelled``
 ``train`` clips (paper §4.2, eq. 3), the orderings coming from the domain's proxies (the
 stand-in for an agent designer's labels).
@@ -14,8 +18,9 @@ import numpy as np
 import torch
 from scipy.stats import kendalltau
 from torch import nn
+from torch.nn import functional as F
 
-from rba.learn.common import Normalizer, Ragged, bradley_terry_loss, check_shape, mlp, seed_everything, segment_sum
+from rba.learn.common import Normalizer, Ragged, check_shape, mlp, seed_everything, segment_sum
 from rba.library import SkillLibrary
 
 log = logging.getLogger(__name__)
@@ -29,8 +34,8 @@ class RankerConfig:
     layers: int = 3  # fully connected layers
     clip: float = 20.0  # ζ is clipped to [-clip, clip] as in the paper
     max_labelled: int = 200  # labelled train clips (the paper's label budget)
-    steps: int = 1500  # gradient steps
-    batch_pairs: int = 64  # ordered pairs per step and attribute
+    steps: int = 400  # gradient steps
+    batch_clips: int = 64  # labelled clips per step; the loss covers every pair among them
     lr: float = 1e-3
     weight_decay: float = 1e-5
     seed: int = 0
@@ -47,6 +52,12 @@ class AttributeRanker(nn.Module):
         self.register_buffer("attr_embed", torch.as_tensor(attr_embed, dtype=torch.float32))
         self.norm = Normalizer(state_dim)
         self.f = mlp(state_dim + self.attr_embed.shape[1], hidden, layers)
+        with torch.no_grad():
+            self.f[-1].weight.mul_(0.01)
+            self.f[-1].bias.zero_()
+
+    def soft_clip(self, z: torch.Tensor) -> torch.Tensor:
+        return self.clip * torch.tanh(z / self.clip)
 
     @property
     def num_attributes(self) -> int:
@@ -60,7 +71,7 @@ class AttributeRanker(nn.Module):
 
     def trajectory_scores(self, states: torch.Tensor, seg: torch.Tensor, n: int, attr: int) -> torch.Tensor:
         """ζσ for ``n`` trajectories whose states are tagged by ``seg``: float32[n]."""
-        return segment_sum(self.per_state(states, attr), seg, n).clamp(-self.clip, self.clip)
+        return self.soft_clip(segment_sum(self.per_state(states, attr), seg, n))
 
     @torch.no_grad()
     def score(self, data: Ragged, batch_states: int = 65536) -> np.ndarray:
@@ -72,7 +83,7 @@ class AttributeRanker(nn.Module):
             for lo in range(0, len(data.states), batch_states):
                 out[:, a] += segment_sum(self.per_state(data.states[lo:lo + batch_states], a),
                                          seg[lo:lo + batch_states], len(data))
-        return out.clamp(-self.clip, self.clip).double().numpy()
+        return self.soft_clip(out).double().numpy()
 
     def score_library(self, lib: SkillLibrary) -> np.ndarray:
         return self.score(Ragged.from_numpy(lib.states, lib.state_offsets))
@@ -85,9 +96,21 @@ def labelled_subset(lib: SkillLibrary, max_labelled: int, seed: int) -> np.ndarr
     return np.sort(rng.choice(len(lib), size=n, replace=False))
 
 
+def all_pairs_loss(scores: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
+    """Bradley-Terry loss over every pair (i, j) of a batch whose true values differ."""
+    diff = values[:, None] - values[None, :]
+    mask = torch.triu(diff != 0, diagonal=1)
+    logits = (scores[:, None] - scores[None, :])[mask]
+    return F.binary_cross_entropy_with_logits(logits, (diff[mask] > 0).float())
+
+
 def train_ranker(train: SkillLibrary, attr_embed: np.ndarray, cfg: RankerConfig,
                  progress=None) -> tuple[AttributeRanker, dict]:
-    """Fit ζσ on orderings (by proxy) of ``cfg.max_labelled`` train clips; returns the model and stats."""
+    """Fit ζσ on orderings (by proxy) of ``cfg.max_labelled`` train clips; returns the model and stats.
+
+    Each step scores a batch of labelled clips once per attribute and takes the loss over
+    every pair in the batch: the same compute as a few pairs, many times the signal.
+    """
     gen = seed_everything(cfg.seed)
     torch.set_num_threads(2)
     idx = labelled_subset(train, cfg.max_labelled, cfg.seed)
@@ -100,20 +123,14 @@ def train_ranker(train: SkillLibrary, attr_embed: np.ndarray, cfg: RankerConfig,
     k, n = proxies.shape[1], len(lab)
     loss_val = float("nan")
     for step in range(cfg.steps):
-        loss = torch.zeros(())
-        for a in range(k):
-            i = torch.randint(n, (cfg.batch_pairs,), generator=gen)
-            j = torch.randint(n, (cfg.batch_pairs,), generator=gen)
-            keep = proxies[i, a] != proxies[j, a]
-            i, j = i[keep], j[keep]
-            states, seg = data.select(torch.cat([i, j]))
-            z = model.trajectory_scores(states, seg, 2 * len(i), a)
-            pref = (proxies[i, a] > proxies[j, a]).float()
-            loss = loss + bradley_terry_loss(z[: len(i)], z[len(i):], pref)
+        batch = torch.randperm(n, generator=gen)[: cfg.batch_clips]
+        states, seg = data.select(batch)
+        loss = sum(all_pairs_loss(model.trajectory_scores(states, seg, len(batch), a), proxies[batch, a])
+                   for a in range(k)) / k
         opt.zero_grad()
         loss.backward()
         opt.step()
-        loss_val = loss.item() / k
+        loss_val = loss.item()
         if progress and (step % 50 == 0 or step == cfg.steps - 1):
             progress(step + 1, cfg.steps, loss_val)
     model.eval()
