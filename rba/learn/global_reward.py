@@ -28,7 +28,7 @@ class GlobalRewardConfig:
 
     hidden: int = 256  # MLP width
     layers: int = 3
-    steps: int = 600  # gradient steps
+    steps: int = 1000  # gradient steps (cosine-decayed learning rate)
     batch_trajectories: int = 48  # trajectories per step
     batch_targets: int = 16  # targets per step; every trajectory pair is compared for every target
     slack: float = 0.05  # ξ_r, in standardised ζ units
@@ -116,6 +116,7 @@ def train_global_reward(data: Ragged, zeta: np.ndarray, cfg: GlobalRewardConfig,
     v_all = model.zeta_norm(torch.as_tensor(zeta, dtype=torch.float32))
     lo, hi = v_all.min(0).values, v_all.max(0).values
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(cfg.steps, 1))
     m, b = min(cfg.batch_trajectories, n), cfg.batch_targets
     loss_val = float("nan")
     for step in range(cfg.steps):
@@ -134,6 +135,7 @@ def train_global_reward(data: Ragged, zeta: np.ndarray, cfg: GlobalRewardConfig,
         opt.zero_grad()
         loss.backward()
         opt.step()
+        sched.step()
         loss_val = loss.item()
         if progress and (step % 50 == 0 or step == cfg.steps - 1):
             progress(step + 1, cfg.steps, loss_val)

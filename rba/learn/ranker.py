@@ -34,7 +34,7 @@ class RankerConfig:
     layers: int = 3  # fully connected layers
     clip: float = 20.0  # ζ is clipped to [-clip, clip] as in the paper
     max_labelled: int = 200  # labelled train clips (the paper's label budget)
-    steps: int = 400  # gradient steps
+    steps: int = 400  # gradient steps (cosine-decayed learning rate)
     batch_clips: int = 64  # labelled clips per step; the loss covers every pair among them
     lr: float = 1e-3
     weight_decay: float = 1e-5
@@ -120,6 +120,7 @@ def train_ranker(train: SkillLibrary, attr_embed: np.ndarray, cfg: RankerConfig,
     model = AttributeRanker(train.states.shape[1], torch.as_tensor(attr_embed), cfg.hidden, cfg.layers, cfg.clip)
     model.norm.fit(lab.states)
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(cfg.steps, 1))
     k, n = proxies.shape[1], len(lab)
     loss_val = float("nan")
     for step in range(cfg.steps):
@@ -130,6 +131,7 @@ def train_ranker(train: SkillLibrary, attr_embed: np.ndarray, cfg: RankerConfig,
         opt.zero_grad()
         loss.backward()
         opt.step()
+        sched.step()
         loss_val = loss.item()
         if progress and (step % 50 == 0 or step == cfg.steps - 1):
             progress(step + 1, cfg.steps, loss_val)
