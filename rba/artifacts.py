@@ -15,6 +15,7 @@ import torch
 from torch import nn
 
 from rba.learn.global_reward import GlobalReward
+from rba.learn.local_reward import LocalReward
 from rba.learn.ranker import AttributeRanker
 from rba.paths import models_dir
 from rba.storage import load_json, load_torch, save_json, save_torch
@@ -35,9 +36,16 @@ def _build_global_reward(card: dict) -> nn.Module:
     return GlobalReward(arch["state_dim"], arch["num_attributes"], arch["hidden"], arch["layers"])
 
 
+def _build_local_reward(card: dict) -> nn.Module:
+    arch = card["architecture"]
+    return LocalReward(arch["state_dim"], torch.zeros(arch["num_attributes"], arch["embed_dim"]), arch["hidden"],
+                       arch["layers"], arch["lstm_hidden"], arch["lstm_layers"], arch["anchor_stride"])
+
+
 BUILDERS: dict[str, Callable[[dict], nn.Module]] = {
     "ranker": _build_ranker,
     "global_reward": _build_global_reward,
+    "local_reward": _build_local_reward,
 }
 
 

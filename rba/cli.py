@@ -56,18 +56,37 @@ def train_config(preset: str, seed: int):
     from rba.training import GlobalTrainConfig
 
     if preset == "tiny":
-        return GlobalTrainConfig(RankerConfig(steps=150, hidden=64, seed=seed),
-                                 GlobalRewardConfig(steps=200, hidden=64, seed=seed))
+        return GlobalTrainConfig(RankerConfig(steps=80, hidden=64, seed=seed),
+                                 GlobalRewardConfig(steps=120, hidden=64, seed=seed))
     return GlobalTrainConfig(RankerConfig(seed=seed), GlobalRewardConfig(seed=seed))
 
 
+def local_train_config(preset: str, seed: int):
+    from rba.labels import LocalLabelConfig
+    from rba.learn.local_reward import LocalRewardConfig
+    from rba.training import LocalTrainConfig
+
+    if preset == "tiny":
+        return LocalTrainConfig(LocalLabelConfig(seed=seed),
+                                LocalRewardConfig(steps=150, hidden=64, lstm_hidden=32, seed=seed))
+    return LocalTrainConfig(LocalLabelConfig(seed=seed), LocalRewardConfig(seed=seed))
+
+
+TRAIN_METHODS = ("global", "local", "all")
+
+
 def cmd_train(args) -> int:
-    from rba.training import train_global
+    from rba.training import train_global, train_local
 
     reps = ("onehot", "language") if args.rep == "all" else (args.rep,)
-    for rep in reps:
-        metrics = train_global(args.domain, rep, train_config(args.preset, args.seed))
-        print(json.dumps({"domain": args.domain, "rep": rep, **metrics}, indent=2))
+    methods = ("global", "local") if args.method == "all" else (args.method,)
+    for method in methods:
+        for rep in reps:
+            if method == "global":
+                metrics = train_global(args.domain, rep, train_config(args.preset, args.seed))
+            else:
+                metrics = train_local(args.domain, rep, local_train_config(args.preset, args.seed))
+            print(json.dumps({"domain": args.domain, "method": method, "rep": rep, **metrics}, indent=2))
     return 0
 
 
@@ -75,6 +94,16 @@ def cmd_eval(args) -> int:
     from rba.evaluate import evaluate, format_table
     from rba.storage import save_json
 
+    if args.all_methods:
+        from rba.embed import REPRESENTATIONS
+        from rba.interact import METHODS
+
+        runs = [(m, r) for m in METHODS for r in (("onehot",) if m == "pbrl" else REPRESENTATIONS)]
+        results = [evaluate(args.domain, m, r, args.targets, args.seed, args.precision, args.noise) for m, r in runs]
+        print(format_table(results))
+        if args.json:
+            save_json(Path(args.json), [r.to_json() for r in results])
+        return 0
     result = evaluate(args.domain, args.method, args.rep, args.targets, args.seed, args.precision, args.noise)
     print(format_table([result]))
     if args.json:
@@ -123,8 +152,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--workers", type=_positive, default=2, help="simulation processes")
     b.set_defaults(func=cmd_build)
 
-    t = sub.add_parser("train", help="train ζσ and rθ (RBA-Global) and write model cards")
+    t = sub.add_parser("train", help="train RBA-Global (ζσ, rθ) and/or RBA-Local (rθ) and write model cards")
     t.add_argument("domain", type=_domain)
+    t.add_argument("--method", choices=TRAIN_METHODS, default="all", help="which models to train")
     t.add_argument("--rep", choices=(*REPRESENTATIONS, "all"), default="all")
     t.add_argument("--preset", choices=PRESETS, default="default", help="'tiny' is the CI smoke preset")
     t.add_argument("--seed", type=int, default=0)
@@ -138,6 +168,8 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--seed", type=int, default=0)
     e.add_argument("--precision", choices=("normal", "high"), default="normal")
     e.add_argument("--noise", type=_noise, default=0.0, help="probability of flipping each answer")
+    e.add_argument("--all-methods", action="store_true",
+                   help="evaluate every method and representation (ignores --method/--rep); JSON is a list")
     e.add_argument("--json", help="write the full result (trials included) here")
     e.set_defaults(func=cmd_eval)
 

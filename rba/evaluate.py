@@ -10,7 +10,7 @@ import numpy as np
 
 from rba.domains import get_domain
 from rba.interact import SATISFIED, load_context, new_agent
-from rba.interact.users import SimulatedUser
+from rba.interact.users import PreferenceTeacher, SimulatedUser
 from rba.library import SkillLibrary
 
 log = logging.getLogger(__name__)
@@ -64,6 +64,32 @@ def run_trial(agent, user: SimulatedUser, serve: SkillLibrary, max_feedback: int
         rid = agent.update(answer)
 
 
+def run_preference_trial(agent, teacher: PreferenceTeacher, serve: SkillLibrary,
+                         max_feedback: int = MAX_FEEDBACK) -> Trial:
+    """PbRL's loop: show the argmax; if it is not the target, ask one A/B question and update.
+
+    ``feedback_count`` counts binary labels; success is judged on the shown rollout.
+    """
+    from rba.interact.pbrl_agent import Preference
+
+    trial = Trial(target=dict(zip(serve.attribute_names, map(float, teacher.target), strict=True)),
+                  success=False, feedback_count=0)
+    rid = agent.first_query()
+    while True:
+        i = serve.index_of(rid)
+        trial.shown_ids.append(rid)
+        trial.shown.append(serve.proxies_of(i))
+        if teacher.satisfied_with(i):
+            trial.success = True
+            return trial
+        if trial.feedback_count >= max_feedback:
+            return trial
+        a, b = agent.query_pair()
+        label = teacher.prefer(serve.index_of(a), serve.index_of(b))
+        trial.feedback_count += 1
+        rid = agent.update(Preference(a if label == 1.0 else b if label == 0.0 else None))
+
+
 def evaluate(domain_name: str, method: str, rep: str = "onehot", targets: int = 20, seed: int = 0,
              precision: str = "normal", noise: float = 0.0, data_root=None, models_root=None,
              context=None) -> EvalResult:
@@ -77,9 +103,15 @@ def evaluate(domain_name: str, method: str, rep: str = "onehot", targets: int = 
     start = time.perf_counter()
     trials = []
     for n, t in enumerate(chosen):
+        agent = new_agent(method, context)
+        if getattr(agent, "feedback_kind", "attribute") == "preference":
+            teacher = PreferenceTeacher(test.proxies[t], eps, serve.attribute_names, serve.proxies, noise,
+                                        seed=seed * 1000 + n)
+            trials.append(run_preference_trial(agent, teacher, serve))
+            continue
         user = SimulatedUser(test.proxies[t], eps, serve.attribute_names, serve.proxies, noise,
                              seed=seed * 1000 + n)
-        trials.append(run_trial(new_agent(method, context), user, serve))
+        trials.append(run_trial(agent, user, serve))
     fb = np.array([t.feedback_count for t in trials if t.success], dtype=float)
     return EvalResult(domain_name, method, rep, precision, noise, seed,
                       success_rate=float(np.mean([t.success for t in trials])),

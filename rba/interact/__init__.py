@@ -4,9 +4,13 @@ from __future__ import annotations
 
 from rba.interact.base import SATISFIED, Agent, AttributeFeedback, Feedback, validate_feedback
 from rba.interact.global_agent import GlobalAgent, GlobalContext
+from rba.interact.local_agent import LocalAgent, LocalContext
+from rba.interact.pbrl_agent import PbRLAgent, PbRLContext
 
 METHODS: dict[str, tuple[type[Agent], type]] = {
     "global": (GlobalAgent, GlobalContext),
+    "local": (LocalAgent, LocalContext),
+    "pbrl": (PbRLAgent, PbRLContext),
 }
 
 __all__ = ["METHODS", "SATISFIED", "Agent", "AttributeFeedback", "Feedback", "check_method", "load_context",

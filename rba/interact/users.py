@@ -43,3 +43,25 @@ class SimulatedUser:
                     s = -s
                 out.append(AttributeFeedback(name, int(s)))
         return out
+
+
+class PreferenceTeacher(SimulatedUser):
+    """The PbRL teacher: of two rollouts it prefers the one closer to the target.
+
+    Closeness is the Euclidean distance of the proxies after dividing each attribute by its ε,
+    so every attribute counts in units of the user's tolerance. Equal distances give 0.5
+    ("equally good"); otherwise ``noise`` flips the answer (as for attribute feedback).
+    """
+
+    def distance(self, rollout_index: int) -> float:
+        return float(np.linalg.norm((self.proxies[rollout_index] - self.target) / self.epsilon))
+
+    def prefer(self, a: int, b: int) -> float:
+        """P[a ≻ b] as the teacher answers it: 1.0 (a), 0.0 (b) or 0.5 (equal)."""
+        da, db = self.distance(a), self.distance(b)
+        if da == db:
+            return 0.5
+        label = 1.0 if da < db else 0.0
+        if self.noise and self.rng.random() < self.noise:
+            label = 1.0 - label
+        return label

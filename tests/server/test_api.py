@@ -8,7 +8,6 @@ from rba.embed import REPRESENTATIONS
 from server.catalog import attribute_methods
 from tests.server.conftest import more
 
-
 # -- domains ---------------------------------------------------------------------------------
 
 def test_domains_lists_attributes_and_available_models(client):
@@ -64,7 +63,8 @@ def test_malformed_json_is_422_with_a_reason(client):
 
 
 def test_unknown_session_is_404(client):
-    for method, path, body in [("get", "/api/sessions/nope", None), ("post", "/api/sessions/nope/feedback", more("pace", 0)),
+    for method, path, body in [("get", "/api/sessions/nope", None),
+                               ("post", "/api/sessions/nope/feedback", more("pace", 0)),
                                ("post", "/api/sessions/nope/abandon", None)]:
         r = client.request(method.upper(), path, json=body)
         assert r.status_code == 404, path
@@ -182,7 +182,8 @@ def test_clip_is_an_mp4_with_etag_and_ranges(client, session):
 
 @pytest.mark.parametrize(("path", "message"), [
     ("/api/clips/toy/serve-99999.mp4", "unknown rollout id 'serve-99999' in toy/serve; ids look like serve-00000"),
-    ("/api/clips/toy/..%2F..%2Fetc%2Fpasswd.mp4", "unknown rollout id '../../etc/passwd' in toy/serve"),
+    ("/api/clips/toy/..%5C..%5Cetc%5Cpasswd.mp4", r"unknown rollout id '..\\..\\etc\\passwd' in toy/serve"),
+    ("/api/clips/toy/..%2F..%2Fetc%2Fpasswd.mp4", "no API route /api/clips/toy/../../etc/passwd.mp4"),
     ("/api/clips/toy/train-00001.mp4", "unknown rollout id 'train-00001' in toy/serve"),
     ("/api/clips/atlantis/serve-00001.mp4", "unknown domain 'atlantis'; valid: walker, toy"),
     ("/api/clips/walker/serve-00001.mp4", "no serve library for 'walker'"),

@@ -1,0 +1,158 @@
+"""Walker: SR / AF of every method and representation beside the paper's Table 1, plus noisy users.
+
+Writes ``benchmarks/results/walker_methods.md`` (and a ``.json`` summary beside it). Needs the
+walker libraries and trained models (``rba build walker``; ``rba train walker``).
+
+    python benchmarks/walker_methods.py                 # 20 targets, seed 0, noise rows 0.1 and 0.2
+    python benchmarks/walker_methods.py --targets 5     # a quick look
+    python benchmarks/walker_methods.py --widths 512    # also retrain RBA-Local at the paper's MLP width
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import logging
+import platform
+import sys
+import tempfile
+from dataclasses import replace
+from pathlib import Path
+
+from rba.artifacts import ModelNotFoundError, load_model
+from rba.evaluate import EvalResult, evaluate
+from rba.interact import load_context
+from rba.learn.pbrl import PbRLConfig
+from rba.storage import save_json
+from rba.training import LocalTrainConfig, train_local
+
+log = logging.getLogger("walker_methods")
+
+RESULTS = Path(__file__).resolve().parent / "results"
+# Paper Table 1, walker column: SR, AF, std of AF
+PAPER = {
+    ("global", "onehot"): (1.0, 3.75, 1.47),
+    ("global", "language"): (0.95, 3.78, 2.25),
+    ("local", "onehot"): (0.95, 5.47, 3.52),
+    ("local", "language"): (0.90, 5.16, 3.08),
+    ("pbrl", "onehot"): (1.0, 84.6, 79.87),
+}
+LABELS = {("global", "onehot"): "RBA-Global", ("global", "language"): "RBA-Global-L",
+          ("local", "onehot"): "RBA-Local", ("local", "language"): "RBA-Local-L", ("pbrl", "onehot"): "PbRL"}
+
+
+def _af(r: EvalResult) -> str:
+    return "–" if r.avg_feedback is None else f"{r.avg_feedback:.2f} ({r.std_feedback:.2f})"
+
+
+def _paper(method: str, rep: str, noise: float) -> tuple[str, str]:
+    if noise or (method, rep) not in PAPER:
+        return "", ""
+    sr, af, sd = PAPER[(method, rep)]
+    return f"{sr:.2f}", f"{af:.2f} ({sd:.2f})"
+
+
+def _held_out(method: str, rep: str) -> str:
+    """One line from the model card: what the model measured on held-out data."""
+    try:
+        if method == "local":
+            card = load_model("walker", "local_reward", rep).card
+            h = card["held_out"]
+            return (f"local_reward-{rep}: target above negative {h['target_vs_negative']:.3f}, above anchor "
+                    f"{h['target_vs_anchor']:.3f} ({h['pairs']} test pairs); argmax over serve is a useful edit "
+                    f"{h['argmax_over_serve']['useful_edit_rate']:.2f} of the time; trained in "
+                    f"{card['training']['seconds']:.0f} s")
+        if method == "global":
+            card = load_model("walker", "global_reward", rep).card
+            return (f"global_reward-{rep}: argmax within ε of a test target "
+                    f"{card['held_out']['argmax_within_epsilon']:.2f}")
+    except FileNotFoundError:
+        return ""  # reported as "not measured"
+    if method == "pbrl":
+        cfg = PbRLConfig()
+        return (f"pbrl (online, no pretrained model): ensemble of {cfg.members} MLPs of width {cfg.hidden}, "
+                f"state stride {cfg.state_stride}, {cfg.steps_per_label} warm-started steps per label, pairs by "
+                f"{cfg.query} among the {cfg.candidates} best")
+    return ""
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--targets", type=int, default=20)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--noise", type=float, nargs="*", default=[0.1, 0.2], help="extra noise levels")
+    p.add_argument("--noise-methods", nargs="*", default=["global", "local"],
+                   help="methods that also get the noisy-user rows")
+    p.add_argument("--methods", nargs="*", default=["global", "local", "pbrl"])
+    p.add_argument("--widths", type=int, nargs="*", default=[],
+                   help="also train RBA-Local with these MLP widths (in a temporary folder) and evaluate them")
+    p.add_argument("--note", action="append", default=[], help="an extra line for the report's notes")
+    p.add_argument("--out", type=Path, default=RESULTS / "walker_methods.md")
+    args = p.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+
+    runs = [(m, r) for m in args.methods for r in (("onehot",) if m == "pbrl" else ("onehot", "language"))]
+    rows: list[tuple[str, EvalResult]] = []
+    missing = []
+    for method, rep in runs:
+        try:
+            ctx = load_context("walker", method, rep)
+        except ModelNotFoundError as exc:
+            log.warning("skipping %s %s: %s", method, rep, exc)
+            missing.append(f"{LABELS[(method, rep)]}: not measured ({exc})")
+            continue
+        for noise in [0.0, *(args.noise if method in args.noise_methods else [])]:
+            r = evaluate("walker", method, rep, args.targets, args.seed, noise=noise, context=ctx)
+            log.info("%s %s noise %.2f: SR %.2f AF %s in %.0f s", method, rep, noise, r.success_rate, _af(r),
+                     r.seconds)
+            rows.append((LABELS[(method, rep)], r))
+    width_notes = []
+    for width in args.widths:
+        for rep in ("onehot", "language"):
+            with tempfile.TemporaryDirectory() as tmp:
+                cfg = LocalTrainConfig()
+                cfg = replace(cfg, reward=replace(cfg.reward, hidden=width))
+                metrics = train_local("walker", rep, cfg, models_root=Path(tmp))
+                ctx = load_context("walker", "local", rep, None, Path(tmp))
+                r = evaluate("walker", "local", rep, args.targets, args.seed, context=ctx)
+            rows.append((f"{LABELS[('local', rep)]} (MLP {width})", r))
+            width_notes.append(f"local_reward-{rep} with MLP width {width}: target above negative "
+                               f"{metrics['local_reward']['target_vs_negative']:.3f}, useful edit "
+                               f"{metrics['argmax_over_serve']['useful_edit_rate']:.2f}; trained in "
+                               f"{metrics['seconds']['local_reward']:.0f} s")
+
+    lines = [
+        "# Walker: every method beside the paper's Table 1",
+        "",
+        f"{args.targets} held-out targets from `test` (seed {args.seed}), ε = the domain's normal precision, "
+        "500-feedback budget. AF is averaged over successful trials; PbRL counts binary A/B labels, the "
+        "others attribute-level feedbacks. Noise p: each non-zero answer (or A/B label) is flipped with "
+        "probability p.",
+        "",
+        "| method | rep | noise | SR | AF (std) | paper SR | paper AF (std) | seconds |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for label, r in rows:
+        psr, paf = _paper(r.method, r.rep, r.noise)
+        rep = "–" if r.method == "pbrl" else r.rep
+        lines.append(f"| {label} | {rep} | {r.noise:g} | {r.success_rate:.2f} | {_af(r)} | "
+                     f"{psr} | {paf} | {r.seconds:.0f} |")
+    notes = [n for n in (_held_out(m, r) for m, r in runs) if n] + width_notes + missing + args.note
+    given = sys.argv[1:] if argv is None else argv
+    shown = [a for i, a in enumerate(given) if a != "--note" and (i == 0 or given[i - 1] != "--note")]
+    command = " ".join(["python benchmarks/walker_methods.py", *shown, *(["--note …"] if args.note else [])])
+    lines += ["", "Models (from their cards):", "", *[f"- {n}" for n in notes], "",
+              f"Command: `{command}`; "
+              f"{dt.date.today().isoformat()}, Python {platform.python_version()}, CPU only.", ""]
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text("\n".join(lines))
+    save_json(args.out.with_suffix(".json"),
+              [{"label": label} | {k: v for k, v in r.to_json().items() if k != "trials"}
+               | {"feedback_counts": [t.feedback_count if t.success else None for t in r.trials]}
+               for label, r in rows])
+    print("\n".join(lines))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,99 @@
+"""Background work while people watch: a small pool that keeps only each key's latest job.
+
+A session submits one job per step (render the clips its possible next feedbacks would
+show). When the person answers before the job ran, the job is replaced, not queued behind:
+work for a clip nobody can see any more is wasted CPU on a 2-core machine.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+from collections import OrderedDict
+from collections.abc import Callable
+
+log = logging.getLogger(__name__)
+
+
+class Background:
+    """``workers`` daemon threads running the newest job per key, oldest key first.
+
+    ``nice`` > 0 lowers the threads' CPU priority, so guesses never slow down what people wait for.
+    """
+
+    def __init__(self, workers: int = 1, name: str = "rba-prerender", nice: int = 0) -> None:
+        self.nice = nice
+        self._cond = threading.Condition()
+        self._pending: OrderedDict[str, Callable[[], None]] = OrderedDict()
+        self._running = 0
+        self._stopping = False
+        self.done = 0
+        self.failed = 0
+        self._threads = [threading.Thread(target=self._work, name=f"{name}-{i}", daemon=True) for i in range(workers)]
+        for t in self._threads:
+            t.start()
+
+    def submit(self, key: str, job: Callable[[], None]) -> None:
+        """Queue ``job`` under ``key``, replacing a not-yet-started job with that key."""
+        with self._cond:
+            if self._stopping:
+                return
+            self._pending.pop(key, None)
+            self._pending[key] = job
+            self._cond.notify()
+
+    def cancel(self, key: str) -> None:
+        with self._cond:
+            self._pending.pop(key, None)
+
+    def wait_idle(self, timeout: float) -> bool:
+        """True once no job is queued or running (tests and benchmarks use it)."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while self._pending or self._running:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return False
+                self._cond.wait(left)
+        return True
+
+    def stop(self, timeout: float = 2.0) -> None:
+        """Drop queued jobs; give a running one ``timeout`` seconds (threads are daemons)."""
+        with self._cond:
+            self._stopping = True
+            self._pending.clear()
+            self._cond.notify_all()
+        deadline = time.monotonic() + timeout
+        for t in self._threads:
+            t.join(max(deadline - time.monotonic(), 0))
+
+    def _work(self) -> None:
+        if self.nice:  # Linux nices threads one by one; renderer threads and ffmpeg inherit it
+            try:
+                os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), self.nice)
+            except (AttributeError, OSError):
+                log.debug("could not lower the priority of %s", threading.current_thread().name)
+        while True:
+            with self._cond:
+                while not self._pending and not self._stopping:
+                    self._cond.wait()
+                if self._stopping:
+                    return
+                key, job = self._pending.popitem(last=False)
+                self._running += 1
+            try:
+                job()
+                self.done += 1
+            except Exception:  # a failed prerender only costs a later on-demand render
+                self.failed += 1
+                log.exception("background job %s failed", key)
+            finally:
+                with self._cond:
+                    self._running -= 1
+                    self._cond.notify_all()
+
+    @property
+    def stopping(self) -> bool:
+        return self._stopping

@@ -1,0 +1,140 @@
+"""What the server can offer: domains, which method/rep pairs have models, and the loaded contexts.
+
+Contexts (models + serve library) are heavy, so each (domain, method, rep) is loaded once,
+on first use, behind a per-key lock so that concurrent first requests load it once.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from rba.domains import Domain, domain_names, get_domain
+from rba.embed import REPRESENTATIONS
+from rba.interact import METHODS, load_context
+from rba.library import SkillLibrary
+from server.errors import invalid, not_found
+from server.locks import KeyedLocks
+from server.settings import Settings
+
+log = logging.getLogger(__name__)
+
+# Model kinds each method needs, for methods whose context class does not say (``MODEL_KINDS``).
+KNOWN_MODEL_KINDS: dict[str, tuple[str, ...]] = {"global": ("ranker", "global_reward")}
+
+
+def model_kinds(method: str, domain: str, rep: str, models_dir: Path) -> tuple[str, ...]:
+    """The ``<kind>`` parts of the model files ``method`` needs for ``rep``."""
+    ctx_cls = METHODS[method][1]
+    kinds = getattr(ctx_cls, "MODEL_KINDS", None)
+    if kinds is None:
+        kinds = KNOWN_MODEL_KINDS.get(method)
+    if kinds is not None:
+        return tuple(kinds)
+    # Unknown method: its models are named after it (local_reward-<rep>.pt, pbrl-<rep>.pt, ...).
+    found = sorted(p.stem.rsplit("-", 1)[0] for p in (models_dir / domain).glob(f"{method}*-{rep}.pt"))
+    return tuple(found) or (f"{method}_reward",)
+
+
+def attribute_methods() -> tuple[str, ...]:
+    """Methods whose agents take more/less feedback (PbRL asks A/B questions: not served here)."""
+    return tuple(m for m, (agent_cls, _) in METHODS.items()
+                 if getattr(agent_cls, "feedback_kind", "attribute") == "attribute")
+
+
+class Catalog:
+    """Domains, availability, serve libraries and agent contexts of one server."""
+
+    def __init__(self, settings: Settings) -> None:
+        self.settings = settings
+        self._contexts: dict[tuple[str, str, str], Any] = {}
+        self._libraries: dict[str, SkillLibrary] = {}
+        self._locks = KeyedLocks()
+        self._guard = threading.Lock()
+
+    # -- domains ---------------------------------------------------------------------------
+    def names(self) -> tuple[str, ...]:
+        return domain_names()
+
+    def domain(self, name: str) -> Domain:
+        """The domain called ``name``; 404 naming the valid ones otherwise."""
+        if name not in domain_names():
+            raise not_found(f"unknown domain {name!r}; valid: {', '.join(domain_names())}")
+        return get_domain(name)
+
+    def check_attribute(self, domain: Domain, name: str) -> None:
+        if name not in domain.attribute_names:
+            raise invalid(f"unknown attribute {name!r} for {domain.name}; valid: {', '.join(domain.attribute_names)}; "
+                          "directions: more, less")
+
+    # -- availability ----------------------------------------------------------------------
+    def has_library(self, domain: str) -> bool:
+        folder = self.settings.data_dir / domain
+        return (folder / "serve.npz").exists() and (folder / "serve.json").exists()
+
+    def available(self, domain: str) -> list[tuple[str, str]]:
+        """(method, rep) pairs whose serve library and model files (weights + card) all exist."""
+        if not self.has_library(domain):
+            return []
+        pairs = []
+        models = self.settings.models_dir
+        for method in attribute_methods():
+            for rep in REPRESENTATIONS:
+                paths = [models / domain / f"{kind}-{rep}.pt" for kind in model_kinds(method, domain, rep, models)]
+                if all(p.exists() and p.with_suffix(".json").exists() for p in paths):
+                    pairs.append((method, rep))
+        return pairs
+
+    def missing_reason(self, domain: str) -> str | None:
+        if not self.has_library(domain):
+            return f"no skill library under {self.settings.data_dir / domain}; run `rba build {domain}`"
+        if not self.available(domain):
+            return f"no trained models under {self.settings.models_dir / domain}; run `rba train {domain}`"
+        return None
+
+    def check_available(self, domain: str, method: str, rep: str) -> None:
+        """422 unless (method, rep) can serve ``domain``; the message lists what can."""
+        if domain not in domain_names():
+            raise invalid(f"unknown domain {domain!r}; valid: {', '.join(domain_names())}")
+        if method not in attribute_methods():
+            raise invalid(f"unknown method {method!r}; valid: {', '.join(attribute_methods())}")
+        if rep not in REPRESENTATIONS:
+            raise invalid(f"unknown rep {rep!r}; valid: {', '.join(REPRESENTATIONS)}")
+        pairs = self.available(domain)
+        if (method, rep) not in pairs:
+            have = ", ".join(f"{m}/{r}" for m, r in pairs) or f"none ({self.missing_reason(domain)})"
+            raise invalid(f"no trained {method}/{rep} models for {domain}; available: {have}")
+
+    # -- heavy objects ---------------------------------------------------------------------
+    def context(self, domain: str, method: str, rep: str) -> Any:
+        """The shared agent context (models + serve library), loaded once per key."""
+        key = (domain, method, rep)
+        ctx = self._contexts.get(key)
+        if ctx is not None:
+            return ctx
+        with self._locks(key):
+            ctx = self._contexts.get(key)
+            if ctx is None:
+                start = time.perf_counter()
+                ctx = load_context(domain, method, rep, self.settings.data_dir, self.settings.models_dir)
+                self._contexts[key] = ctx
+                log.info("loaded %s/%s/%s (model %s) in %.1f s", domain, method, rep, ctx.model_version,
+                         time.perf_counter() - start)
+        return ctx
+
+    def library(self, domain: str) -> SkillLibrary:
+        """The serve library of ``domain`` (shared with a loaded context when there is one)."""
+        lib = self._libraries.get(domain)
+        if lib is not None:
+            return lib
+        with self._locks(("library", domain)):
+            lib = self._libraries.get(domain)
+            if lib is None:
+                with self._guard:
+                    loaded = [c for (d, _, _), c in self._contexts.items() if d == domain]
+                lib = loaded[0].serve if loaded else SkillLibrary.load(domain, "serve", self.settings.data_dir)
+                self._libraries[domain] = lib
+        return lib

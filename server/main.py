@@ -1,0 +1,73 @@
+"""The FastAPI app (``create_app``) and ``rba serve`` (``run``)."""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from pathlib import Path
+
+from fastapi import FastAPI, HTTPException
+from fastapi.responses import FileResponse
+from fastapi.staticfiles import StaticFiles
+
+from server import errors
+from server.routes import clips, domains, sessions
+from server.services import Services
+from server.sessions import warm_up
+from server.settings import Settings
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+log = logging.getLogger(__name__)
+
+FRONTEND = Path(__file__).resolve().parents[1] / "frontend"
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """A new app; its database schema, clip cache and background workers start with its lifespan."""
+    settings = settings or Settings()
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        svc = Services.start(settings)
+        app.state.services = svc
+        if settings.warm_start and svc.renderer is not None:
+            svc.renderer.submit("warm-up", lambda: warm_up(svc))
+        log.info("RBA Studio: data %s, models %s, clips %s", settings.data_dir, settings.models_dir, settings.clip_dir)
+        try:
+            yield
+        finally:
+            svc.stop()
+
+    app = FastAPI(title="RBA Studio", version="0.1.0", lifespan=lifespan,
+                  description="Tune how an agent behaves by saying more / less of an attribute "
+                              "(Relative Behavioral Attributes, ICLR 2023).")
+    errors.install(app)
+    for router in (domains.router, sessions.router, clips.router):
+        app.include_router(router)
+
+    @app.api_route("/api/{rest:path}", methods=["GET", "POST", "PUT", "PATCH", "DELETE"], include_in_schema=False)
+    def unknown_api(rest: str) -> None:
+        raise HTTPException(404, f"no API route /api/{rest}; see /docs for the routes")
+
+    @app.get("/healthz", include_in_schema=False)
+    def healthz() -> dict[str, str]:
+        return {"status": "ok"}
+
+    @app.get("/", include_in_schema=False)
+    def index() -> FileResponse:
+        return FileResponse(FRONTEND / "index.html", headers={"Cache-Control": "no-cache"})
+
+    app.mount("/static", StaticFiles(directory=FRONTEND), name="static")
+    return app
+
+
+def run(host: str | None = None, port: int | None = None) -> None:
+    """``rba serve``: uvicorn with the app on ``host:port`` (defaults from the settings)."""
+    import uvicorn
+
+    settings = Settings()
+    logging.basicConfig(level=settings.log_level.upper(), format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    uvicorn.run(create_app(settings), host=host or settings.host, port=port or settings.port,
+                log_level=settings.log_level.lower())

@@ -1,0 +1,163 @@
+"""SQL tables (sessions, feedback events) and the API's request/response models.
+
+SQLModel's Base / table / Create / Public split: the table classes hold what must survive a
+restart (the agent's JSON state included); the Public classes are what the API returns.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import enum
+import uuid
+from typing import Any, Literal
+
+from pydantic import BaseModel, field_validator, model_validator
+from sqlalchemy import JSON, Column, DateTime, UniqueConstraint
+from sqlmodel import Field, SQLModel
+
+
+def utcnow() -> dt.datetime:
+    return dt.datetime.now(dt.UTC)
+
+
+def as_utc(value: dt.datetime) -> dt.datetime:
+    """SQLite hands back naive datetimes; everything stored is UTC, so say so in the API."""
+    return value.replace(tzinfo=dt.UTC) if value.tzinfo is None else value.astimezone(dt.UTC)
+
+
+def new_session_id() -> str:
+    return uuid.uuid4().hex
+
+
+class SessionStatus(enum.StrEnum):
+    active = "active"
+    satisfied = "satisfied"
+    abandoned = "abandoned"
+
+
+# -- sessions -------------------------------------------------------------------------------
+
+class SessionBase(SQLModel):
+    domain: str = Field(max_length=64, description="a domain from GET /api/domains, e.g. walker")
+    method: str = Field(default="global", max_length=32, description="agent: one of the domain's methods")
+    rep: str = Field(default="onehot", max_length=32, description="attribute representation: onehot or language")
+
+
+class SessionCreate(SessionBase):
+    """Body of POST /api/sessions."""
+
+
+class TuningSession(SessionBase, table=True):
+    """One person tuning one agent; ``agent_state`` is the agent's ``state_dict()``."""
+
+    __tablename__ = "rba_session"
+
+    id: str = Field(default_factory=new_session_id, primary_key=True, max_length=32)
+    model_version: str = Field(max_length=128)
+    status: str = Field(default=SessionStatus.active.value, max_length=16, index=True)
+    step: int = Field(default=0, ge=0)
+    current_rollout_id: str = Field(max_length=128)
+    agent_state: dict[str, Any] = Field(sa_column=Column(JSON, nullable=False))
+    created_at: dt.datetime = Field(default_factory=utcnow, sa_column=Column(DateTime(timezone=True), nullable=False))
+    updated_at: dt.datetime = Field(default_factory=utcnow, sa_column=Column(DateTime(timezone=True), nullable=False))
+
+
+class FeedbackEvent(SQLModel, table=True):
+    """One round of feedback: what was shown, what the person said, what came next."""
+
+    __tablename__ = "rba_feedback"
+    __table_args__ = (UniqueConstraint("session_id", "step", name="uq_feedback_session_step"),)
+
+    id: int | None = Field(default=None, primary_key=True)
+    session_id: str = Field(foreign_key="rba_session.id", index=True, max_length=32)
+    step: int = Field(ge=0)
+    feedback: Any = Field(sa_column=Column(JSON, nullable=False))  # [{"attribute", "direction"}] or "satisfied"
+    rollout_before: str = Field(max_length=128)
+    rollout_after: str = Field(max_length=128)
+    created_at: dt.datetime = Field(default_factory=utcnow, sa_column=Column(DateTime(timezone=True), nullable=False))
+
+
+# -- API bodies and responses -------------------------------------------------------------------
+
+Direction = Literal["more", "less"]
+
+
+class AttributeChoice(BaseModel):
+    attribute: str = Field(description="an attribute name of the session's domain, e.g. step_size")
+    direction: Direction = Field(description="'more' or 'less'")
+
+
+class FeedbackCreate(BaseModel):
+    """Body of POST /api/sessions/{id}/feedback: attribute feedback, or ``satisfied: true``."""
+
+    step: int = Field(ge=0, description="the session's current step (409 if it moved on)")
+    feedback: list[AttributeChoice] | None = Field(default=None, max_length=32)
+    satisfied: bool = False
+
+    @model_validator(mode="after")
+    def _one_kind(self) -> FeedbackCreate:
+        if self.satisfied and self.feedback:
+            raise ValueError("give either 'feedback' or 'satisfied': true, not both")
+        if not self.satisfied and not self.feedback:
+            raise ValueError("give 'feedback': [{'attribute': ..., 'direction': 'more' | 'less'}] "
+                             "or 'satisfied': true")
+        return self
+
+
+class AttributePublic(BaseModel):
+    name: str
+    description: str
+    unit: str
+    low: float | None = Field(default=None, description="smallest measured value in the serve library")
+    high: float | None = Field(default=None, description="largest measured value in the serve library")
+
+
+class MethodPublic(BaseModel):
+    method: str
+    rep: str
+
+
+class DomainPublic(BaseModel):
+    name: str
+    attributes: list[AttributePublic]
+    frame_rate: float
+    available: list[MethodPublic] = Field(description="method/rep pairs whose models and serve library exist")
+    missing: str | None = Field(default=None, description="why nothing is available, if so")
+
+
+class DomainsPublic(BaseModel):
+    domains: list[DomainPublic]
+    methods: list[str] = Field(description="every agent method the server offers (more/less feedback)")
+    reps: list[str] = Field(description="every attribute representation")
+
+
+class ClipPublic(BaseModel):
+    rollout_id: str
+    url: str
+    measured: dict[str, float] = Field(description="the clip's measured attribute values (proxies)")
+    ready: bool = Field(description="already rendered: the URL answers at once")
+
+
+class FeedbackPublic(BaseModel):
+    step: int
+    feedback: list[AttributeChoice] | None
+    satisfied: bool
+    rollout_before: ClipPublic
+    rollout_after: str
+    created_at: dt.datetime
+
+    _utc = field_validator("created_at")(as_utc)
+
+
+class SessionPublic(SessionBase):
+    id: str
+    model_version: str
+    status: SessionStatus
+    step: int
+    clip: ClipPublic
+    attributes: list[AttributePublic]
+    history: list[FeedbackPublic]
+    created_at: dt.datetime
+    updated_at: dt.datetime
+
+    _utc = field_validator("created_at", "updated_at")(as_utc)

@@ -1,0 +1,24 @@
+"""GET /api/domains: what can be tuned here, and with which methods."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter
+
+from rba.embed import REPRESENTATIONS
+from server.catalog import attribute_methods
+from server.deps import ServicesDep
+from server.models import DomainPublic, DomainsPublic, MethodPublic
+from server.sessions import attributes_public
+
+router = APIRouter(prefix="/api/domains", tags=["domains"])
+
+
+@router.get("", response_model=DomainsPublic, summary="List domains, their attributes and available methods")
+def list_domains(svc: ServicesDep) -> DomainsPublic:
+    domains = []
+    for name in svc.catalog.names():
+        domain = svc.catalog.domain(name)
+        available = [MethodPublic(method=m, rep=r) for m, r in svc.catalog.available(name)]
+        domains.append(DomainPublic(name=name, attributes=attributes_public(domain), frame_rate=domain.frame_rate,
+                                    available=available, missing=svc.catalog.missing_reason(name)))
+    return DomainsPublic(domains=domains, methods=list(attribute_methods()), reps=list(REPRESENTATIONS))

@@ -1,0 +1,86 @@
+"""What an agent would show next for a given state and feedback, computed on a copy and memoised.
+
+Agents are restored from their JSON state for every computation, so the session's stored
+state is never mutated by a guess. Results are keyed by (model, state hash, feedback):
+prerendering computes them while the person watches, and the real feedback request then
+finds its answer already there. Sessions in the same state (every session starts in the
+same state) share entries.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import json
+import threading
+from collections import OrderedDict
+from typing import Any
+
+from rba.interact import SATISFIED, AttributeFeedback, Feedback, new_agent, restore_agent
+
+FeedbackKey = tuple[tuple[str, int], ...] | str
+
+
+def state_hash(state: dict) -> str:
+    return hashlib.sha256(json.dumps(state, sort_keys=True, separators=(",", ":")).encode()).hexdigest()[:32]
+
+
+def feedback_key(feedback: Feedback) -> FeedbackKey:
+    if feedback == SATISFIED:
+        return SATISFIED
+    return tuple(sorted((fb.attribute, fb.direction) for fb in feedback))
+
+
+class Transitions:
+    """An LRU memo of agent steps: (context, state, feedback) -> (next rollout id, next state)."""
+
+    def __init__(self, maxsize: int = 4096) -> None:
+        self.maxsize = maxsize
+        self._memo: OrderedDict[tuple, tuple[str, dict]] = OrderedDict()
+        self._lock = threading.Lock()
+        self.hits = 0
+        self.misses = 0
+
+    @staticmethod
+    def _key(ctx: Any, method: str, state: dict, feedback: Feedback) -> tuple:
+        return (ctx.domain, method, ctx.rep, ctx.model_version, state_hash(state), feedback_key(feedback))
+
+    def first(self, ctx: Any, method: str) -> tuple[str, dict]:
+        """A new agent's first rollout and state (agents are deterministic: every session starts alike)."""
+        key = (ctx.domain, method, ctx.rep, ctx.model_version, "first")
+        with self._lock:
+            hit = self._memo.get(key)
+            if hit is not None:
+                self.hits += 1
+                return hit[0], copy.deepcopy(hit[1])
+        agent = new_agent(method, ctx)
+        rollout_id = agent.first_query()
+        state = json.loads(json.dumps(agent.state_dict()))
+        with self._lock:
+            self.misses += 1
+            self._memo[key] = (rollout_id, state)
+        return rollout_id, copy.deepcopy(state)
+
+    def advance(self, ctx: Any, method: str, state: dict, feedback: Feedback) -> tuple[str, dict]:
+        """The next rollout id and agent state after ``feedback``; raises ValueError for bad feedback."""
+        key = self._key(ctx, method, state, feedback)
+        with self._lock:
+            hit = self._memo.get(key)
+            if hit is not None:
+                self._memo.move_to_end(key)
+                self.hits += 1
+                return hit[0], copy.deepcopy(hit[1])
+        agent = restore_agent(copy.deepcopy(state), ctx)
+        rollout_id = agent.update(feedback)
+        new_state = json.loads(json.dumps(agent.state_dict()))  # exactly what the database will hold
+        with self._lock:
+            self.misses += 1
+            self._memo[key] = (rollout_id, new_state)
+            while len(self._memo) > self.maxsize:
+                self._memo.popitem(last=False)
+        return rollout_id, copy.deepcopy(new_state)
+
+
+def to_feedback(choices: list[tuple[str, str]]) -> list[AttributeFeedback]:
+    """API choices ``[(attribute, "more" | "less")]`` as the library's feedback records."""
+    return [AttributeFeedback(a, 1 if d == "more" else -1) for a, d in choices]

@@ -1,0 +1,123 @@
+"""The clip cache renders once per key; prerendering fills it without touching the session's agent."""
+
+from __future__ import annotations
+
+import threading
+
+from fastapi.testclient import TestClient
+
+from rba.interact import AttributeFeedback
+from rba.library import SkillLibrary
+from server import transitions
+from server.background import Background
+from server.clips import ClipCache, ClipKey
+from server.main import create_app
+from server.sessions import candidate_order
+from tests.server.conftest import more
+
+
+def test_concurrent_requests_for_one_clip_render_it_once(toy_roots, tmp_path):
+    data, _, _ = toy_roots
+    lib = SkillLibrary.load("toy", "serve", data)
+    cache = ClipCache(tmp_path / "clips", 64, 48, concurrency=2)
+    key = cache.key(lib, "serve-00007")
+    barrier = threading.Barrier(6)
+    paths = []
+
+    def fetch() -> None:
+        barrier.wait()
+        paths.append(cache.get(key, lib))
+
+    threads = [threading.Thread(target=fetch) for _ in range(6)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert cache.renders == 1
+    assert len(set(paths)) == 1 and paths[0].stat().st_size > 0
+    assert paths[0].parent == tmp_path / "clips" / "toy" and paths[0].name.endswith("-64x48.mp4")
+    assert "serve" not in paths[0].name  # file names come from validated parts and a hash, not from ids
+    assert not list(paths[0].parent.glob(".*.tmp"))
+
+
+def test_clip_keys_only_accept_library_ids(toy_roots, tmp_path):
+    data, _, _ = toy_roots
+    lib = SkillLibrary.load("toy", "serve", data)
+    cache = ClipCache(tmp_path / "clips", 64, 48)
+    try:
+        cache.key(lib, "../serve-00001")
+    except KeyError as exc:
+        assert "unknown rollout id" in str(exc)
+    else:
+        raise AssertionError("a rollout id outside the library was accepted")
+
+
+def test_prerendering_renders_every_next_clip_and_leaves_the_agent_alone(make_settings, monkeypatch):
+    settings = make_settings(prerender=True)
+    with TestClient(create_app(settings)) as client:
+        svc = client.app.state.services
+        s = client.post("/api/sessions", json={"domain": "toy"}).json()
+        assert svc.wait_idle(60)
+        stored = client.get(f"/api/sessions/{s['id']}").json()
+        assert stored["step"] == 0 and stored["clip"] == {**s["clip"], "ready": True}
+        assert svc.clips.renders >= 2  # the current clip and at least two distinct candidates
+        computed_in: list[str] = []  # threads that ran an agent from now on
+        real_restore = transitions.restore_agent
+
+        def spy(state, ctx):
+            computed_in.append(threading.current_thread().name)
+            return real_restore(state, ctx)
+
+        monkeypatch.setattr(transitions, "restore_agent", spy)
+        r = client.post(f"/api/sessions/{s['id']}/feedback", json=more("pace", 0, "less"))
+        assert r.status_code == 200
+        assert r.json()["clip"]["ready"] is True  # rendered while we "watched"
+        assert svc.wait_idle(60)
+        assert all(name.startswith("rba-think") for name in computed_in)  # the answer was precomputed
+        assert svc.thinker.failed == 0 and svc.renderer.failed == 0
+
+
+def test_warm_start_renders_the_first_clip(make_settings):
+    with TestClient(create_app(make_settings(warm_start=True))) as client:
+        svc = client.app.state.services
+        assert svc.wait_idle(60)
+        s = client.post("/api/sessions", json={"domain": "toy"}).json()
+        assert s["clip"]["ready"] is True
+
+
+def test_background_keeps_only_the_newest_job_per_key():
+    gate, ran = threading.Event(), []
+    bg = Background(workers=1)
+    try:
+        bg.submit("blocker", gate.wait)  # occupies the only worker
+        for step in range(5):
+            bg.submit("session", lambda step=step: ran.append(step))
+        gate.set()
+        assert bg.wait_idle(10)
+        assert ran == [4]  # the steps nobody can see any more were never worked on
+    finally:
+        bg.stop()
+
+
+def test_candidates_start_with_the_last_answer():
+    order = candidate_order(("amplitude", "pace"), [AttributeFeedback("pace", -1)])
+    assert [(fb.attribute, fb.direction) for fb in order] == [("pace", -1), ("pace", 1), ("amplitude", 1),
+                                                              ("amplitude", -1)]
+    assert len(candidate_order(("amplitude", "pace"), None)) == 4
+
+
+def test_background_renders_give_way_to_requested_ones(tmp_path):
+    cache = ClipCache(tmp_path, 64, 48)
+    key = ClipKey("toy", "abc123", "serve-00001", 64, 48)
+    frames, out = cache._yielding(key, iter(range(3))), []
+    assert next(frames) == 0  # nothing requested is rendering: frames flow
+    with cache._running_urgent():  # a person's clip is rendering
+        t = threading.Thread(target=lambda: out.append(next(frames)))
+        t.start()
+        t.join(0.3)
+        assert t.is_alive() and out == []  # the speculative render waits
+        cache._want(key, 1)  # ... unless someone waits for this very clip
+        t.join(5)
+        assert out == [1]
+        cache._want(key, -1)
+    assert next(frames) == 2
