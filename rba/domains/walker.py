@@ -578,6 +578,8 @@ class Walker(Domain):
         data = mujoco.MjData(model)
         model.vis.global_.offwidth = max(int(model.vis.global_.offwidth), int(width))
         model.vis.global_.offheight = max(int(model.vis.global_.offheight), int(height))
+        model.vis.quality.shadowsize = 512  # px; the default 4096 shadow map dominates software rendering
+        model.vis.quality.offsamples = 0  # no multisampling: 2.6x faster clips, no visible difference at 320x240
         renderer = mujoco.Renderer(model, height=int(height), width=int(width))
         try:
             cam = mujoco.MjvCamera()
