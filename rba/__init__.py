@@ -1,0 +1,1 @@
+"""RBA Studio: tune agent behaviour with relative behavioural attributes (ICLR 2023)."""
