@@ -45,15 +45,25 @@ class EvalResult:
         return asdict(self)
 
 
+def _new_trial(serve: SkillLibrary, target) -> Trial:
+    return Trial(target=dict(zip(serve.attribute_names, map(float, target), strict=True)),
+                 success=False, feedback_count=0)
+
+
+def _record_shown(trial: Trial, serve: SkillLibrary, rollout_id: str) -> int:
+    """Log what the user is shown (id and true proxies); return its library index."""
+    i = serve.index_of(rollout_id)
+    trial.shown_ids.append(rollout_id)
+    trial.shown.append(serve.proxies_of(i))
+    return i
+
+
 def run_trial(agent, user: SimulatedUser, serve: SkillLibrary, max_feedback: int = MAX_FEEDBACK) -> Trial:
     """Show, listen, update until the user is satisfied or the feedback budget is spent."""
-    trial = Trial(target=dict(zip(serve.attribute_names, map(float, user.target), strict=True)),
-                  success=False, feedback_count=0)
+    trial = _new_trial(serve, user.target)
     rid = agent.first_query()
     while True:
-        i = serve.index_of(rid)
-        trial.shown_ids.append(rid)
-        trial.shown.append(serve.proxies_of(i))
+        i = _record_shown(trial, serve, rid)
         answer = user.respond(i)
         if answer == SATISFIED:
             trial.success = True
@@ -72,13 +82,10 @@ def run_preference_trial(agent, teacher: PreferenceTeacher, serve: SkillLibrary,
     """
     from rba.interact.pbrl_agent import Preference
 
-    trial = Trial(target=dict(zip(serve.attribute_names, map(float, teacher.target), strict=True)),
-                  success=False, feedback_count=0)
+    trial = _new_trial(serve, teacher.target)
     rid = agent.first_query()
     while True:
-        i = serve.index_of(rid)
-        trial.shown_ids.append(rid)
-        trial.shown.append(serve.proxies_of(i))
+        i = _record_shown(trial, serve, rid)
         if teacher.satisfied_with(i):
             trial.success = True
             return trial
