@@ -57,15 +57,21 @@ def _progress(name: str):
     return report
 
 
+def _training_inputs(domain_name: str, rep: str, data_root: Path | None):
+    """What every trainer starts from: the domain, its three splits, e_α for each attribute, card entries."""
+    check_rep(rep)
+    domain = get_domain(domain_name)
+    libs = tuple(SkillLibrary.load(domain_name, s, data_root) for s in ("train", "serve", "test"))
+    embed = attribute_embeddings([a.description for a in domain.attributes], rep)
+    attrs = [{"name": a.name, "description": a.description, "unit": a.unit} for a in domain.attributes]
+    return domain, libs, embed, attrs
+
+
 def train_global(domain_name: str, rep: str, cfg: GlobalTrainConfig | None = None,
                  data_root: Path | None = None, models_root: Path | None = None) -> dict:
     """Train, evaluate and save ``ranker-<rep>`` and ``global_reward-<rep>``; return the metrics."""
     cfg = cfg or GlobalTrainConfig()
-    check_rep(rep)
-    domain = get_domain(domain_name)
-    train, serve, test = (SkillLibrary.load(domain_name, s, data_root) for s in ("train", "serve", "test"))
-    embed = attribute_embeddings([a.description for a in domain.attributes], rep)
-    attrs = [{"name": a.name, "description": a.description, "unit": a.unit} for a in domain.attributes]
+    domain, (train, serve, test), embed, attrs = _training_inputs(domain_name, rep, data_root)
 
     t0 = time.perf_counter()
     ranker, rstats = train_ranker(train, embed, cfg.ranker, progress=_progress(f"ranker[{rep}]"))
@@ -126,11 +132,7 @@ def train_local(domain_name: str, rep: str, cfg: LocalTrainConfig | None = None,
     test anchor and asked edit.
     """
     cfg = cfg or LocalTrainConfig()
-    check_rep(rep)
-    domain = get_domain(domain_name)
-    train, serve, test = (SkillLibrary.load(domain_name, s, data_root) for s in ("train", "serve", "test"))
-    embed = attribute_embeddings([a.description for a in domain.attributes], rep)
-    attrs = [{"name": a.name, "description": a.description, "unit": a.unit} for a in domain.attributes]
+    domain, (train, serve, test), embed, attrs = _training_inputs(domain_name, rep, data_root)
     eps = domain.epsilons()
     pairs = local_pairs(train.proxies, eps, domain.attribute_names, cfg.labels)
     log.info("local pairs from train: %s", pair_counts(pairs, domain.attribute_names))

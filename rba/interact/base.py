@@ -44,6 +44,13 @@ class Agent(ABC):
     def first_query(self) -> str:
         """The first rollout to show."""
 
+    def _is_satisfied(self, feedback: Feedback, attribute_names: tuple[str, ...]) -> bool:
+        """Shared preamble of ``update``: order of calls and feedback validity checked once, here."""
+        if getattr(self, "shown", None) is None:
+            raise RuntimeError("update() before first_query()")
+        validate_feedback(feedback, attribute_names)
+        return feedback == SATISFIED
+
     @abstractmethod
     def update(self, feedback: Feedback) -> str:
         """Take one round of feedback about the rollout shown last; return the next to show."""

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rba.artifacts import load_model
-from rba.interact.base import SATISFIED, Agent, Feedback, validate_feedback
+from rba.interact.base import Agent, Feedback
 from rba.learn.common import Ragged
 from rba.learn.global_reward import LibraryScorer
 from rba.library import SkillLibrary
@@ -110,10 +110,7 @@ class GlobalAgent(Agent):
         return self.ctx.serve.ids[self.shown]
 
     def update(self, feedback: Feedback) -> str:
-        if self.shown is None:
-            raise RuntimeError("update() before first_query()")
-        validate_feedback(feedback, self.ctx.attribute_names)
-        if feedback == SATISFIED:
+        if self._is_satisfied(feedback, self.ctx.attribute_names):
             return self.ctx.serve.ids[self.shown]
         z = self.ctx.serve_zeta[self.shown]
         asked = [(self.ctx.attribute_names.index(fb.attribute), fb.direction) for fb in feedback]

@@ -30,7 +30,7 @@ import numpy as np
 import torch
 
 from rba.artifacts import load_model
-from rba.interact.base import SATISFIED, Agent, Feedback, validate_feedback
+from rba.interact.base import Agent, Feedback
 from rba.learn.common import Ragged
 from rba.learn.local_reward import LocalLibraryScorer
 from rba.library import SkillLibrary
@@ -91,10 +91,7 @@ class LocalAgent(Agent):
         return self.ctx.serve.ids[self.shown]
 
     def update(self, feedback: Feedback) -> str:
-        if self.shown is None:
-            raise RuntimeError("update() before first_query()")
-        validate_feedback(feedback, self.ctx.attribute_names)
-        if feedback == SATISFIED:
+        if self._is_satisfied(feedback, self.ctx.attribute_names):
             return self.ctx.serve.ids[self.shown]
         self.seen.append(self.shown)
         anchor = self.shown
