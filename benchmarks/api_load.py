@@ -42,6 +42,8 @@ from pathlib import Path
 
 import httpx
 
+from rba.storage import save_text
+
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"
 HOST = "127.0.0.1"  # loopback only
@@ -313,8 +315,8 @@ def main(argv: list[str] | None = None) -> int:
         "goals": judge(results),
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.with_suffix(".json").write_text(json.dumps(report, indent=2) + "\n")
-    args.out.with_suffix(".md").write_text(markdown(report))
+    save_text(args.out.with_suffix(".json"), json.dumps(report, indent=2) + "\n")
+    save_text(args.out.with_suffix(".md"), markdown(report))
     log.info("wrote %s.json and %s.md", args.out, args.out)
     return 0
 

@@ -23,7 +23,7 @@ from rba.artifacts import ModelNotFoundError, load_model
 from rba.evaluate import EvalResult, evaluate
 from rba.interact import load_context
 from rba.learn.pbrl import PbRLConfig
-from rba.storage import save_json
+from rba.storage import save_json, save_text
 from rba.training import LocalTrainConfig, train_local
 
 log = logging.getLogger("walker_methods")
@@ -145,7 +145,7 @@ def main(argv: list[str] | None = None) -> int:
               f"Command: `{command}`; "
               f"{dt.date.today().isoformat()}, Python {platform.python_version()}, CPU only.", ""]
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text("\n".join(lines))
+    save_text(args.out, "\n".join(lines))
     save_json(args.out.with_suffix(".json"),
               [{"label": label} | {k: v for k, v in r.to_json().items() if k != "trials"}
                | {"feedback_counts": [t.feedback_count if t.success else None for t in r.trials]}

@@ -29,6 +29,11 @@ def write_atomic(path: Path, write) -> None:
         raise
 
 
+def save_text(path: Path, text: str) -> None:
+    """Write ``text`` (UTF-8) atomically: reports and notes are never half-written."""
+    write_atomic(Path(path), lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
+
+
 def save_json(path: Path, obj: Any) -> None:
     def write(tmp: str) -> None:
         with open(tmp, "w") as f:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -15,6 +16,7 @@ from rba.artifacts import save_model
 from rba.domains import get_domain
 from rba.embed import attribute_embeddings, check_rep
 from rba.labels import LocalLabelConfig, local_pairs, pair_counts
+from rba.labelsets import LabelSet, merge_pairs
 from rba.learn.common import Ragged
 from rba.learn.global_reward import GlobalRewardConfig, LibraryScorer, train_global_reward
 from rba.learn.local_reward import (
@@ -24,7 +26,7 @@ from rba.learn.local_reward import (
     pair_metrics,
     train_local_reward,
 )
-from rba.learn.ranker import RankerConfig, ranking_metrics, train_ranker
+from rba.learn.ranker import AttributeLabels, RankerConfig, proxy_labels, ranking_metrics, train_ranker
 from rba.library import SkillLibrary
 
 log = logging.getLogger(__name__)
@@ -51,37 +53,121 @@ def argmax_match_rate(scorer: LibraryScorer, serve: SkillLibrary, target_zeta: n
     return float(np.mean(hits))
 
 
-def _progress(name: str):
+Progress = Callable[[str, int, int, float], None]  # (stage, step, total steps, loss)
+
+
+def _progress(name: str, on_progress: Progress | None = None):
     def report(step: int, total: int, loss: float) -> None:
         log.info("%s step %d/%d loss %.4f", name, step, total, loss)
+        if on_progress is not None:
+            on_progress(name, step, total, loss)
     return report
 
 
-def _training_inputs(domain_name: str, rep: str, data_root: Path | None):
+def _training_inputs(domain_name: str, rep: str, data_root: Path | None, extra_attributes=()):
     """What every trainer starts from: the domain, its three splits, e_α for each attribute, card entries."""
     check_rep(rep)
     domain = get_domain(domain_name)
     libs = tuple(SkillLibrary.load(domain_name, s, data_root) for s in ("train", "serve", "test"))
-    embed = attribute_embeddings([a.description for a in domain.attributes], rep)
     attrs = [{"name": a.name, "description": a.description, "unit": a.unit} for a in domain.attributes]
+    attrs += [{"name": a.name, "description": a.description, "unit": ""} for a in extra_attributes]
+    embed = attribute_embeddings([a["description"] for a in attrs], rep)
     return domain, libs, embed, attrs
 
 
+@dataclass
+class LabelSource:
+    """Labels from an agent designer, with the trajectories uploaded beside them (name -> float[T, D])."""
+
+    labels: LabelSet
+    trajectories: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+class _Pool:
+    """Every trajectory a ranker can learn from: train, serve, then uploaded ones; refs -> rows."""
+
+    def __init__(self, train: SkillLibrary, serve: SkillLibrary, sources: list[LabelSource]) -> None:
+        self.library_index = {rid: i for i, rid in enumerate(train.ids)}
+        self.library_index |= {rid: len(train) + i for i, rid in enumerate(serve.ids)}
+        arrays = [train.states, serve.states]
+        offsets = [train.state_offsets[:-1], serve.state_offsets[:-1] + len(train.states)]
+        self.uploaded: list[dict[str, int]] = []
+        n, rows = len(train) + len(serve), len(train.states) + len(serve.states)
+        for src in sources:
+            names = {}
+            for name, traj in src.trajectories.items():
+                names[name] = n
+                arrays.append(np.asarray(traj, dtype=np.float32))
+                offsets.append(np.array([rows]))
+                n, rows = n + 1, rows + len(traj)
+            self.uploaded.append(names)
+        self.data = Ragged.from_numpy(np.concatenate(arrays), np.concatenate([*offsets, [rows]]))
+
+    def index(self, source: int, ref: str) -> int:
+        return self.uploaded[source].get(ref, self.library_index.get(ref, -1))
+
+    def pairs(self, sources: list[LabelSource], attribute: str) -> list[list[tuple[int, int]]]:
+        return [[(self.index(i, hi), self.index(i, lo)) for hi, lo in src.labels.pairs(attribute)]
+                for i, src in enumerate(sources)]
+
+
+def _split_pairs(labels, seed: int, held_out: float = 0.2):
+    """(train labels, held-out (more, less) pairs): a seeded share of the pairs is kept for measuring."""
+    hi, lo = np.nonzero(labels.more)
+    pairs = np.stack([labels.clips[hi], labels.clips[lo]], 1)
+    rng = np.random.default_rng(seed)
+    test = rng.random(len(pairs)) < held_out
+    if test.sum() < 5 or (~test).sum() == 0:
+        return labels, pairs[:0]
+    return AttributeLabels.from_pairs([tuple(p) for p in pairs[~test]]), pairs[test]
+
+
 def train_global(domain_name: str, rep: str, cfg: GlobalTrainConfig | None = None,
-                 data_root: Path | None = None, models_root: Path | None = None) -> dict:
-    """Train, evaluate and save ``ranker-<rep>`` and ``global_reward-<rep>``; return the metrics."""
+                 data_root: Path | None = None, models_root: Path | None = None,
+                 sources: list[LabelSource] | None = None, on_progress: Progress | None = None) -> dict:
+    """Train, evaluate and save ``ranker-<rep>`` and ``global_reward-<rep>``; return the metrics.
+
+    The domain's attributes are labelled by proxy (``max_labelled`` train clips), plus what
+    ``sources`` say about them; attributes that ``sources`` declare new are labelled by
+    ``sources`` alone, and a fifth of their pairs is held out to measure ζσ on.
+    """
     cfg = cfg or GlobalTrainConfig()
-    domain, (train, serve, test), embed, attrs = _training_inputs(domain_name, rep, data_root)
+    sources = sources or []
+    declared = {a.name: a for src in sources for a in src.labels.new_attributes}
+    domain, (train, serve, test), embed, attrs = _training_inputs(domain_name, rep, data_root, declared.values())
+    pool = _Pool(train, serve, sources)
+    builtin = proxy_labels(train, cfg.ranker.max_labelled, cfg.ranker.seed)
+    labels, held_out_pairs = [], {}
+    for a, spec in enumerate(attrs):
+        given = pool.pairs(sources, spec["name"])
+        if a < len(builtin):
+            base = builtin[a]
+            hi, lo = np.nonzero(base.more)
+            labels.append(merge_pairs([list(zip(base.clips[hi], base.clips[lo], strict=True)), *given]))
+        else:
+            merged = merge_pairs(given)
+            fit, held_out_pairs[spec["name"]] = _split_pairs(merged, cfg.ranker.seed)
+            labels.append(fit)
 
     t0 = time.perf_counter()
-    ranker, rstats = train_ranker(train, embed, cfg.ranker, progress=_progress(f"ranker[{rep}]"))
+    ranker, rstats = train_ranker(pool.data, labels, embed, cfg.ranker,
+                                  progress=_progress(f"ranker[{rep}]", on_progress))
     ranker_seconds = time.perf_counter() - t0
     test_zeta = ranker.score_library(test)
-    rmetrics = ranking_metrics(test_zeta, test.proxies, domain.attribute_names)
-    log.info("ranker[%s] on test: %s", rep, rmetrics)
-    train_zeta = ranker.score_library(train)
+    k = len(domain.attributes)
+    rmetrics = ranking_metrics(test_zeta[:, :k], test.proxies, domain.attribute_names)
+    pool_zeta = ranker.score(pool.data)
+    for name, pairs in held_out_pairs.items():
+        a = next(i for i, spec in enumerate(attrs) if spec["name"] == name)
+        acc = float(np.mean(pool_zeta[pairs[:, 0], a] > pool_zeta[pairs[:, 1], a])) if len(pairs) else None
+        rmetrics[name] = {"held_out_pair_accuracy": acc, "held_out_pairs": len(pairs)}
+    log.info("ranker[%s] held out: %s", rep, rmetrics)
+    train_zeta = pool_zeta[: len(train)]
     common = {"domain": domain_name, "representation": rep, "attributes": attrs,
               "data": {"train": train.version, "serve": serve.version, "test": test.version}}
+    if sources:
+        common["labels"] = {"sources": len(sources), "uploaded_trajectories": len(pool.data) - len(train) - len(serve),
+                            "new_attributes": sorted(declared)}
     save_model(ranker, {**common, "kind": "ranker", "weights_sha": weights_sha(ranker),
                         "architecture": {"state_dim": domain.state_dim, "num_attributes": len(attrs),
                                          "embed_dim": int(embed.shape[1]), "hidden": cfg.ranker.hidden,
@@ -89,13 +175,10 @@ def train_global(domain_name: str, rep: str, cfg: GlobalTrainConfig | None = Non
                         "training": {**rstats, "seconds": round(ranker_seconds, 1)},
                         "held_out": {"split": "test", "rollouts": len(test), **rmetrics}}, models_root)
 
-    # rθ learns from ζσ labels only: all train + serve trajectories, no proxies.
-    states = np.concatenate([train.states, serve.states])
-    offsets = np.concatenate([train.state_offsets, serve.state_offsets[1:] + train.state_offsets[-1]])
-    data = Ragged.from_numpy(states, offsets)
-    zeta = np.concatenate([train_zeta, ranker.score_library(serve)])
+    # rθ learns from ζσ labels only: every pooled trajectory (train, serve, uploaded), no proxies.
     t0 = time.perf_counter()
-    reward, gstats = train_global_reward(data, zeta, cfg.reward, progress=_progress(f"global_reward[{rep}]"))
+    reward, gstats = train_global_reward(pool.data, pool_zeta, cfg.reward,
+                                         progress=_progress(f"global_reward[{rep}]", on_progress))
     reward_seconds = time.perf_counter() - t0
     scorer = LibraryScorer(reward, Ragged.from_numpy(serve.states, serve.state_offsets))
     match = {p: argmax_match_rate(scorer, serve, test_zeta, test.proxies, domain.epsilons(p))

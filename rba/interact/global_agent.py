@@ -32,6 +32,7 @@ GRID = 401  # belief grid points per attribute
 TAIL = 0.5  # the grid extends this fraction of the train ζ range beyond each end
 TAIL_DENSITY = 0.05  # prior density beyond the train range, relative to inside it
 ERROR_RATE = 0.1  # assumed probability that an answer is wrong
+SHORTLIST = 64  # rollouts nearest the target in ζσ space that rθ ranks (None: the whole library)
 
 
 @dataclass
@@ -46,6 +47,7 @@ class GlobalContext:
     bounds: np.ndarray  # float64[2, k]: min / max ζσ over train
     scorer: LibraryScorer
     model_version: str
+    shortlist: int | None = SHORTLIST
 
     @classmethod
     def load(cls, domain: str, rep: str, data_root=None, models_root=None) -> GlobalContext:
@@ -56,8 +58,22 @@ class GlobalContext:
         zeta = ranker.model.score(data)
         bounds = np.array(reward.card["zeta_bounds"], dtype=np.float64)
         version = f"{ranker.card['weights_sha']}-{reward.card['weights_sha']}"
-        return cls(domain, rep, serve.attribute_names, serve, zeta, bounds,
+        names = tuple(a["name"] for a in reward.card["attributes"])  # may include attributes admins added
+        return cls(domain, rep, names, serve, zeta, bounds,
                    LibraryScorer(reward.model, data), version)
+
+    def candidates(self, target: np.ndarray, exclude: np.ndarray) -> np.ndarray | None:
+        """The ``shortlist`` non-excluded rollouts nearest ``target`` in ζσ space (ranges scaled to 1).
+
+        rθ then ranks only these: ~20x less work per query than the whole library, and the
+        nearest rollouts in ζσ are where the target's behaviour is (see benchmarks/walker_methods.md).
+        """
+        if self.shortlist is None or self.shortlist >= len(self.serve):
+            return None
+        scale = np.maximum(self.bounds[1] - self.bounds[0], 1e-9)
+        dist = np.linalg.norm((self.serve_zeta - target) / scale, axis=1)
+        dist[exclude] = np.inf
+        return np.argpartition(dist, self.shortlist)[: self.shortlist]
 
     def grid(self, a: int) -> np.ndarray:
         lo, hi = self.bounds[:, a]
@@ -103,7 +119,7 @@ class GlobalAgent(Agent):
     def _argmax(self) -> int:
         exclude = np.zeros(len(self.ctx.serve), dtype=bool)
         exclude[self.rejected] = True
-        return self.ctx.scorer.argmax(self.target, exclude)
+        return self.ctx.scorer.argmax(self.target, exclude, self.ctx.candidates(self.target, exclude))
 
     def first_query(self) -> str:
         self.shown = self._argmax()

@@ -54,8 +54,9 @@ class LocalContext:
         art = load_model(domain, "local_reward", rep, models_root)
         serve = SkillLibrary.load(domain, "serve", data_root)
         scorer = LocalLibraryScorer(art.model, Ragged.from_numpy(serve.states, serve.state_offsets))
-        return cls(domain, rep, serve.attribute_names, serve, scorer, float(art.card["near_copy_radius"]),
-                   medoid(scorer.phi), art.card["weights_sha"])
+        names = tuple(a["name"] for a in art.card["attributes"])
+        return cls(domain, rep, names, serve, scorer, float(art.card["near_copy_radius"]), medoid(scorer.phi),
+                   art.card["weights_sha"])
 
     def edit(self, anchor: int, attr: int, direction: int, exclude: list[int] | None = None) -> int:
         """The serve rollout that best makes the minimal change (attr, direction) to rollout ``anchor``."""

@@ -31,6 +31,7 @@ class GlobalRewardConfig:
     steps: int = 1000  # gradient steps (cosine-decayed learning rate)
     batch_trajectories: int = 48  # trajectories per step
     batch_targets: int = 16  # targets per step; every trajectory pair is compared for every target
+    neighbours: int = 0  # per near-target, add this many of its ζ-nearest trajectories (close calls)
     slack: float = 0.05  # ξ_r, in standardised ζ units
     target_noise: float = 0.1  # std of the jitter added to v(τ0), standardised units
     uniform_targets: float = 0.5  # fraction of targets drawn uniformly from the ζ box
@@ -75,7 +76,7 @@ class LibraryScorer:
     """Σ_t rθ(s_t | v) for every trajectory of a library, fast for repeated queries.
 
     The state features of the whole library are computed once; a query costs the layers
-    after the first only.
+    after the first only, over every trajectory or over a ``candidates`` subset of them.
     """
 
     def __init__(self, model: GlobalReward, data: Ragged, chunk: int = 32768) -> None:
@@ -83,20 +84,34 @@ class LibraryScorer:
         self.seg = data.segment_ids()
         self.n = len(data)
         with torch.no_grad():
-            self.features = torch.cat([model.state_features(data.states[i:i + chunk])
-                                       for i in range(0, len(data.states), chunk)])
+            features = torch.cat([model.state_features(data.states[i:i + chunk])
+                                  for i in range(0, len(data.states), chunk)])
+        self.features = Ragged(features, data.offsets)  # per-state first-layer features, same layout
 
     @torch.no_grad()
-    def returns(self, zeta_target: np.ndarray) -> np.ndarray:
-        """float64[N]: the return of every trajectory under rθ(·|v_t = standardised ζ target)."""
-        v = self.model.zeta_norm(torch.as_tensor(np.asarray(zeta_target), dtype=torch.float32)).unsqueeze(0)
-        r = self.model.rewards(self.features, v)[0]
-        return segment_sum(r, self.seg, self.n).double().numpy()
+    def returns(self, zeta_target: np.ndarray, candidates: np.ndarray | None = None) -> np.ndarray:
+        """float64[N]: every trajectory's return under rθ(·|v_t = standardised ζ target).
 
-    def argmax(self, zeta_target: np.ndarray, exclude: np.ndarray | None = None) -> int:
-        ret = self.returns(zeta_target)
-        if exclude is not None and exclude.any() and not exclude.all():
-            ret[exclude] = -np.inf
+        With ``candidates`` (indices), only those are scored; the others get −inf.
+        """
+        v = self.model.zeta_norm(torch.as_tensor(np.asarray(zeta_target), dtype=torch.float32)).unsqueeze(0)
+        if candidates is None:
+            r = self.model.rewards(self.features.states, v)[0]
+            return segment_sum(r, self.seg, self.n).double().numpy()
+        idx = torch.as_tensor(np.asarray(candidates), dtype=torch.int64)
+        feats, seg = self.features.select(idx)
+        out = np.full(self.n, -np.inf)
+        out[idx.numpy()] = segment_sum(self.model.rewards(feats, v)[0], seg, len(idx)).double().numpy()
+        return out
+
+    def argmax(self, zeta_target: np.ndarray, exclude: np.ndarray | None = None,
+               candidates: np.ndarray | None = None) -> int:
+        """The best trajectory for the target, skipping ``exclude`` (bool[N]) unless that excludes all."""
+        ret = self.returns(zeta_target, candidates)
+        if exclude is not None and exclude.any():
+            kept = np.where(exclude, -np.inf, ret)
+            if np.isfinite(kept).any():
+                ret = kept
         return int(np.argmax(ret))
 
 
@@ -118,15 +133,18 @@ def train_global_reward(data: Ragged, zeta: np.ndarray, cfg: GlobalRewardConfig,
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(cfg.steps, 1))
     m, b = min(cfg.batch_trajectories, n), cfg.batch_targets
+    knn = torch.cdist(v_all, v_all).argsort(1)[:, 1:cfg.neighbours + 1] if cfg.neighbours else None
     loss_val = float("nan")
     for step in range(cfg.steps):
         idx = torch.randperm(n, generator=gen)[:m]
+        if knn is not None:  # the ordering that matters at the argmax is among close neighbours
+            idx = torch.cat([idx, knn[idx[:b]].flatten()])  # a repeat only re-weights its pairs
         # targets near some of the batch's own trajectories (close calls) or anywhere in the ζ box
         vt = v_all[idx[:b]] + cfg.target_noise * torch.randn(b, k, generator=gen)
         uniform = torch.rand(b, generator=gen) < cfg.uniform_targets
         vt[uniform] = lo + (hi - lo) * torch.rand(int(uniform.sum()), k, generator=gen)
         states, seg = data.select(idx)
-        returns = segment_sum(model.rewards(model.state_features(states), vt), seg, m)  # [B, M]
+        returns = segment_sum(model.rewards(model.state_features(states), vt), seg, len(idx))  # [B, M]
         dist = torch.cdist(vt, v_all[idx])  # [B, M]
         gap = dist[:, None, :] - dist[:, :, None]  # gap[b, i, j] = d_j − d_i > 0: i is closer
         mask = torch.triu(gap.abs() > cfg.slack, diagonal=1)

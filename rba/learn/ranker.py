@@ -4,9 +4,10 @@ The clip is soft (c·tanh(x / c), c = 20 as in the paper): a hard clamp has zero
 once a sum saturates, and with ~100 states per clip a freshly initialised fσ saturates at
 once and never recovers. The last layer also starts small, so sums start near zero.
 
-Trained with the Bradley-Terry loss on attribute orderings of at most ``max_labelled``
-``train`` clips (paper §4.2, eq. 3), the orderings coming from the domain's proxies (the
-stand-in for an agent designer's labels).
+Trained with the Bradley-Terry loss (paper §4.2, eq. 3) on ``AttributeLabels``: for each
+attribute, which labelled trajectory shows more of it than which. By default they are the
+orderings by proxy of at most ``max_labelled`` ``train`` clips (the stand-in for an agent
+designer's labels); admins add orderings and comparisons of their own (``rba.labelsets``).
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ class RankerConfig:
     clip: float = 20.0  # ζ is clipped to [-clip, clip] as in the paper
     max_labelled: int = 200  # labelled train clips (the paper's label budget)
     steps: int = 400  # gradient steps (cosine-decayed learning rate)
-    batch_clips: int = 64  # labelled clips per step; the loss covers every pair among them
+    batch_clips: int = 64  # labelled clips per step and attribute; the loss covers every labelled pair among them
     lr: float = 1e-3
     weight_decay: float = 1e-5
     seed: int = 0
@@ -96,38 +97,86 @@ def labelled_subset(lib: SkillLibrary, max_labelled: int, seed: int) -> np.ndarr
     return np.sort(rng.choice(len(lib), size=n, replace=False))
 
 
-def all_pairs_loss(scores: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
-    """Bradley-Terry loss over every pair (i, j) of a batch whose true values differ."""
-    diff = values[:, None] - values[None, :]
-    mask = torch.triu(diff != 0, diagonal=1)
-    logits = (scores[:, None] - scores[None, :])[mask]
-    return F.binary_cross_entropy_with_logits(logits, (diff[mask] > 0).float())
+@dataclass
+class AttributeLabels:
+    """One attribute's labels: which labelled trajectory shows more of it than which."""
+
+    clips: np.ndarray  # int64[m]: the labelled trajectories (indices into the training data)
+    more: np.ndarray  # bool[m, m]: more[i, j] = clips[i] shows more of the attribute than clips[j]
+
+    def __post_init__(self) -> None:
+        m = len(self.clips)
+        if self.more.shape != (m, m):
+            raise ValueError(f"more must be [{m}, {m}], got {list(self.more.shape)}")
+        if (self.more & self.more.T).any():
+            raise ValueError("contradictory labels: some pair is labelled both ways")
+
+    @classmethod
+    def from_values(cls, clips: np.ndarray, values: np.ndarray) -> AttributeLabels:
+        """A total order by ``values`` (ties stay unlabelled): how proxies label clips."""
+        values = np.asarray(values, dtype=np.float64)
+        return cls(np.asarray(clips, dtype=np.int64), values[:, None] > values[None, :])
+
+    @classmethod
+    def from_pairs(cls, pairs: list[tuple[int, int]]) -> AttributeLabels:
+        """From (more, less) trajectory pairs; orderings become the pairs they imply."""
+        clips = np.unique(np.asarray(pairs, dtype=np.int64).reshape(-1))
+        pos = {int(c): i for i, c in enumerate(clips)}
+        more = np.zeros((len(clips), len(clips)), dtype=bool)
+        for hi, lo in pairs:
+            more[pos[int(hi)], pos[int(lo)]] = True
+        return cls(clips, more)
+
+    @property
+    def num_pairs(self) -> int:
+        return int(self.more.sum())
 
 
-def train_ranker(train: SkillLibrary, attr_embed: np.ndarray, cfg: RankerConfig,
+def proxy_labels(lib: SkillLibrary, max_labelled: int, seed: int) -> list[AttributeLabels]:
+    """Every attribute's ordering, by proxy, of the same ``max_labelled`` clips of ``lib``."""
+    idx = labelled_subset(lib, max_labelled, seed)
+    return [AttributeLabels.from_values(idx, lib.proxies[idx, a]) for a in range(lib.proxies.shape[1])]
+
+
+def labelled_pairs_loss(scores: torch.Tensor, more: torch.Tensor) -> torch.Tensor:
+    """Bradley-Terry loss over every labelled pair (i more than j) of a batch."""
+    return F.binary_cross_entropy_with_logits((scores[:, None] - scores[None, :])[more],
+                                              torch.ones(int(more.sum())))
+
+
+def train_ranker(data: Ragged, labels: list[AttributeLabels], attr_embed: np.ndarray, cfg: RankerConfig,
                  progress=None) -> tuple[AttributeRanker, dict]:
-    """Fit ζσ on orderings (by proxy) of ``cfg.max_labelled`` train clips; returns the model and stats.
+    """Fit ζσ on ``labels`` (one entry per row of ``attr_embed``); returns the model and stats.
 
-    Each step scores a batch of labelled clips once per attribute and takes the loss over
-    every pair in the batch: the same compute as a few pairs, many times the signal.
+    Each step scores a batch of each attribute's labelled clips and takes the loss over every
+    labelled pair in the batch: the same compute as a few pairs, many times the signal.
     """
+    if len(labels) != len(attr_embed):
+        raise ValueError(f"{len(labels)} label sets for {len(attr_embed)} attributes")
+    if empty := [a for a, lab in enumerate(labels) if lab.num_pairs == 0]:
+        raise ValueError(f"attributes {empty} have no labelled pairs")
     gen = seed_everything(cfg.seed)
     torch.set_num_threads(2)
-    idx = labelled_subset(train, cfg.max_labelled, cfg.seed)
-    lab = train.subset(idx)
-    data = Ragged.from_numpy(lab.states, lab.state_offsets)
-    proxies = torch.as_tensor(lab.proxies, dtype=torch.float32)
-    model = AttributeRanker(train.states.shape[1], torch.as_tensor(attr_embed), cfg.hidden, cfg.layers, cfg.clip)
-    model.norm.fit(lab.states)
+    model = AttributeRanker(data.states.shape[1], torch.as_tensor(attr_embed), cfg.hidden, cfg.layers, cfg.clip)
+    used = torch.as_tensor(np.unique(np.concatenate([lab.clips for lab in labels])))
+    model.norm.fit(data.select(used)[0].numpy())
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(cfg.steps, 1))
-    k, n = proxies.shape[1], len(lab)
+    clips = [torch.as_tensor(lab.clips) for lab in labels]
+    more = [torch.as_tensor(lab.more) for lab in labels]
     loss_val = float("nan")
     for step in range(cfg.steps):
-        batch = torch.randperm(n, generator=gen)[: cfg.batch_clips]
-        states, seg = data.select(batch)
-        loss = sum(all_pairs_loss(model.trajectory_scores(states, seg, len(batch), a), proxies[batch, a])
-                   for a in range(k)) / k
+        losses = []
+        for a in range(len(labels)):
+            batch = torch.randperm(len(clips[a]), generator=gen)[: cfg.batch_clips]
+            pairs = more[a][batch][:, batch]
+            if not pairs.any():
+                continue
+            states, seg = data.select(clips[a][batch])
+            losses.append(labelled_pairs_loss(model.trajectory_scores(states, seg, len(batch), a), pairs))
+        if not losses:
+            continue
+        loss = sum(losses) / len(losses)
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -136,7 +185,8 @@ def train_ranker(train: SkillLibrary, attr_embed: np.ndarray, cfg: RankerConfig,
         if progress and (step % 50 == 0 or step == cfg.steps - 1):
             progress(step + 1, cfg.steps, loss_val)
     model.eval()
-    return model, {"labelled_clips": int(n), "final_loss": round(loss_val, 5), "config": asdict(cfg)}
+    stats = {"labelled_clips": len(used), "labelled_pairs": [lab.num_pairs for lab in labels]}
+    return model, {**stats, "final_loss": round(loss_val, 5), "config": asdict(cfg)}
 
 
 def ranking_metrics(zeta: np.ndarray, proxies: np.ndarray, attribute_names) -> dict[str, dict[str, float]]:
