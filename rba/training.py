@@ -32,10 +32,20 @@ from rba.library import SkillLibrary
 log = logging.getLogger(__name__)
 
 
+PRESETS = ("default", "tiny")  # 'tiny': minutes-long smoke runs (CI, tests)
+
+
 @dataclass
 class GlobalTrainConfig:
     ranker: RankerConfig = field(default_factory=RankerConfig)
     reward: GlobalRewardConfig = field(default_factory=GlobalRewardConfig)
+
+    @classmethod
+    def preset(cls, name: str, seed: int = 0) -> GlobalTrainConfig:
+        if name == "tiny":
+            return cls(RankerConfig(steps=80, hidden=64, seed=seed),
+                       GlobalRewardConfig(steps=120, hidden=64, seed=seed))
+        return cls(RankerConfig(seed=seed), GlobalRewardConfig(seed=seed))
 
 
 def weights_sha(model: torch.nn.Module) -> str:
@@ -204,6 +214,12 @@ class LocalTrainConfig:
 
     labels: LocalLabelConfig = field(default_factory=LocalLabelConfig)
     reward: LocalRewardConfig = field(default_factory=LocalRewardConfig)
+
+    @classmethod
+    def preset(cls, name: str, seed: int = 0) -> LocalTrainConfig:
+        if name == "tiny":
+            return cls(LocalLabelConfig(seed=seed), LocalRewardConfig(steps=150, hidden=64, lstm_hidden=32, seed=seed))
+        return cls(LocalLabelConfig(seed=seed), LocalRewardConfig(seed=seed))
 
 
 def train_local(domain_name: str, rep: str, cfg: LocalTrainConfig | None = None,

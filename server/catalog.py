@@ -12,10 +12,13 @@ import time
 from pathlib import Path
 from typing import Any
 
+from rba.artifacts import model_path
 from rba.domains import Domain, domain_names, get_domain
 from rba.embed import REPRESENTATIONS
 from rba.interact import METHODS, load_context
 from rba.library import SkillLibrary
+from rba.storage import load_json
+from server.admin_models import BUILTIN_VERSION
 from server.errors import invalid, not_found
 from server.locks import KeyedLocks
 from server.settings import Settings
@@ -65,22 +68,37 @@ class Catalog:
             raise not_found(f"unknown domain {name!r}; valid: {', '.join(domain_names())}")
         return get_domain(name)
 
-    def check_attribute(self, domain: Domain, name: str) -> None:
-        if name not in domain.attribute_names:
-            raise invalid(f"unknown attribute {name!r} for {domain.name}; valid: {', '.join(domain.attribute_names)}; "
+    def check_attribute(self, domain: Domain, name: str, valid: tuple[str, ...] | None = None) -> None:
+        valid = valid or domain.attribute_names
+        if name not in valid:
+            raise invalid(f"unknown attribute {name!r} for {domain.name}; valid: {', '.join(valid)}; "
                           "directions: more, less")
+
+    # -- model versions --------------------------------------------------------------------
+    def models_root(self, version: str = BUILTIN_VERSION) -> Path:
+        """Where a version's models are: the shipped ones, or models/versions/<version>/ (job-written)."""
+        if version == BUILTIN_VERSION:
+            return self.settings.models_dir
+        return self.settings.models_dir / "versions" / version
+
+    def card_attributes(self, domain: str, method: str, rep: str, version: str = BUILTIN_VERSION) -> list[dict]:
+        """The attributes (name, description, unit) the models of ``version`` were trained for."""
+        root = self.models_root(version)
+        kind = model_kinds(method, domain, rep, root)[0]
+        card = load_json(model_path(domain, kind, rep, root).with_suffix(".json"))
+        return list(card["attributes"])
 
     # -- availability ----------------------------------------------------------------------
     def has_library(self, domain: str) -> bool:
         folder = self.settings.data_dir / domain
         return (folder / "serve.npz").exists() and (folder / "serve.json").exists()
 
-    def available(self, domain: str) -> list[tuple[str, str]]:
+    def available(self, domain: str, version: str = BUILTIN_VERSION) -> list[tuple[str, str]]:
         """(method, rep) pairs whose serve library and model files (weights + card) all exist."""
         if not self.has_library(domain):
             return []
         pairs = []
-        models = self.settings.models_dir
+        models = self.models_root(version)
         for method in attribute_methods():
             for rep in REPRESENTATIONS:
                 paths = [models / domain / f"{kind}-{rep}.pt" for kind in model_kinds(method, domain, rep, models)]
@@ -109,9 +127,9 @@ class Catalog:
             raise invalid(f"no trained {method}/{rep} models for {domain}; available: {have}")
 
     # -- heavy objects ---------------------------------------------------------------------
-    def context(self, domain: str, method: str, rep: str) -> Any:
+    def context(self, domain: str, method: str, rep: str, version: str = BUILTIN_VERSION) -> Any:
         """The shared agent context (models + serve library), loaded once per key."""
-        key = (domain, method, rep)
+        key = (domain, method, rep, version)
         ctx = self._contexts.get(key)
         if ctx is not None:
             return ctx
@@ -119,7 +137,7 @@ class Catalog:
             ctx = self._contexts.get(key)
             if ctx is None:
                 start = time.perf_counter()
-                ctx = load_context(domain, method, rep, self.settings.data_dir, self.settings.models_dir)
+                ctx = load_context(domain, method, rep, self.settings.data_dir, self.models_root(version))
                 self._contexts[key] = ctx
                 log.info("loaded %s/%s/%s (model %s) in %.1f s", domain, method, rep, ctx.model_version,
                          time.perf_counter() - start)
@@ -134,7 +152,7 @@ class Catalog:
             lib = self._libraries.get(domain)
             if lib is None:
                 with self._guard:
-                    loaded = [c for (d, _, _), c in self._contexts.items() if d == domain]
+                    loaded = [c for (d, *_), c in self._contexts.items() if d == domain]
                 lib = loaded[0].serve if loaded else SkillLibrary.load(domain, "serve", self.settings.data_dir)
                 self._libraries[domain] = lib
         return lib

@@ -5,11 +5,11 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-from sqlalchemy import event
+from sqlalchemy import event, inspect, text
 from sqlalchemy.engine import Engine, make_url
 from sqlmodel import SQLModel, create_engine
 
-from server import models  # noqa: F401  (registers the tables on SQLModel.metadata)
+from server import admin_models, models  # noqa: F401  (registers the tables on SQLModel.metadata)
 
 log = logging.getLogger(__name__)
 
@@ -32,5 +32,19 @@ def make_engine(url: str) -> Engine:
     else:
         engine = create_engine(url, pool_pre_ping=True, pool_size=10, max_overflow=20)
     SQLModel.metadata.create_all(engine)
+    _add_columns(engine)
     log.info("database ready: %s", parsed.render_as_string(hide_password=True))
     return engine
+
+
+# Columns added after a table first shipped: (table, column, DDL type + default). create_all makes
+# missing tables only, so databases from older versions get these added in place at start-up.
+ADDED_COLUMNS = [("rba_session", "model_set", "VARCHAR(64) NOT NULL DEFAULT 'builtin'")]
+
+
+def _add_columns(engine: Engine) -> None:
+    for table, column, ddl in ADDED_COLUMNS:
+        if column not in {c["name"] for c in inspect(engine).get_columns(table)}:
+            with engine.begin() as conn:
+                conn.execute(text(f"ALTER TABLE {table} ADD COLUMN {column} {ddl}"))
+            log.info("database: added %s.%s", table, column)

@@ -17,6 +17,7 @@ from sqlmodel import Session, select
 from rba.domains import Domain
 from rba.interact import SATISFIED, AttributeFeedback, Feedback
 from rba.library import LibraryNotFoundError
+from server.admin_models import BUILTIN_VERSION
 from server.errors import conflict, invalid, not_found
 from server.models import (
     AttributeChoice,
@@ -33,6 +34,7 @@ from server.models import (
 )
 from server.services import Services
 from server.transitions import to_feedback
+from server.versions import serving_version
 
 log = logging.getLogger(__name__)
 
@@ -52,8 +54,9 @@ def clip_public(svc: Services, domain: str, rollout_id: str) -> ClipPublic:
     return ClipPublic(rollout_id=rollout_id, url=clip_url(domain, rollout_id), measured=lib.proxies_of(i), ready=ready)
 
 
-def attributes_public(domain: Domain, svc: Services | None = None) -> list[AttributePublic]:
-    """The domain's attributes; with ``svc``, also each one's measured range over the serve library."""
+def attributes_public(domain: Domain, svc: Services | None = None,
+                      specs: list[dict] | None = None) -> list[AttributePublic]:
+    """The domain's attributes (or ``specs`` from a model card); with ``svc``, also measured ranges."""
     ranges: dict[str, tuple[float, float]] = {}
     if svc is not None:
         try:
@@ -62,10 +65,12 @@ def attributes_public(domain: Domain, svc: Services | None = None) -> list[Attri
             ranges = {a: (float(lo[j]), float(hi[j])) for j, a in enumerate(lib.attribute_names)}
         except LibraryNotFoundError:
             pass
+    specs = specs if specs is not None else [{"name": a.name, "description": a.description, "unit": a.unit}
+                                             for a in domain.attributes]
     out = []
-    for a in domain.attributes:
-        low, high = ranges.get(a.name, (None, None))
-        out.append(AttributePublic(name=a.name, description=a.description, unit=a.unit, low=low, high=high))
+    for a in specs:
+        low, high = ranges.get(a["name"], (None, None))
+        out.append(AttributePublic(name=a["name"], description=a["description"], unit=a["unit"], low=low, high=high))
     return out
 
 
@@ -83,8 +88,13 @@ def _history(svc: Services, db: Session, s: TuningSession) -> list[FeedbackPubli
 
 def session_public(svc: Services, db: Session, s: TuningSession) -> SessionPublic:
     domain = svc.catalog.domain(s.domain)
+    try:
+        specs = svc.catalog.card_attributes(s.domain, s.method, s.rep, s.model_set)
+    except (FileNotFoundError, KeyError):  # its models were deleted: show the domain's own attributes
+        specs = None
     return SessionPublic(id=s.id, domain=s.domain, method=s.method, rep=s.rep, model_version=s.model_version,
-                         status=SessionStatus(s.status), step=s.step, attributes=attributes_public(domain, svc),
+                         model_set=s.model_set, status=SessionStatus(s.status), step=s.step,
+                         attributes=attributes_public(domain, svc, specs),
                          clip=clip_public(svc, s.domain, s.current_rollout_id),
                          history=_history(svc, db, s), created_at=s.created_at, updated_at=s.updated_at)
 
@@ -98,10 +108,11 @@ def load_session(db: Session, session_id: str) -> TuningSession:
 
 def create_session(svc: Services, db: Session, body: SessionCreate) -> SessionPublic:
     svc.catalog.check_available(body.domain, body.method, body.rep)
-    ctx = svc.catalog.context(body.domain, body.method, body.rep)
+    version = serving_version(svc, db, body.domain, body.method, body.rep)
+    ctx = svc.catalog.context(body.domain, body.method, body.rep, version)
     rollout_id, state = svc.transitions.first(ctx, body.method)
     s = TuningSession(domain=body.domain, method=body.method, rep=body.rep, model_version=ctx.model_version,
-                      current_rollout_id=rollout_id, agent_state=state)
+                      model_set=version, current_rollout_id=rollout_id, agent_state=state)
     db.add(s)
     db.commit()
     db.refresh(s)
@@ -110,12 +121,12 @@ def create_session(svc: Services, db: Session, body: SessionCreate) -> SessionPu
     return session_public(svc, db, s)
 
 
-def _feedback(svc: Services, domain: Domain, body: FeedbackCreate) -> Feedback:
+def _feedback(svc: Services, domain: Domain, valid: tuple[str, ...], body: FeedbackCreate) -> Feedback:
     if body.satisfied:
         return SATISFIED
     seen: set[str] = set()
     for c in body.feedback or ():
-        svc.catalog.check_attribute(domain, c.attribute)
+        svc.catalog.check_attribute(domain, c.attribute, valid)
         if c.attribute in seen:
             raise invalid(f"attribute {c.attribute!r} appears more than once; give each attribute at most once")
         seen.add(c.attribute)
@@ -132,8 +143,8 @@ def give_feedback(svc: Services, db: Session, session_id: str, body: FeedbackCre
             raise conflict(f"step {body.step} is stale: session {s.id} is at step {s.step}; "
                            "GET the session and answer about the clip it shows now")
         domain = svc.catalog.domain(s.domain)
-        feedback = _feedback(svc, domain, body)
-        ctx = svc.catalog.context(s.domain, s.method, s.rep)
+        ctx = svc.catalog.context(s.domain, s.method, s.rep, s.model_set)
+        feedback = _feedback(svc, domain, ctx.attribute_names, body)
         if ctx.model_version != s.model_version:
             raise conflict(f"the served model changed since session {s.id} started ({s.model_version} -> "
                            f"{ctx.model_version}); start a new session")
@@ -189,10 +200,14 @@ def candidate_order(attributes: tuple[str, ...], last: Feedback | None) -> list[
                                            else 1 if any(fb.attribute == a for a, _ in asked) else 2))
 
 
-def next_clips(svc: Services, domain: str, method: str, rep: str, state: dict, last: Feedback | None,
+def next_clips(svc: Services, key: tuple[str, str, str, str], state: dict, last: Feedback | None,
                stale: Callable[[], bool]) -> list[str]:
-    """The rollout each possible single next feedback would show, most likely first (computed on copies)."""
-    ctx = svc.catalog.context(domain, method, rep)
+    """The rollout each possible single next feedback would show, most likely first (computed on copies).
+
+    ``key`` is (domain, method, rep, model version).
+    """
+    ctx = svc.catalog.context(*key)
+    method = key[1]
     nexts: list[str] = []
     for fb in candidate_order(ctx.attribute_names, last):
         if stale():
@@ -219,7 +234,7 @@ def schedule_prerender(svc: Services, s: TuningSession, last: Feedback | None) -
     if svc.thinker is None or svc.renderer is None or not svc.settings.prerender:
         return
     session_id, step, shown = s.id, s.step, s.current_rollout_id
-    domain, method, rep, state = s.domain, s.method, s.rep, s.agent_state
+    key, state = (s.domain, s.method, s.rep, s.model_set), s.agent_state
     svc.prerendering[session_id] = step
     renderer = svc.renderer
 
@@ -227,9 +242,9 @@ def schedule_prerender(svc: Services, s: TuningSession, last: Feedback | None) -
         return svc.stopping or svc.prerendering.get(session_id) != step
 
     def think() -> None:
-        nexts = next_clips(svc, domain, method, rep, state, last, stale)
+        nexts = next_clips(svc, key, state, last, stale)
         if not stale():
-            renderer.submit(session_id, lambda: render_clips(svc, domain, [shown, *nexts], stale))
+            renderer.submit(session_id, lambda: render_clips(svc, key[0], [shown, *nexts], stale))
 
     svc.thinker.submit(session_id, think)
 
@@ -261,10 +276,9 @@ def warm_up(svc: Services) -> None:
                 ctx = svc.catalog.context(name, method, rep)
                 rollout_id, state = svc.transitions.first(ctx, method)
                 render_clips(svc, name, [rollout_id], lambda: svc.stopping)
-                starts.append((name, method, rep, state))
+                starts.append(((name, method, rep, BUILTIN_VERSION), state))
             except Exception:
                 log.exception("warm-up of %s/%s/%s failed", name, method, rep)
     if svc.settings.prerender:
-        for name, method, rep, state in starts:
-            render_clips(svc, name, next_clips(svc, name, method, rep, state, None, lambda: svc.stopping),
-                         lambda: svc.stopping)
+        for key, state in starts:
+            render_clips(svc, key[0], next_clips(svc, key, state, None, lambda: svc.stopping), lambda: svc.stopping)

@@ -3,18 +3,19 @@
 import pytest
 
 from rba.artifacts import load_model
-from rba.cli import main, train_config
+from rba.cli import main
 from rba.evaluate import evaluate
 from rba.library import SkillLibrary, build_all
 from rba.paths import REPO_ROOT
-from rba.training import train_global
+from rba.training import GlobalTrainConfig, train_global
 
 
 @pytest.mark.slow
 def test_tiny_preset_end_to_end(tmp_path):
     data, models = tmp_path / "data", tmp_path / "models"
     build_all("walker", seed=5, sizes={"train": 80, "serve": 160, "test": 12}, root=data, progress=False)
-    metrics = train_global("walker", "onehot", train_config("tiny", seed=0), data_root=data, models_root=models)
+    cfg = GlobalTrainConfig.preset("tiny", seed=0)
+    metrics = train_global("walker", "onehot", cfg, data_root=data, models_root=models)
     for name in ("step_size", "softness"):
         assert metrics["ranker"][name]["pairwise_accuracy"] > 0.8, metrics
     result = evaluate("walker", "global", "onehot", targets=6, seed=0, data_root=data, models_root=models)

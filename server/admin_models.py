@@ -1,0 +1,236 @@
+"""SQL tables and API models of the admin side: datasets, labels, attributes, training jobs, model versions."""
+
+from __future__ import annotations
+
+import datetime as dt
+import enum
+import uuid
+from typing import Any, Literal
+
+from pydantic import BaseModel, field_validator
+from sqlalchemy import JSON, Column, DateTime, Text, UniqueConstraint
+from sqlmodel import Field, SQLModel
+
+from rba.labelsets import ATTRIBUTE_NAME, Comparison, LocalChange, Ordering
+from server.models import as_utc, utcnow
+
+BUILTIN_VERSION = "builtin"  # the models shipped under models/<domain>/
+
+
+def _time_column() -> Any:
+    return Field(default_factory=utcnow, sa_column=Column(DateTime(timezone=True), nullable=False))
+
+
+class Dataset(SQLModel, table=True):
+    """An uploaded .npz of trajectories + JSON of labels, stored as data/uploads/<domain>/<id>.{npz,json}."""
+
+    __tablename__ = "rba_dataset"
+
+    id: str = Field(primary_key=True, max_length=40, description="content hash of the two files")
+    domain: str = Field(max_length=64, index=True)
+    filename: str = Field(max_length=200, description="the uploader's file name, for display only")
+    trajectories: int
+    labels: int
+    new_attributes: list[str] = Field(sa_column=Column(JSON, nullable=False))
+    created_at: dt.datetime = _time_column()
+
+
+class AttributeDef(SQLModel, table=True):
+    """An attribute an admin added to a domain (the domain's own ones live in its module)."""
+
+    __tablename__ = "rba_attribute"
+    __table_args__ = (UniqueConstraint("domain", "name", name="uq_attribute_domain_name"),)
+
+    id: int | None = Field(default=None, primary_key=True)
+    domain: str = Field(max_length=64, index=True)
+    name: str = Field(max_length=32)
+    description: str = Field(max_length=300)
+    created_at: dt.datetime = _time_column()
+
+
+class LabelRecord(SQLModel, table=True):
+    """One label made on the admin page (saved as it is made): an ordering, a comparison or a local change."""
+
+    __tablename__ = "rba_label"
+
+    id: int | None = Field(default=None, primary_key=True)
+    domain: str = Field(max_length=64, index=True)
+    kind: str = Field(max_length=16)
+    attribute: str = Field(max_length=32)
+    payload: dict[str, Any] = Field(sa_column=Column(JSON, nullable=False))
+    created_at: dt.datetime = _time_column()
+
+
+class JobState(enum.StrEnum):
+    queued = "queued"
+    running = "running"
+    succeeded = "succeeded"
+    failed = "failed"
+    cancelled = "cancelled"
+
+
+FINISHED = (JobState.succeeded, JobState.failed, JobState.cancelled)
+
+
+def new_job_id() -> str:
+    return uuid.uuid4().hex
+
+
+class TrainJob(SQLModel, table=True):
+    """A retraining run in its own process; ``busy_domain`` (unique) makes one job per domain at a time."""
+
+    __tablename__ = "rba_train_job"
+
+    id: str = Field(default_factory=new_job_id, primary_key=True, max_length=32)
+    domain: str = Field(max_length=64, index=True)
+    busy_domain: str | None = Field(default=None, max_length=64, unique=True)
+    method: str = Field(max_length=32)
+    rep: str = Field(max_length=32)
+    preset: str = Field(max_length=16)
+    datasets: list[str] = Field(sa_column=Column(JSON, nullable=False))
+    state: str = Field(default=JobState.queued.value, max_length=16)
+    stage: str = Field(default="", max_length=64)
+    step: int = 0
+    total: int = 0
+    loss: float | None = None
+    held_out: dict[str, Any] | None = Field(default=None, sa_column=Column(JSON))
+    log_tail: str = Field(default="", sa_column=Column(Text, nullable=False))
+    error: str | None = Field(default=None, sa_column=Column(Text))
+    version: str | None = Field(default=None, max_length=64)
+    created_at: dt.datetime = _time_column()
+    updated_at: dt.datetime = _time_column()
+
+
+class ModelVersion(SQLModel, table=True):
+    """Models a job wrote under models/versions/<version>/<domain>/."""
+
+    __tablename__ = "rba_model_version"
+
+    version: str = Field(primary_key=True, max_length=64)
+    domain: str = Field(max_length=64, index=True)
+    method: str = Field(max_length=32)
+    rep: str = Field(max_length=32)
+    job_id: str = Field(max_length=32)
+    attributes: list[str] = Field(sa_column=Column(JSON, nullable=False))
+    held_out: dict[str, Any] = Field(sa_column=Column(JSON, nullable=False))
+    created_at: dt.datetime = _time_column()
+
+
+class ActiveModel(SQLModel, table=True):
+    """Which version new sessions of a domain get (no row: the built-in models)."""
+
+    __tablename__ = "rba_active_model"
+
+    domain: str = Field(primary_key=True, max_length=64)
+    version: str = Field(max_length=64)
+    updated_at: dt.datetime = _time_column()
+
+
+# -- API bodies and responses -------------------------------------------------------------------
+
+class AttributeCreate(BaseModel):
+    domain: str
+    name: str
+    description: str
+
+    @field_validator("name")
+    @classmethod
+    def _name(cls, v: str) -> str:
+        if not ATTRIBUTE_NAME.match(v):
+            raise ValueError(f"attribute name {v!r} must match {ATTRIBUTE_NAME.pattern} (lower case, digits, _)")
+        return v
+
+    @field_validator("description")
+    @classmethod
+    def _description(cls, v: str) -> str:
+        v = v.strip()
+        if not 3 <= len(v) <= 300:
+            raise ValueError("a description is one sentence of 3-300 characters")
+        return v
+
+
+class LabelCreate(BaseModel):
+    """Body of POST /api/admin/labels: exactly one of the three kinds, about library rollouts."""
+
+    domain: str
+    ordering: Ordering | None = None
+    comparison: Comparison | None = None
+    local_change: LocalChange | None = None
+
+    def label(self) -> tuple[str, Ordering | Comparison | LocalChange]:
+        given = [(k, v) for k, v in (("ordering", self.ordering), ("comparison", self.comparison),
+                                     ("local_change", self.local_change)) if v is not None]
+        if len(given) != 1:
+            raise ValueError("give exactly one of ordering, comparison, local_change")
+        return given[0]
+
+
+class LabelPublic(BaseModel):
+    id: int
+    domain: str
+    kind: str
+    attribute: str
+    payload: dict[str, Any]
+    created_at: dt.datetime
+
+    _utc = field_validator("created_at")(as_utc)
+
+
+class DatasetPublic(BaseModel):
+    id: str
+    domain: str
+    filename: str
+    trajectories: int
+    labels: int
+    new_attributes: list[str]
+    created_at: dt.datetime
+    duplicate: bool = False
+
+    _utc = field_validator("created_at")(as_utc)
+
+
+class TrainCreate(BaseModel):
+    """Body of POST /api/admin/train."""
+
+    domain: str
+    datasets: list[str] = []
+    method: Literal["global"] = "global"
+    rep: Literal["onehot", "language"] = "onehot"
+    preset: Literal["default", "tiny"] = "default"
+    include_page_labels: bool = True
+
+
+class JobPublic(BaseModel):
+    id: str
+    domain: str
+    method: str
+    rep: str
+    preset: str
+    datasets: list[str]
+    state: JobState
+    stage: str
+    step: int
+    total: int
+    progress: float
+    loss: float | None
+    held_out: dict[str, Any] | None
+    log_tail: str
+    error: str | None
+    version: str | None
+    created_at: dt.datetime
+    updated_at: dt.datetime
+
+    _utc = field_validator("created_at", "updated_at")(as_utc)
+
+
+class VersionPublic(BaseModel):
+    version: str
+    domain: str
+    method: str
+    rep: str
+    attributes: list[str]
+    held_out: dict[str, Any]
+    active: bool
+    created_at: dt.datetime | None
+
+    _utc = field_validator("created_at")(lambda v: None if v is None else as_utc(v))

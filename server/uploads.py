@@ -1,0 +1,132 @@
+"""Checking uploaded datasets before anything is stored: every problem found, in words.
+
+An upload is an ``.npz`` of trajectories (one float array T x state_dim per trajectory) and a
+JSON label set (``rba.labelsets``). The ``.npz`` is opened as a zip and every array's header is
+read before any array is: object arrays, wrong shapes and zip bombs are refused without
+allocating what they claim. Arrays are then loaded with ``allow_pickle=False``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import re
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from rba.labelsets import LabelSet
+
+TRAJECTORY_NAME = re.compile(r"^[A-Za-z0-9_.:-]{1,128}$")
+
+
+@dataclass(frozen=True)
+class UploadLimits:
+    max_bytes: int  # the whole request
+    max_uncompressed: int  # what the .npz may expand to
+    min_steps: int = 2  # states per trajectory
+    max_steps: int = 10_000
+    max_trajectories: int = 20_000
+
+
+@dataclass
+class CheckedUpload:
+    """What passed the checks (``problems`` empty) and the canonical bytes to store."""
+
+    trajectories: dict[str, np.ndarray] = field(default_factory=dict)
+    labels: LabelSet | None = None
+    labels_json: bytes = b""
+    problems: list[str] = field(default_factory=list)
+
+    def content_id(self, domain: str, npz_bytes: bytes) -> str:
+        h = hashlib.sha256(domain.encode() + b"\0" + hashlib.sha256(npz_bytes).digest() + self.labels_json)
+        return h.hexdigest()[:32]
+
+
+def _header(f, version: tuple[int, int]):
+    if version == (1, 0):
+        return np.lib.format.read_array_header_1_0(f)
+    if version == (2, 0):
+        return np.lib.format.read_array_header_2_0(f)
+    raise ValueError(f"unsupported .npy format version {version}")
+
+
+def check_npz(path: Path, state_dim: int, limits: UploadLimits) -> tuple[dict[str, np.ndarray], list[str]]:
+    """The trajectories of the .npz at ``path`` by name, or the problems that stop them being used."""
+    if not zipfile.is_zipfile(path):
+        return {}, ["trajectories: not an .npz file (a zip of .npy arrays, as numpy.savez writes); "
+                    "pickles and other formats are refused"]
+    problems: list[str] = []
+    names: list[tuple[str, str]] = []
+    try:
+        with zipfile.ZipFile(path) as zf:
+            infos = zf.infolist()
+            if not infos:
+                return {}, ["trajectories: the .npz holds no arrays"]
+            if len(infos) > limits.max_trajectories:
+                return {}, [f"trajectories: {len(infos)} arrays, more than the limit of {limits.max_trajectories}"]
+            expanded = sum(i.file_size for i in infos)
+            if expanded > limits.max_uncompressed:
+                return {}, [f"trajectories: the .npz expands to {expanded} bytes, over the limit of "
+                            f"{limits.max_uncompressed} (zip bomb?)"]
+            for info in infos:
+                name = info.filename.removesuffix(".npy")
+                if not info.filename.endswith(".npy") or not TRAJECTORY_NAME.match(name):
+                    problems.append(f"trajectories: member {info.filename[:80]!r} is not a .npy array named with "
+                                    "1-128 letters, digits or _ . : -")
+                    continue
+                with zf.open(info) as f:
+                    try:
+                        shape, _fortran, dtype = _header(f, np.lib.format.read_magic(f))
+                    except ValueError as e:
+                        problems.append(f"trajectory {name!r}: unreadable .npy header ({e})")
+                        continue
+                if dtype.hasobject:
+                    problems.append(f"trajectory {name!r}: object arrays are refused (they need pickle)")
+                elif dtype.kind != "f":
+                    problems.append(f"trajectory {name!r}: dtype {dtype} is not a float type (float32 or float64)")
+                elif len(shape) != 2 or shape[1] != state_dim:
+                    problems.append(f"trajectory {name!r}: shape {list(shape)}, expected [T, {state_dim}] "
+                                    f"(state_dim of the domain)")
+                elif not limits.min_steps <= shape[0] <= limits.max_steps:
+                    problems.append(f"trajectory {name!r}: {shape[0]} states; T must be in "
+                                    f"[{limits.min_steps}, {limits.max_steps}]")
+                elif math.prod(shape) * dtype.itemsize > info.file_size:
+                    problems.append(f"trajectory {name!r}: the array claims more data than the file holds")
+                else:
+                    names.append((name, info.filename))
+    except (zipfile.BadZipFile, OSError, EOFError) as e:
+        return {}, [f"trajectories: corrupt .npz ({e})"]
+    if problems:
+        return {}, problems
+    out: dict[str, np.ndarray] = {}
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            for name, _member in names:
+                arr = np.asarray(npz[name], dtype=np.float32)
+                if not np.isfinite(arr).all():
+                    problems.append(f"trajectory {name!r}: holds NaN or infinite values")
+                out[name] = arr
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as e:
+        return {}, [f"trajectories: could not be read ({e})"]
+    return ({} if problems else out), problems
+
+
+def check_labels(raw: bytes, limit: int) -> tuple[LabelSet | None, bytes, list[str]]:
+    """The label set and its canonical JSON bytes (what is stored and hashed), or the problems."""
+    if not raw.strip():
+        return None, b"", ["labels: the file is empty; expected a JSON object (see GET /docs)"]
+    if len(raw) > limit:
+        return None, b"", [f"labels: {len(raw)} bytes, over the limit of {limit}"]
+    try:
+        obj = json.loads(raw.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        return None, b"", [f"labels: not UTF-8 JSON ({e})"]
+    labels, problems = LabelSet.parse(obj)
+    if labels is None:
+        return None, b"", problems
+    canonical = json.dumps(labels.model_dump(mode="json"), sort_keys=True, separators=(",", ":")).encode()
+    return labels, canonical, []
