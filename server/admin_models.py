@@ -88,6 +88,7 @@ class TrainJob(SQLModel, table=True):
     rep: str = Field(max_length=32)
     preset: str = Field(max_length=16)
     datasets: list[str] = Field(sa_column=Column(JSON, nullable=False))
+    include_page_labels: bool = True
     state: str = Field(default=JobState.queued.value, max_length=16)
     stage: str = Field(default="", max_length=64)
     step: int = 0

@@ -13,7 +13,7 @@ from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
 
 from server import errors
-from server.routes import clips, domains, sessions
+from server.routes import admin_datasets, admin_labels, admin_training, clips, domains, sessions
 from server.services import Services
 from server.sessions import warm_up
 from server.settings import Settings
@@ -44,7 +44,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                   description="Tune how an agent behaves by saying more / less of an attribute "
                               "(Relative Behavioral Attributes, ICLR 2023).")
     errors.install(app)
-    for router in (domains.router, sessions.router, clips.router):
+    for router in (domains.router, sessions.router, clips.router, admin_labels.router, admin_datasets.router,
+                   admin_training.router):
         app.include_router(router)
 
     @app.api_route("/api/{rest:path}", methods=["GET", "POST", "PUT", "PATCH", "DELETE"], include_in_schema=False)
@@ -58,6 +59,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @app.get("/", include_in_schema=False)
     def index() -> FileResponse:
         return FileResponse(FRONTEND / "index.html", headers={"Cache-Control": "no-cache"})
+
+    @app.get("/admin", include_in_schema=False)
+    def admin_page() -> FileResponse:
+        """The page itself holds no data: everything on it comes from token-checked /api/admin routes."""
+        return FileResponse(FRONTEND / "admin.html", headers={"Cache-Control": "no-cache"})
 
     app.mount("/static", StaticFiles(directory=FRONTEND), name="static")
     return app

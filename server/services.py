@@ -12,6 +12,7 @@ from server.background import Background
 from server.catalog import Catalog
 from server.clips import ClipCache
 from server.db import make_engine
+from server.jobs import JobRunner
 from server.locks import KeyedLocks
 from server.settings import Settings
 from server.transitions import Transitions
@@ -30,6 +31,7 @@ class Services:
     thinker: Background | None  # works out what each possible next answer would show (agent copies)
     renderer: Background | None  # renders those clips (prerender_workers threads, 1 by default, niced)
     clip_limiter: anyio.CapacityLimiter  # its own limiter: waiting for renders never takes the API's threads
+    jobs: JobRunner  # retraining processes
     session_locks: KeyedLocks = field(default_factory=KeyedLocks)
     prerendering: dict[str, int] = field(default_factory=dict)  # session id -> step being prerendered
 
@@ -45,8 +47,10 @@ class Services:
         # Thinking keeps normal priority: it is what makes the next feedback request fast.
         thinker = Background(1, "rba-think") if busy else None
         renderer = Background(settings.prerender_workers, "rba-render", settings.background_nice) if busy else None
+        jobs = JobRunner(settings, engine)
+        jobs.recover()
         return cls(settings, engine, Catalog(settings), clips, Transitions(), thinker, renderer,
-                   anyio.CapacityLimiter(CLIP_WAITERS))
+                   anyio.CapacityLimiter(CLIP_WAITERS), jobs)
 
     def wait_idle(self, timeout: float) -> bool:
         """True once no background work is queued or running (tests and benchmarks use it)."""
@@ -58,6 +62,7 @@ class Services:
         return any(w is not None and w.stopping for w in (self.thinker, self.renderer))
 
     def stop(self) -> None:
+        self.jobs.stop()
         for worker in (self.thinker, self.renderer):
             if worker is not None:
                 worker.stop()

@@ -32,6 +32,10 @@ class Settings(BaseSettings):
     render_concurrency: int = Field(default=2, ge=1, le=16, description="clips rendered at once on request")
     torch_threads: int = Field(default=1, ge=1, le=64, description="intra-op threads per request (requests run "
                                "in parallel threads; more oversubscribes the cores)")
+    upload_max_bytes: int = Field(default=50 * 2**20, ge=1024, description="largest dataset upload (bytes), "
+                                  "enforced while the body streams in")
+    upload_max_uncompressed: int = Field(default=200 * 2**20, ge=1024, description="what an uploaded .npz may "
+                                         "expand to (bytes): refuses zip bombs")
     warm_start: bool = Field(default=True, description="load models and render first clips after start-up")
     log_level: str = "info"
 

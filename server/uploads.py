@@ -8,12 +8,11 @@ allocating what they claim. Arrays are then loaded with ``allow_pickle=False``.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import re
 import zipfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -30,20 +29,6 @@ class UploadLimits:
     min_steps: int = 2  # states per trajectory
     max_steps: int = 10_000
     max_trajectories: int = 20_000
-
-
-@dataclass
-class CheckedUpload:
-    """What passed the checks (``problems`` empty) and the canonical bytes to store."""
-
-    trajectories: dict[str, np.ndarray] = field(default_factory=dict)
-    labels: LabelSet | None = None
-    labels_json: bytes = b""
-    problems: list[str] = field(default_factory=list)
-
-    def content_id(self, domain: str, npz_bytes: bytes) -> str:
-        h = hashlib.sha256(domain.encode() + b"\0" + hashlib.sha256(npz_bytes).digest() + self.labels_json)
-        return h.hexdigest()[:32]
 
 
 def _header(f, version: tuple[int, int]):

@@ -7,7 +7,8 @@ from collections.abc import Callable, Iterator
 
 import pytest
 from fastapi.testclient import TestClient
-from sqlalchemy import create_engine, text
+from sqlalchemy import create_engine
+from sqlmodel import SQLModel
 
 from server.main import create_app
 from server.settings import Settings
@@ -17,9 +18,10 @@ POSTGRES_URL = os.environ.get("RBA_TEST_POSTGRES_URL")
 
 def _reset_postgres(url: str) -> None:
     """Drop the app's tables so every test starts from an empty database."""
+    from server import db  # noqa: F401  (registers every table)
+
     engine = create_engine(url)
-    with engine.begin() as conn:
-        conn.execute(text("DROP TABLE IF EXISTS rba_feedback, rba_session CASCADE"))
+    SQLModel.metadata.drop_all(engine)
     engine.dispose()
 
 

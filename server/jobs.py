@@ -1,0 +1,172 @@
+"""Retraining jobs: each runs in its own (spawned) process so the API stays responsive.
+
+The child writes its progress (stage, step, loss, log tail) to the job's row and its models
+into ``models/versions/.tmp-<job>``; only a finished run renames that folder to the version's
+name and records the version, in one transaction with the job's success. A failed or
+cancelled job leaves nothing that could be served.
+"""
+
+from __future__ import annotations
+
+import collections
+import datetime as dt
+import logging
+import multiprocessing
+import os
+import shutil
+import threading
+from pathlib import Path
+
+from sqlmodel import Session, select
+
+from server.admin_models import FINISHED, JobState, ModelVersion, TrainJob
+from server.models import utcnow
+from server.settings import Settings
+
+log = logging.getLogger(__name__)
+LOG_LINES = 40  # lines of the child's log kept in the job row
+
+
+def uploads_dir(settings: Settings, domain: str) -> Path:
+    return settings.data_dir / "uploads" / domain
+
+
+def versions_dir(settings: Settings) -> Path:
+    return settings.models_dir / "versions"
+
+
+def update_job(engine, job_id: str, **changes) -> None:
+    """One transaction per change; finished jobs release their domain."""
+    with Session(engine) as db:
+        job = db.get(TrainJob, job_id)
+        if job is None or job.state in FINISHED:
+            return
+        for k, v in changes.items():
+            setattr(job, k, v)
+        if job.state in FINISHED:
+            job.busy_domain = None
+        job.updated_at = utcnow()
+        db.add(job)
+        db.commit()
+
+
+class JobRunner:
+    """Starts, watches and cancels the training processes of one server."""
+
+    def __init__(self, settings: Settings, engine) -> None:
+        self.settings, self.engine = settings, engine
+        self._procs: dict[str, multiprocessing.process.BaseProcess] = {}
+        self._lock = threading.Lock()
+
+    def recover(self) -> None:
+        """Jobs a previous server left queued or running can never finish: mark them failed."""
+        with Session(self.engine) as db:
+            stale = db.exec(select(TrainJob).where(TrainJob.busy_domain.is_not(None))).all()  # type: ignore[union-attr]
+            ids = [j.id for j in stale]
+        for job_id in ids:
+            update_job(self.engine, job_id, state=JobState.failed.value, error="the server stopped while the job ran")
+            shutil.rmtree(versions_dir(self.settings) / f".tmp-{job_id}", ignore_errors=True)
+
+    def start(self, job_id: str) -> None:
+        ctx = multiprocessing.get_context("spawn")
+        from rba.domains import domain_names, domain_target
+
+        registry = {name: domain_target(name) for name in domain_names()}  # plugins registered at run time too
+        proc = ctx.Process(target=run_job, args=(job_id, self.settings.model_dump(mode="json"), registry),
+                           name=f"rba-train-{job_id[:8]}", daemon=True)
+        proc.start()
+        with self._lock:
+            self._procs[job_id] = proc
+        threading.Thread(target=self._watch, args=(job_id, proc), name=f"rba-watch-{job_id[:8]}", daemon=True).start()
+
+    def _watch(self, job_id: str, proc) -> None:
+        proc.join()
+        with self._lock:
+            self._procs.pop(job_id, None)
+        update_job(self.engine, job_id, state=JobState.failed.value,
+                   error=f"the training process exited with code {proc.exitcode} before finishing")
+        shutil.rmtree(versions_dir(self.settings) / f".tmp-{job_id}", ignore_errors=True)
+
+    def cancel(self, job_id: str) -> None:
+        update_job(self.engine, job_id, state=JobState.cancelled.value, error="cancelled by an admin")
+        with self._lock:
+            proc = self._procs.get(job_id)
+        if proc is not None and proc.is_alive():
+            proc.terminate()
+
+    def wait(self, job_id: str, timeout: float) -> None:
+        with self._lock:
+            proc = self._procs.get(job_id)
+        if proc is not None:
+            proc.join(timeout)
+
+    def stop(self) -> None:
+        with self._lock:
+            ids = list(self._procs)
+        for job_id in ids:
+            self.cancel(job_id)
+
+
+class _Tail(logging.Handler):
+    def __init__(self) -> None:
+        super().__init__(logging.INFO)
+        self.lines: collections.deque[str] = collections.deque(maxlen=LOG_LINES)
+        self.setFormatter(logging.Formatter("%(asctime)s %(message)s", "%H:%M:%S"))
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.lines.append(self.format(record))
+
+
+def run_job(job_id: str, settings_json: dict, registry: dict[str, str]) -> None:
+    """The child process: train from the job's label sources, then publish the version."""
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    from rba.domains import register
+    from rba.training import GlobalTrainConfig, train_global
+
+    for name, target in registry.items():
+        register(name, target)
+    from server.db import make_engine
+    from server.labelling import job_sources
+
+    settings = Settings(**settings_json)
+    tail = _Tail()
+    logging.basicConfig(level=logging.INFO, handlers=[tail])
+    engine = make_engine(settings.db_url)
+    tmp = versions_dir(settings) / f".tmp-{job_id}"
+    with Session(engine) as db:
+        job = db.get(TrainJob, job_id)
+        domain, rep, preset = job.domain, job.rep, job.preset
+        sources = job_sources(db, settings, domain, list(job.datasets), job.include_page_labels)
+    update_job(engine, job_id, state=JobState.running.value, stage="loading")
+
+    def progress(stage: str, step: int, total: int, loss: float) -> None:
+        update_job(engine, job_id, stage=stage, step=step, total=total, loss=float(loss),
+                   log_tail="\n".join(tail.lines))
+
+    try:
+        shutil.rmtree(tmp, ignore_errors=True)
+        metrics = train_global(domain, rep, GlobalTrainConfig.preset(preset), data_root=settings.data_dir,
+                               models_root=tmp, sources=sources, on_progress=progress)
+        version = f"{domain}-{dt.datetime.now(dt.UTC):%Y%m%d-%H%M%S}-{job_id[:6]}"
+        with Session(engine) as db:
+            job = db.get(TrainJob, job_id)
+            if job is None or job.state in FINISHED:  # cancelled meanwhile: publish nothing
+                shutil.rmtree(tmp, ignore_errors=True)
+                return
+            os.replace(tmp, versions_dir(settings) / version)
+            from server.catalog import Catalog
+
+            names = [a["name"] for a in Catalog(settings).card_attributes(domain, "global", rep, version)]
+            db.add(ModelVersion(version=version, domain=domain, method="global", rep=rep, job_id=job_id,
+                                attributes=names, held_out=metrics))
+            job.state, job.busy_domain, job.version = JobState.succeeded.value, None, version
+            job.held_out, job.stage, job.step = metrics, "done", job.total
+            job.log_tail = "\n".join(tail.lines)
+            job.updated_at = utcnow()
+            db.add(job)
+            db.commit()
+    except Exception as e:
+        logging.getLogger(__name__).exception("job %s failed", job_id)
+        shutil.rmtree(tmp, ignore_errors=True)
+        update_job(engine, job_id, state=JobState.failed.value, error=f"{type(e).__name__}: {e}",
+                   log_tail="\n".join(tail.lines))
