@@ -50,15 +50,17 @@ def list_labels(domain: str, db: DbDep, attribute: str | None = None,
 
 @router.get("/pairs", summary="Clips to label next: serve rollouts, with their clip URLs")
 def next_clips(domain: str, svc: ServicesDep, db: DbDep, size: int = Query(default=2, ge=2, le=8),
-               anchor: bool = False) -> dict:
-    """``size`` random serve clips (seeded by how many labels exist, so a reload shows the same ones).
+               anchor: bool = False, seed: int | None = Query(default=None, ge=0)) -> dict:
+    """``size`` random serve clips (seeded by ``seed``, else by how many labels exist: a reload shows the same).
 
     With ``anchor``, the first clip is an anchor and the others its nearest neighbours in the
     library's measured attributes: candidates for "the same, but a little more α".
     """
     d = svc.catalog.domain(domain)
     lib = svc.catalog.library(d.name)
-    rng = random.Random(len(db.exec(select(LabelRecord.id).where(LabelRecord.domain == d.name)).all()))
+    if seed is None:
+        seed = len(db.exec(select(LabelRecord.id).where(LabelRecord.domain == d.name)).all())
+    rng = random.Random(seed)
     if anchor:
         a = rng.randrange(len(lib))
         span = lib.proxies.max(0) - lib.proxies.min(0) + 1e-9
