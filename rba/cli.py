@@ -133,7 +133,8 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("domain", type=_domain)
     t.add_argument("--method", choices=TRAIN_METHODS, default="all", help="which models to train")
     t.add_argument("--rep", choices=(*REPRESENTATIONS, "all"), default="all")
-    t.add_argument("--preset", choices=("default", "tiny"), default="default", help="'tiny' is the CI smoke preset")
+    t.add_argument("--preset", choices=("default", "quick", "tiny"), default="default",
+                   help="'quick': a shorter rθ; 'tiny': the CI smoke preset")
     t.add_argument("--seed", type=int, default=0)
     t.set_defaults(func=cmd_train)
 

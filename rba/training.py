@@ -32,7 +32,7 @@ from rba.library import SkillLibrary
 log = logging.getLogger(__name__)
 
 
-PRESETS = ("default", "tiny")  # 'tiny': minutes-long smoke runs (CI, tests)
+PRESETS = ("default", "quick", "tiny")  # 'quick': full ζσ, a shorter rθ; 'tiny': seconds-long smoke runs
 
 
 @dataclass
@@ -45,6 +45,8 @@ class GlobalTrainConfig:
         if name == "tiny":
             return cls(RankerConfig(steps=80, hidden=64, seed=seed),
                        GlobalRewardConfig(steps=120, hidden=64, seed=seed))
+        if name == "quick":
+            return cls(RankerConfig(seed=seed), GlobalRewardConfig(steps=300, hidden=128, seed=seed))
         return cls(RankerConfig(seed=seed), GlobalRewardConfig(seed=seed))
 
 
@@ -217,7 +219,7 @@ class LocalTrainConfig:
 
     @classmethod
     def preset(cls, name: str, seed: int = 0) -> LocalTrainConfig:
-        if name == "tiny":
+        if name in ("tiny", "quick"):
             return cls(LocalLabelConfig(seed=seed), LocalRewardConfig(steps=150, hidden=64, lstm_hidden=32, seed=seed))
         return cls(LocalLabelConfig(seed=seed), LocalRewardConfig(seed=seed))
 

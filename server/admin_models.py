@@ -197,7 +197,7 @@ class TrainCreate(BaseModel):
     datasets: list[str] = []
     method: Literal["global"] = "global"
     rep: Literal["onehot", "language"] = "onehot"
-    preset: Literal["default", "tiny"] = "default"
+    preset: Literal["default", "quick", "tiny"] = "default"
     include_page_labels: bool = True
 
 
