@@ -31,8 +31,8 @@ class Background:
         self._stopping = False
         self.done = 0
         self.failed = 0
-        self._threads = [threading.Thread(target=self._work, name=f"{name}-{i}", daemon=True) for i in range(workers)]
-        for t in self._threads:
+        self.workers = [threading.Thread(target=self._work, name=f"{name}-{i}", daemon=True) for i in range(workers)]
+        for t in self.workers:
             t.start()
 
     def submit(self, key: str, job: Callable[[], None]) -> None:
@@ -66,7 +66,7 @@ class Background:
             self._pending.clear()
             self._cond.notify_all()
         deadline = time.monotonic() + timeout
-        for t in self._threads:
+        for t in self.workers:
             t.join(max(deadline - time.monotonic(), 0))
 
     def _work(self) -> None:

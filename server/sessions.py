@@ -242,18 +242,27 @@ def schedule_prerender(svc: Services, s: TuningSession, last: Feedback | None) -
         return svc.stopping or svc.prerendering.get(session_id) != step
 
     def think() -> None:
-        nexts = next_clips(svc, key, state, last, stale)
-        if not stale():
-            renderer.submit(session_id, lambda: render_clips(svc, key[0], [shown, *nexts], stale))
+        clips = [shown, *next_clips(svc, key, state, last, stale)]
+        if not stale():  # most likely first, dealt round-robin to the render threads
+            names = render_keys(svc, session_id)
+            for w, name in enumerate(names):
+                part = clips[w::len(names)]
+                renderer.submit(name, lambda part=part: render_clips(svc, key[0], part, stale))
 
     svc.thinker.submit(session_id, think)
 
 
+def render_keys(svc: Services, session_id: str) -> list[str]:
+    """One background key per render thread, so a session's clips render in parallel."""
+    return [f"{session_id}#{w}" for w in range(len(svc.renderer.workers))] if svc.renderer else []
+
+
 def stop_prerender(svc: Services, session_id: str) -> None:
     svc.prerendering.pop(session_id, None)
-    for worker in (svc.thinker, svc.renderer):
-        if worker is not None:
-            worker.cancel(session_id)
+    if svc.thinker is not None:
+        svc.thinker.cancel(session_id)
+    for name in render_keys(svc, session_id):
+        svc.renderer.cancel(name)
 
 
 def resume_prerender(svc: Services, s: TuningSession) -> None:

@@ -27,7 +27,8 @@ class Settings(BaseSettings):
     clip_width: int = Field(default=320, ge=16, le=1920)
     clip_height: int = Field(default=240, ge=16, le=1080)
     prerender: bool = Field(default=True, description="render the clips each possible next feedback would show")
-    prerender_workers: int = Field(default=1, ge=1, le=8, description="background render threads")
+    prerender_workers: int = Field(default=2, ge=1, le=8, description="background render threads (a session's "
+                                   "next clips render in parallel)")
     background_nice: int = Field(default=10, ge=0, le=19, description="CPU niceness of the background render threads")
     render_concurrency: int = Field(default=2, ge=1, le=16, description="clips rendered at once on request")
     torch_threads: int = Field(default=1, ge=1, le=64, description="intra-op threads per request (requests run "
