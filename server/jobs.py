@@ -17,6 +17,7 @@ import shutil
 import threading
 from pathlib import Path
 
+from sqlalchemy.exc import SQLAlchemyError
 from sqlmodel import Session, select
 
 from server.admin_models import FINISHED, JobState, ModelVersion, TrainJob
@@ -57,6 +58,7 @@ class JobRunner:
         self.settings, self.engine = settings, engine
         self._procs: dict[str, multiprocessing.process.BaseProcess] = {}
         self._lock = threading.Lock()
+        self._stopped = False
 
     def recover(self) -> None:
         """Jobs a previous server left queued or running can never finish: mark them failed."""
@@ -83,8 +85,13 @@ class JobRunner:
         proc.join()
         with self._lock:
             self._procs.pop(job_id, None)
-        update_job(self.engine, job_id, state=JobState.failed.value,
-                   error=f"the training process exited with code {proc.exitcode} before finishing")
+            if self._stopped:  # the server is shutting down (and may have closed its database)
+                return
+        try:  # a no-op when the job recorded its own end
+            update_job(self.engine, job_id, state=JobState.failed.value,
+                       error=f"the training process exited with code {proc.exitcode} before finishing")
+        except SQLAlchemyError:
+            log.exception("could not record the end of job %s", job_id)
         shutil.rmtree(versions_dir(self.settings) / f".tmp-{job_id}", ignore_errors=True)
 
     def cancel(self, job_id: str) -> None:
@@ -105,6 +112,8 @@ class JobRunner:
             ids = list(self._procs)
         for job_id in ids:
             self.cancel(job_id)
+        with self._lock:
+            self._stopped = True
 
 
 class _Tail(logging.Handler):

@@ -25,13 +25,13 @@ STATE_DIM = 4  # the toy domain's
 
 
 @pytest.fixture
-def settings(make_settings, toy_roots, tmp_path):
+def settings(make_settings, toy_roots, tmp_path, database_url):
     """Own copies of the toy models and data folders: jobs write versions and uploads there."""
     data, models, _ = toy_roots
     shutil.copytree(models, tmp_path / "models")
     shutil.copytree(data, tmp_path / "data")
     return make_settings(admin_token=TOKEN, data_dir=tmp_path / "data", models_dir=tmp_path / "models",
-                         upload_max_bytes=256 * 1024, upload_max_uncompressed=512 * 1024)
+                         upload_max_bytes=256 * 1024, upload_max_uncompressed=512 * 1024, database_url=database_url)
 
 
 @pytest.fixture
