@@ -153,7 +153,7 @@ async function loadLatestJob() {
 
 async function train() {
   try {
-    const body = { domain: domain(), preset: $("preset").value, rep: $("rep").value };
+    const body = { domain: domain(), preset: $("preset").value, rep: $("rep").value, method: $("train-method").value };
     showJob(await api("/api/admin/train", { method: "POST", body: JSON.stringify(body) }));
     pollJob();
   } catch (e) {

@@ -15,7 +15,7 @@ import torch
 from rba.artifacts import save_model
 from rba.domains import get_domain
 from rba.embed import attribute_embeddings, check_rep
-from rba.labels import LocalLabelConfig, local_pairs, pair_counts
+from rba.labels import LocalLabelConfig, LocalPairs, local_pairs, pair_counts
 from rba.labelsets import LabelSet, merge_pairs
 from rba.learn.common import Ragged
 from rba.learn.global_reward import GlobalRewardConfig, LibraryScorer, train_global_reward
@@ -122,6 +122,20 @@ class _Pool:
         return [[(self.index(i, hi), self.index(i, lo)) for hi, lo in src.labels.pairs(attribute)]
                 for i, src in enumerate(sources)]
 
+    def local_pairs(self, sources: list[LabelSource], attribute_names: list[str]) -> LocalPairs:
+        """The sources' local changes as RBA-Local pairs over the pool's rows."""
+        rows = [(self.index(i, c.anchor), self.index(i, c.changed), attribute_names.index(c.attribute),
+                 1 if c.direction == "more" else -1)
+                for i, src in enumerate(sources) for c in src.labels.local_changes]
+        cols = np.array(rows, dtype=np.int64).reshape(-1, 4)
+        return LocalPairs(cols[:, 0], cols[:, 1], cols[:, 2], cols[:, 3])
+
+
+def _declared(sources: list[LabelSource], labelled: Callable[[LabelSet, str], bool]) -> dict:
+    """New attributes the sources declare and label in the way this trainer learns from."""
+    declared = {a.name: a for src in sources for a in src.labels.new_attributes}
+    return {n: a for n, a in declared.items() if any(labelled(src.labels, n) for src in sources)}
+
 
 def _split_pairs(labels, seed: int, held_out: float = 0.2):
     """(train labels, held-out (more, less) pairs): a seeded share of the pairs is kept for measuring."""
@@ -145,7 +159,7 @@ def train_global(domain_name: str, rep: str, cfg: GlobalTrainConfig | None = Non
     """
     cfg = cfg or GlobalTrainConfig()
     sources = sources or []
-    declared = {a.name: a for src in sources for a in src.labels.new_attributes}
+    declared = _declared(sources, lambda labels, name: bool(labels.pairs(name)))
     domain, (train, serve, test), embed, attrs = _training_inputs(domain_name, rep, data_root, declared.values())
     pool = _Pool(train, serve, sources)
     builtin = proxy_labels(train, cfg.ranker.max_labelled, cfg.ranker.seed)
@@ -225,20 +239,30 @@ class LocalTrainConfig:
 
 
 def train_local(domain_name: str, rep: str, cfg: LocalTrainConfig | None = None,
-                data_root: Path | None = None, models_root: Path | None = None) -> dict:
+                data_root: Path | None = None, models_root: Path | None = None,
+                sources: list[LabelSource] | None = None, on_progress: Progress | None = None) -> dict:
     """Train, evaluate and save ``local_reward-<rep>``; return the metrics.
 
-    Held-out numbers use pairs built the same way among ``test`` rollouts (anchors, targets and
-    negatives all from test), plus what the agent would do: the argmax over ``serve`` for each
-    test anchor and asked edit.
+    Pairs come from the proxies of ``train`` plus the local changes ``sources`` label (then
+    negatives are drawn from train, serve and uploaded trajectories). Held-out numbers use pairs
+    built the same way among ``test`` rollouts (anchors, targets and negatives all from test),
+    plus what the agent would do: the argmax over ``serve`` for each test anchor and asked edit.
     """
     cfg = cfg or LocalTrainConfig()
-    domain, (train, serve, test), embed, attrs = _training_inputs(domain_name, rep, data_root)
+    sources = sources or []
+    declared = _declared(sources, lambda labels, name: any(c.attribute == name for c in labels.local_changes))
+    domain, (train, serve, test), embed, attrs = _training_inputs(domain_name, rep, data_root, declared.values())
+    names = [a["name"] for a in attrs]
     eps = domain.epsilons()
-    pairs = local_pairs(train.proxies, eps, domain.attribute_names, cfg.labels)
-    log.info("local pairs from train: %s", pair_counts(pairs, domain.attribute_names))
+    pairs = local_pairs(train.proxies, eps, domain.attribute_names, cfg.labels)  # rows of train = first pool rows
+    data = Ragged.from_numpy(train.states, train.state_offsets)
+    if sources:
+        pool = _Pool(train, serve, sources)
+        pairs, data = pairs.concat(pool.local_pairs(sources, names)), pool.data
+    log.info("local pairs: %s", pair_counts(pairs, names))
     t0 = time.perf_counter()
-    model, stats = train_local_reward(train, pairs, embed, cfg.reward, progress=_progress(f"local_reward[{rep}]"))
+    model, stats = train_local_reward(data, pairs, embed, cfg.reward,
+                                      progress=_progress(f"local_reward[{rep}]", on_progress))
     seconds = time.perf_counter() - t0
     test_pairs = local_pairs(test.proxies, eps, domain.attribute_names, cfg.labels, max_pairs=len(test))
     test_scorer = LocalLibraryScorer(model, Ragged.from_numpy(test.states, test.state_offsets))
@@ -257,7 +281,7 @@ def train_local(domain_name: str, rep: str, cfg: LocalTrainConfig | None = None,
                                         "lstm_layers": cfg.reward.lstm_layers,
                                         "anchor_stride": cfg.reward.anchor_stride},
                        "near_copy_radius": stats["near_copy_radius"],
-                       "labels": {**asdict(cfg.labels), "pairs": pair_counts(pairs, domain.attribute_names)},
+                       "labels": {**asdict(cfg.labels), "pairs": pair_counts(pairs, names)},
                        "training": {**stats, "seconds": round(seconds, 1)},
                        "held_out": {"split": "test", "rollouts": len(test), **ranking, "argmax_over_serve": edits}},
                models_root)

@@ -195,7 +195,7 @@ class TrainCreate(BaseModel):
 
     domain: str
     datasets: list[str] = []
-    method: Literal["global"] = "global"
+    method: Literal["global", "local"] = "global"
     rep: Literal["onehot", "language"] = "onehot"
     preset: Literal["default", "quick", "tiny"] = "default"
     include_page_labels: bool = True

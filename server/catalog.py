@@ -113,7 +113,7 @@ class Catalog:
             return f"no trained models under {self.settings.models_dir / domain}; run `rba train {domain}`"
         return None
 
-    def check_available(self, domain: str, method: str, rep: str) -> None:
+    def check_available(self, domain: str, method: str, rep: str, version: str = BUILTIN_VERSION) -> None:
         """422 unless (method, rep) can serve ``domain``; the message lists what can."""
         if domain not in domain_names():
             raise invalid(f"unknown domain {domain!r}; valid: {', '.join(domain_names())}")
@@ -121,7 +121,7 @@ class Catalog:
             raise invalid(f"unknown method {method!r}; valid: {', '.join(attribute_methods())}")
         if rep not in REPRESENTATIONS:
             raise invalid(f"unknown rep {rep!r}; valid: {', '.join(REPRESENTATIONS)}")
-        pairs = self.available(domain)
+        pairs = self.available(domain, version)
         if (method, rep) not in pairs:
             have = ", ".join(f"{m}/{r}" for m, r in pairs) or f"none ({self.missing_reason(domain)})"
             raise invalid(f"no trained {method}/{rep} models for {domain}; available: {have}")

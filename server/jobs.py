@@ -130,7 +130,7 @@ def run_job(job_id: str, settings_json: dict, registry: dict[str, str]) -> None:
     """The child process: train from the job's label sources, then publish the version."""
     os.environ.setdefault("MUJOCO_GL", "egl")
     from rba.domains import register
-    from rba.training import GlobalTrainConfig, train_global
+    from rba.training import GlobalTrainConfig, LocalTrainConfig, train_global, train_local
 
     for name, target in registry.items():
         register(name, target)
@@ -144,7 +144,7 @@ def run_job(job_id: str, settings_json: dict, registry: dict[str, str]) -> None:
     tmp = versions_dir(settings) / f".tmp-{job_id}"
     with Session(engine) as db:
         job = db.get(TrainJob, job_id)
-        domain, rep, preset = job.domain, job.rep, job.preset
+        domain, method, rep, preset = job.domain, job.method, job.rep, job.preset
         sources = job_sources(db, settings, domain, list(job.datasets), job.include_page_labels)
     update_job(engine, job_id, state=JobState.running.value, stage="loading")
 
@@ -154,8 +154,12 @@ def run_job(job_id: str, settings_json: dict, registry: dict[str, str]) -> None:
 
     try:
         shutil.rmtree(tmp, ignore_errors=True)
-        metrics = train_global(domain, rep, GlobalTrainConfig.preset(preset), data_root=settings.data_dir,
-                               models_root=tmp, sources=sources, on_progress=progress)
+        if method == "local":
+            metrics = train_local(domain, rep, LocalTrainConfig.preset(preset), data_root=settings.data_dir,
+                                  models_root=tmp, sources=sources, on_progress=progress)
+        else:
+            metrics = train_global(domain, rep, GlobalTrainConfig.preset(preset), data_root=settings.data_dir,
+                                   models_root=tmp, sources=sources, on_progress=progress)
         version = f"{domain}-{dt.datetime.now(dt.UTC):%Y%m%d-%H%M%S}-{job_id[:6]}"
         with Session(engine) as db:
             job = db.get(TrainJob, job_id)
@@ -165,8 +169,8 @@ def run_job(job_id: str, settings_json: dict, registry: dict[str, str]) -> None:
             os.replace(tmp, versions_dir(settings) / version)
             from server.catalog import Catalog
 
-            names = [a["name"] for a in Catalog(settings).card_attributes(domain, "global", rep, version)]
-            db.add(ModelVersion(version=version, domain=domain, method="global", rep=rep, job_id=job_id,
+            names = [a["name"] for a in Catalog(settings).card_attributes(domain, method, rep, version)]
+            db.add(ModelVersion(version=version, domain=domain, method=method, rep=rep, job_id=job_id,
                                 attributes=names, held_out=metrics))
             job.state, job.busy_domain, job.version = JobState.succeeded.value, None, version
             job.held_out, job.stage, job.step = metrics, "done", job.total

@@ -107,8 +107,11 @@ def load_session(db: Session, session_id: str) -> TuningSession:
 
 
 def create_session(svc: Services, db: Session, body: SessionCreate) -> SessionPublic:
-    svc.catalog.check_available(body.domain, body.method, body.rep)
-    version = serving_version(svc, db, body.domain, body.method, body.rep)
+    if body.domain in svc.catalog.names():
+        version = serving_version(svc, db, body.domain, body.method, body.rep)
+    else:
+        version = BUILTIN_VERSION
+    svc.catalog.check_available(body.domain, body.method, body.rep, version)
     ctx = svc.catalog.context(body.domain, body.method, body.rep, version)
     rollout_id, state = svc.transitions.first(ctx, body.method)
     s = TuningSession(domain=body.domain, method=body.method, rep=body.rep, model_version=ctx.model_version,

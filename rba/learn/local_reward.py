@@ -21,7 +21,6 @@ from torch.nn.utils.rnn import pack_padded_sequence
 from rba.labels import LocalPairs
 from rba.learn.common import Normalizer, Ragged, check_shape, mlp, seed_everything, segment_sum
 from rba.learn.pbrl import torch_threads
-from rba.library import SkillLibrary
 
 log = logging.getLogger(__name__)
 
@@ -162,27 +161,26 @@ def training_pool(pairs: LocalPairs, reverse: bool) -> LocalPairs:
     return pairs.concat(pairs.reversed()) if reverse else pairs
 
 
-def train_local_reward(train: SkillLibrary, pairs: LocalPairs, attr_embed: np.ndarray, cfg: LocalRewardConfig,
+def train_local_reward(data: Ragged, pairs: LocalPairs, attr_embed: np.ndarray, cfg: LocalRewardConfig,
                        progress=None) -> tuple[LocalReward, dict]:
-    """Fit rθ on labelled pairs of ``train`` rows, with negatives drawn from all of ``train``."""
+    """Fit rθ on labelled pairs of ``data`` rows, with negatives drawn from all of ``data``."""
     if len(pairs) == 0:
         raise ValueError("no local-change pairs to train on; widen the change band or label more clips")
     with torch_threads(cfg.threads):
-        return _train(train, pairs, attr_embed, cfg, progress)
+        return _train(data, pairs, attr_embed, cfg, progress)
 
 
-def _train(train: SkillLibrary, pairs: LocalPairs, attr_embed: np.ndarray, cfg: LocalRewardConfig,
+def _train(data: Ragged, pairs: LocalPairs, attr_embed: np.ndarray, cfg: LocalRewardConfig,
            progress) -> tuple[LocalReward, dict]:
     gen = seed_everything(cfg.seed)
-    data = Ragged.from_numpy(train.states, train.state_offsets)
     pool = training_pool(pairs, cfg.reverse_pairs)
     anchor, target = torch.as_tensor(pool.anchor), torch.as_tensor(pool.target)
     attr, direction = torch.as_tensor(pool.attr), torch.as_tensor(pool.direction)
-    model = LocalReward(train.states.shape[1], torch.as_tensor(attr_embed), cfg.hidden, cfg.layers,
+    model = LocalReward(data.states.shape[1], torch.as_tensor(attr_embed), cfg.hidden, cfg.layers,
                         cfg.lstm_hidden, cfg.lstm_layers, cfg.anchor_stride)
-    model.norm.fit(train.states)
+    model.norm.fit(data.states.numpy())
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    n, b = len(train), cfg.batch_pairs
+    n, b = len(data), cfg.batch_pairs
     loss_val = float("nan")
     model.train()
     for step in range(cfg.steps):

@@ -334,7 +334,7 @@ def test_train_request_errors(admin):
     r = admin.post("/api/admin/train", headers=AUTH, json={"domain": "toy", "datasets": ["missing"]})
     assert r.status_code == 422 and "no dataset 'missing' for toy; uploaded: none" in r.json()["detail"]
     r = admin.post("/api/admin/train", headers=AUTH, json={"domain": "toy", "method": "magic"})
-    assert r.status_code == 422 and "method" in r.json()["detail"] and "'global'" in r.json()["detail"]
+    assert r.status_code == 422 and "method: Input should be 'global' or 'local'" in r.json()["detail"]
     r = admin.get("/api/admin/jobs/nope", headers=AUTH)
     assert r.status_code == 404 and "no training job 'nope'" in r.json()["detail"]
     assert admin.get("/api/admin/jobs", headers=AUTH).json() == []
@@ -358,3 +358,36 @@ def test_cancelled_job_publishes_nothing(admin, settings):
     r = admin.post("/api/admin/train", headers=AUTH, json={"domain": "toy", "preset": "tiny"})  # domain free again
     assert r.status_code == 202
     assert wait_job(admin, r.json()["id"])["state"] == "succeeded"
+
+
+def test_local_job_learns_page_local_changes(admin):
+    """Local changes marked on the page train an RBA-Local version that new local sessions get."""
+    r = admin.post("/api/sessions", json={"domain": "toy", "method": "local", "rep": "onehot"})
+    assert r.status_code == 422 and "no trained local/onehot models for toy" in r.json()["detail"]
+    r = admin.post("/api/admin/attributes", headers=AUTH,
+                   json={"domain": "toy", "name": "wobble", "description": "How much the point wobbles."})
+    assert r.status_code == 201
+    for seed in range(6):
+        pair = admin.get("/api/admin/pairs", params={"domain": "toy", "anchor": True, "seed": seed},
+                         headers=AUTH).json()["clips"]
+        r = admin.post("/api/admin/labels", headers=AUTH, json={"domain": "toy", "local_change": {
+            "attribute": "wobble", "anchor": pair[0]["rollout_id"], "changed": pair[1]["rollout_id"],
+            "direction": "more" if seed % 2 else "less"}})
+        assert r.status_code == 201, r.text
+    r = admin.post("/api/admin/train", headers=AUTH, json={"domain": "toy", "method": "local", "preset": "tiny"})
+    assert r.status_code == 202, r.text
+    job = wait_job(admin, r.json()["id"])
+    assert job["state"] == "succeeded", job
+    card_pairs = job["held_out"]
+    assert "local_reward" in card_pairs
+    assert admin.post(f"/api/admin/models/{job['version']}/activate", headers=AUTH).status_code == 200
+    listed = admin.get("/api/domains").json()["domains"]
+    toy = next(d for d in listed if d["name"] == "toy")
+    assert {"method": "local", "rep": "onehot"} in toy["available"]
+    s = admin.post("/api/sessions", json={"domain": "toy", "method": "local", "rep": "onehot"})
+    assert s.status_code == 201, s.text
+    assert s.json()["model_set"] == job["version"]
+    assert [a["name"] for a in s.json()["attributes"]] == ["amplitude", "pace", "wobble"]
+    # global sessions fall back to the shipped models: the active version has no global models
+    g = admin.post("/api/sessions", json={"domain": "toy", "method": "global", "rep": "onehot"}).json()
+    assert g["model_set"] == "builtin"
