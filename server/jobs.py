@@ -142,10 +142,6 @@ def run_job(job_id: str, settings_json: dict, registry: dict[str, str]) -> None:
     logging.basicConfig(level=logging.INFO, handlers=[tail])
     engine = make_engine(settings.db_url)
     tmp = versions_dir(settings) / f".tmp-{job_id}"
-    with Session(engine) as db:
-        job = db.get(TrainJob, job_id)
-        domain, method, rep, preset = job.domain, job.method, job.rep, job.preset
-        sources = job_sources(db, settings, domain, list(job.datasets), job.include_page_labels)
     update_job(engine, job_id, state=JobState.running.value, stage="loading")
 
     def progress(stage: str, step: int, total: int, loss: float) -> None:
@@ -153,6 +149,10 @@ def run_job(job_id: str, settings_json: dict, registry: dict[str, str]) -> None:
                    log_tail="\n".join(tail.lines))
 
     try:
+        with Session(engine) as db:
+            job = db.get(TrainJob, job_id)
+            domain, method, rep, preset = job.domain, job.method, job.rep, job.preset
+            sources = job_sources(db, settings, domain, list(job.datasets), job.include_page_labels)
         shutil.rmtree(tmp, ignore_errors=True)
         if method == "local":
             metrics = train_local(domain, rep, LocalTrainConfig.preset(preset), data_root=settings.data_dir,

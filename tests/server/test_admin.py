@@ -391,3 +391,17 @@ def test_local_job_learns_page_local_changes(admin):
     # global sessions fall back to the shipped models: the active version has no global models
     g = admin.post("/api/sessions", json={"domain": "toy", "method": "global", "rep": "onehot"}).json()
     assert g["model_set"] == "builtin"
+
+
+def test_failed_job_changes_nothing_served(admin, settings):
+    ids = serve_ids(admin, 4)
+    ds = upload(admin, None, _ordering(*ids)).json()
+    (settings.data_dir / "uploads" / "toy" / f"{ds['id']}.json").unlink()  # the dataset vanished from disk
+    r = admin.post("/api/admin/train", headers=AUTH, json={"domain": "toy", "datasets": [ds["id"]], "preset": "tiny"})
+    assert r.status_code == 202
+    job = wait_job(admin, r.json()["id"])
+    assert job["state"] == "failed" and "FileNotFoundError" in job["error"] and job["version"] is None
+    versions = settings.models_dir / "versions"
+    assert not versions.exists() or not any(versions.iterdir())
+    s = admin.post("/api/sessions", json={"domain": "toy", "method": "global", "rep": "onehot"}).json()
+    assert s["model_set"] == "builtin"
