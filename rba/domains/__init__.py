@@ -17,6 +17,7 @@ __all__ = ["AttributeSpec", "Domain", "Rollout", "domain_names", "domain_target"
 # name -> "module:Class"
 _BUILTIN: dict[str, str] = {
     "walker": "rba.domains.walker:Walker",
+    "lane_change": "rba.domains.lane_change:LaneChange",
 }
 _EXTRA: dict[str, str] = {}
 
