@@ -19,6 +19,7 @@ _BUILTIN: dict[str, str] = {
     "walker": "rba.domains.walker:Walker",
     "lane_change": "rba.domains.lane_change:LaneChange",
     "manipulator": "rba.domains.manipulator:Manipulator",
+    "snake": "rba.domains.snake:Snake",
 }
 _EXTRA: dict[str, str] = {}
 

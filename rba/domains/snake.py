@@ -1,0 +1,221 @@
+"""Snake: concertina locomotion of a 14-link MuJoCo snake of our own (``assets/snake.xml``).
+
+Two-anchor concertina, one cycle per ``period``: in the first half the two head links are
+anchored (high friction) and the middle of the body folds into a windowed sine wave, pulling
+the tail forward; in the second half the two tail links are anchored and the body straightens,
+pushing the head forward. "Anchored" is friction: a link's geom friction switches between 1.5
+and 0.03 (the floor's is 0.03, and MuJoCo uses the larger of the two). Joints are position
+servos (kp 6) following smooth target changes; physics at 2 ms, control at 100 Hz.
+
+Parameters: ``amplitude`` (rad, the fold's joint-angle amplitude), ``wavelength`` (links per
+sine period), ``period`` (s per cycle). Attributes: ``bend_width`` = 95th percentile over time
+of the body's lateral extent in its principal-axis frame (m); ``compression`` = 95th
+percentile of 1 − head-tail distance / body length; ``speed`` = centre-of-mass speed (m/s).
+
+States (10 Hz): the 13 joint angles, the centre-of-mass velocity in the start heading's frame,
+the head-tail distance over the body length, and which end is anchored.
+"""
+
+from __future__ import annotations
+
+import copy
+import functools
+from collections.abc import Iterator
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from rba.domains.base import AttributeSpec, Domain, Rollout
+from rba.domains.mujoco_render import ThreadRenderers
+
+XML = Path(__file__).resolve().parent / "assets" / "snake.xml"
+LINKS = 14
+LINK_LENGTH = 0.07  # m
+BODY_LENGTH = LINKS * LINK_LENGTH  # 0.98 m
+ANCHOR_LINKS = 2  # links per anchored end
+ANCHORED, SLIDING = 1.5, 0.03  # link friction (the floor's is 0.03)
+CONTROL_EVERY = 5  # physics steps (2 ms) per control step: 100 Hz
+STATE_EVERY = 10  # control steps per state: 10 Hz
+FRAME_EVERY = 3  # control steps per rendered frame: 33.3 fps
+CYCLES = 3  # concertina cycles per clip
+SETTLE = 0.3  # s straight and still before the first cycle
+MAX_HEADING_DRIFT = np.deg2rad(30)  # success: the snake keeps roughly its heading
+MIN_ADVANCE = 0.03  # m the centre of mass must move forward
+
+PARAM_RANGES = {
+    "amplitude": (0.2, 1.4),  # rad
+    "wavelength": (3.0, 14.0),  # links per sine period of the fold
+    "span": (5.0, 9.0),  # joints that fold
+    "period": (1.2, 5.0),  # s per cycle
+}
+SPEED_RANGE = (0.008, 0.05)  # m/s: the speed sample_params aims for
+ADVANCE_PER_CYCLE = 0.9  # advance per cycle / (compression × body length), measured
+FOLD_CENTRE = 7  # the fold is centred on joint 7; joints 1-2 and 12-13 (the anchored ends) stay straight
+TARGET_WIDTH = (0.06, 0.15)  # m: the (bend_width, compression) box sample_params draws targets from,
+TARGET_COMPRESSION = (0.03, 0.09)  # inside what the fold shapes reach, so the two vary independently
+
+
+def fold_shape(amplitude: float, wavelength: float, span: float) -> np.ndarray:
+    """Target angles of joints 1..13 at full fold: a sine under a Hann window over ``span`` middle joints."""
+    angles = np.zeros(LINKS - 1)
+    n = round(span)
+    k = np.arange(n)
+    joints = np.round(FOLD_CENTRE - (n - 1) / 2 + k).astype(int)
+    window = np.sin(np.pi * (k + 1) / (n + 1)) ** 2
+    angles[joints - 1] = amplitude * window * np.sin(2 * np.pi * k / wavelength)
+    return angles
+
+
+def fold_geometry(angles: np.ndarray) -> tuple[float, float]:
+    """(lateral extent, compression) of the chain bent by ``angles``, kinematically (no physics)."""
+    heading = np.concatenate([[0.0], -np.cumsum(angles)])  # link i's direction; joint i turns link i vs i-1
+    steps = LINK_LENGTH * np.stack([np.cos(heading), np.sin(heading)], 1)
+    points = np.concatenate([[np.zeros(2)], -np.cumsum(steps, 0)])[:-1] - 0.5 * steps
+    return body_metrics(points)
+
+
+def smoothstep(s: float) -> float:
+    s = min(max(s, 0.0), 1.0)
+    return s * s * (3 - 2 * s)
+
+
+def body_metrics(points: np.ndarray) -> tuple[float, float]:
+    """(lateral extent in the principal-axis frame, 1 − head-tail distance / length) of link centres [n, 2]."""
+    centred = points - points.mean(0)
+    _, _, vt = np.linalg.svd(centred, full_matrices=False)
+    lateral = centred @ vt[1]
+    compression = 1.0 - np.linalg.norm(points[0] - points[-1]) / ((LINKS - 1) * LINK_LENGTH)
+    return float(lateral.max() - lateral.min()), float(compression)
+
+
+class Snake(Domain):
+    name = "snake"
+    attributes = (
+        AttributeSpec("bend_width", "How wide the snake's body bends sideways as it folds.", "m",
+                      epsilon=0.012, high_precision_epsilon=0.002),
+        AttributeSpec("compression", "How tightly the snake bunches its body together before stretching out.",
+                      "fraction of body length", epsilon=0.008, high_precision_epsilon=0.0013),
+        AttributeSpec("speed", "How fast the snake moves forward.", "m/s", epsilon=0.006, high_precision_epsilon=0.001),
+    )
+    state_dim = (LINKS - 1) + 2 + 1 + 1
+    param_names = tuple(PARAM_RANGES)
+    frame_rate = 1.0 / (FRAME_EVERY * CONTROL_EVERY * 0.002)
+
+    def __init__(self) -> None:
+        self._model: mujoco.MjModel | None = None
+        self._renderers = ThreadRenderers()
+
+    def _physics(self) -> mujoco.MjModel:
+        if self._model is None:
+            self._model = mujoco.MjModel.from_xml_path(str(XML))
+        return self._model
+
+    def sample_params(self, rng: np.random.Generator) -> dict[str, float]:
+        """Targets drawn independently, then the fold shape that reaches them (a kinematic lookup) and
+        the period that gives the speed (a cycle advances ≈ compression × body length)."""
+        width, compression = rng.uniform(*TARGET_WIDTH), rng.uniform(*TARGET_COMPRESSION)
+        shapes, reached = _shape_table()
+        best = int(np.argmin(((reached - (width, compression)) / (0.1, 0.05)) ** 2 @ np.ones(2)))
+        amplitude, wavelength, span = shapes[best]
+        speed = rng.uniform(*SPEED_RANGE)
+        period = ADVANCE_PER_CYCLE * reached[best, 1] * BODY_LENGTH / speed
+        return {"amplitude": float(amplitude), "wavelength": float(wavelength), "span": float(span),
+                "period": float(np.clip(period, *PARAM_RANGES["period"]))}
+
+    def rollout(self, params: dict[str, float], seed: int) -> Rollout:
+        model = copy.copy(self._physics())  # friction is switched per rollout: never on the shared model
+        data = mujoco.MjData(model)
+        geoms = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, f"link{i}") for i in range(LINKS)])
+        bodies = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"link{i}") for i in range(LINKS)])
+        fold = fold_shape(float(params["amplitude"]), float(params["wavelength"]), float(params["span"]))
+        period = float(params["period"])
+        rng = np.random.default_rng(seed)
+        data.qpos[7:] = 0.01 * rng.standard_normal(LINKS - 1)  # a barely bent start: seeds differ slightly
+        mujoco.mj_forward(model, data)
+        dt = model.opt.timestep * CONTROL_EVERY
+        n_control = round((SETTLE + CYCLES * period) / dt)
+        start_com = data.subtree_com[bodies[0]][:2].copy()
+        states, replay, widths, compressions, coms = [], [], [], [], []
+        prev_com = start_com.copy()
+        for k in range(n_control):
+            t = k * dt - SETTLE
+            phase = (t % period) / period if t >= 0 else -1.0
+            head_anchor = 0 <= phase < 0.5
+            tail_anchor = phase >= 0.5
+            if t < 0:
+                target, anchors = np.zeros(LINKS - 1), np.ones(LINKS, dtype=bool)
+            else:
+                s = smoothstep(phase / 0.5) if head_anchor else 1.0 - smoothstep((phase - 0.5) / 0.5)
+                mirror = -1.0 if int(t // period) % 2 else 1.0  # alternate folds: their steering cancels
+                target = mirror * s * fold
+                anchors = np.zeros(LINKS, dtype=bool)
+                anchors[:ANCHOR_LINKS] = head_anchor
+                anchors[-ANCHOR_LINKS:] = tail_anchor
+            model.geom_friction[geoms, 0] = np.where(anchors, ANCHORED, SLIDING)
+            data.ctrl[:] = target
+            mujoco.mj_step(model, data, nstep=CONTROL_EVERY)
+            points = data.xpos[bodies][:, :2] + 0.5 * LINK_LENGTH * -_forward(data.xmat[bodies])
+            if t >= 0:
+                w, c = body_metrics(points)
+                widths.append(w)
+                compressions.append(c)
+            if k % FRAME_EVERY == 0:
+                replay.append(data.qpos.copy())
+            if k % STATE_EVERY == 0:
+                com = data.subtree_com[bodies[0]][:2].copy()
+                vel = (com - prev_com) / (STATE_EVERY * dt) if k else np.zeros(2)
+                prev_com = com
+                head_tail = np.linalg.norm(points[0] - points[-1]) / BODY_LENGTH
+                states.append([*data.qpos[7:], *vel, head_tail, 1.0 if head_anchor else -1.0 if tail_anchor else 0.0])
+            coms.append(data.subtree_com[bodies[0]][:2].copy())
+        coms_arr = np.asarray(coms)
+        advance = coms_arr[-1] - coms_arr[int(SETTLE / dt)]
+        duration = CYCLES * period
+        forward = float(advance[0])
+        heading = _heading(data.xmat[bodies[0]])
+        success = forward > MIN_ADVANCE and abs(heading) < MAX_HEADING_DRIFT and np.isfinite(data.qpos).all()
+        proxies = {"bend_width": float(np.percentile(widths, 95)),
+                   "compression": float(np.percentile(compressions, 95)),
+                   "speed": float(np.linalg.norm(advance) / duration)}
+        return Rollout("", self.name, dict(params), seed, np.asarray(states, dtype=np.float32), np.asarray(replay),
+                       proxies, bool(success), info={"forward_m": forward, "heading_rad": float(heading)})
+
+    def render(self, rollout: Rollout, width: int, height: int) -> Iterator[np.ndarray]:
+        model = self._physics()
+        data = mujoco.MjData(model)
+        renderer = self._renderers.get(model, int(width), int(height))
+        cam = mujoco.MjvCamera()
+        cam.type = mujoco.mjtCamera.mjCAMERA_FREE
+        cam.distance, cam.azimuth, cam.elevation = CAMERA_DISTANCE, 90.0, CAMERA_ELEVATION
+        first = rollout.replay[0]
+        for qpos in rollout.replay:
+            data.qpos[:] = qpos
+            mujoco.mj_forward(model, data)
+            com = data.subtree_com[1]
+            cam.lookat[:] = (float(com[0]) - 0.1, float(first[1]), 0.0)
+            renderer.update_scene(data, camera=cam)
+            yield renderer.render().copy()
+
+
+CAMERA_DISTANCE = 1.4  # m
+CAMERA_ELEVATION = -60.0  # degrees: from above and behind the side
+
+
+@functools.cache
+def _shape_table() -> tuple[np.ndarray, np.ndarray]:
+    """Fold parameters on a grid [n, 3] and the (width, compression) each reaches kinematically [n, 2]."""
+    grid = np.array([(a, w, n) for a in np.linspace(*PARAM_RANGES["amplitude"], 31)
+                     for w in np.linspace(*PARAM_RANGES["wavelength"], 23)
+                     for n in range(int(PARAM_RANGES["span"][0]), int(PARAM_RANGES["span"][1]) + 1)])
+    return grid, np.array([fold_geometry(fold_shape(*row)) for row in grid])
+
+
+def _forward(xmat: np.ndarray) -> np.ndarray:
+    """Each link's forward (local +x) direction in the plane, [n, 2]."""
+    return xmat.reshape(-1, 3, 3)[:, :2, 0]
+
+
+def _heading(xmat: np.ndarray) -> float:
+    r = xmat.reshape(3, 3)
+    return float(np.arctan2(r[1, 0], r[0, 0]))
