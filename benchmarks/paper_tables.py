@@ -1,0 +1,113 @@
+"""The paper's Table 1 (normal precision) and Table 2 (high precision) for every domain and method.
+
+For each registered domain with a library and trained models: RBA-Global, RBA-Global-L,
+RBA-Local, RBA-Local-L and PbRL, 20 held-out targets each (DESIGN §5), beside the paper's
+numbers. Writes ``benchmarks/results/paper_tables.md`` (and ``.json``).
+
+    python benchmarks/paper_tables.py                         # every domain, both precisions
+    python benchmarks/paper_tables.py --domains lane_change --precisions normal --targets 5
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import logging
+import platform
+import time
+from pathlib import Path
+
+from rba.artifacts import ModelNotFoundError
+from rba.domains import domain_names
+from rba.evaluate import EvalResult, evaluate
+from rba.interact import load_context
+from rba.library import LibraryNotFoundError
+from rba.storage import save_json, save_text
+
+log = logging.getLogger("paper_tables")
+RESULTS = Path(__file__).resolve().parent / "results"
+METHODS = [("global", "onehot", "RBA-Global"), ("global", "language", "RBA-Global-L"),
+           ("local", "onehot", "RBA-Local"), ("local", "language", "RBA-Local-L"), ("pbrl", "onehot", "PbRL")]
+# The paper's Tables 1 and 2: (SR, AF, std of AF); AF None where the paper has N/A.
+PAPER = {
+    "normal": {
+        "lane_change": [(0.95, 3.95, 2.43), (1.0, 3.05, 2.06), (0.7, 7.07, 3.49), (0.9, 5.78, 4.04), (1.0, 162.3, 184)],
+        "manipulator": [(1.0, 2.8, 1.21), (1.0, 2.5, 1.32), (0.7, 12.23, 5.75), (0.8, 10.75, 6.35),
+                        (0.6, 159.5, 188.87)],
+        "snake": [(0.85, 4.17, 1.85), (0.8, 6.38, 5.03), (0.55, 6.45, 3.82), (0.6, 4.17, 2.11), (0.05, None, None)],
+        "walker": [(1.0, 3.75, 1.47), (0.95, 3.78, 2.25), (0.95, 5.47, 3.52), (0.9, 5.16, 3.08), (1.0, 84.6, 79.87)],
+    },
+    "high": {
+        "lane_change": [(0.6, 6.75, 2.98), (0.7, 6.79, 1.66), (0.25, 5.0, 0.63), (0.4, 8.63, 2.45),
+                        (0.35, 286.22, 167.49)],
+        "manipulator": [(0.8, 7.0, 2.45), (0.75, 5.47, 3.2), (0.45, 19.44, 5.57), (0.3, 10.5, 5.5),
+                        (0.15, 81.33, 66.97)],
+        "snake": [(0.55, 8.0, 3.67), (0.25, 10.4, 6.02), (0.3, 8.16, 3.18), (0.5, 7.2, 4.621), (0.05, None, None)],
+        "walker": [(0.7, 7.29, 2.63), (0.75, 6.0, 3.59), (0.4, 9.37, 4.15), (0.4, 6.25, 2.48), (0.35, 288.0, 143.45)],
+    },
+}
+
+
+def _cell(sr: float, af: float | None, sd: float | None) -> str:
+    return f"{sr:.2f} / " + ("–" if af is None else f"{af:.2f} ({sd:.2f})")
+
+
+def run(domains: list[str], precisions: list[str], targets: int, seed: int) -> list[tuple[str, str, int, EvalResult]]:
+    out = []
+    for domain in domains:
+        for i, (method, rep, label) in enumerate(METHODS):
+            try:
+                ctx = load_context(domain, method, rep)
+            except (ModelNotFoundError, LibraryNotFoundError) as exc:
+                log.warning("%s %s: not measured (%s)", domain, label, exc)
+                continue
+            for precision in precisions:
+                r = evaluate(domain, method, rep, targets, seed, precision=precision, context=ctx)
+                log.info("%s %s %s: SR %.2f AF %s (%.0f s)", domain, label, precision, r.success_rate,
+                         r.avg_feedback, r.seconds)
+                out.append((domain, label, i, r))
+    return out
+
+
+def markdown(rows, domains: list[str], precisions: list[str], targets: int, seed: int, seconds: float) -> str:
+    lines = ["# The paper's tables, measured", "",
+             f"{targets} held-out targets per domain and method (seed {seed}), 500-feedback budget; AF over "
+             "successful trials (PbRL: binary labels). Ours beside the paper's (SR / AF (std)).", ""]
+    for precision in precisions:
+        title = "Table 1 — normal precision" if precision == "normal" else "Table 2 — high precision"
+        lines += [f"## {title}", "", "| domain | method | ours | paper |", "|---|---|---|---|"]
+        for domain, label, i, r in rows:
+            if r.precision != precision:
+                continue
+            paper = PAPER[precision].get(domain)
+            lines.append(f"| {domain} | {label} | {_cell(r.success_rate, r.avg_feedback, r.std_feedback)} | "
+                         f"{_cell(*paper[i]) if paper else '–'} |")
+        lines.append("")
+    command = (f"python benchmarks/paper_tables.py --domains {' '.join(domains)} --precisions {' '.join(precisions)} "
+               f"--targets {targets} --seed {seed}")
+    lines += [f"Command: `{command}`; wall time {seconds / 60:.1f} min; {dt.date.today().isoformat()}, "
+              f"Python {platform.python_version()}, CPU only.", ""]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--domains", nargs="+", default=list(domain_names()), choices=domain_names())
+    ap.add_argument("--precisions", nargs="+", default=["normal", "high"], choices=["normal", "high"])
+    ap.add_argument("--targets", type=int, default=20)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", type=Path, default=RESULTS / "paper_tables.md")
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+    start = time.perf_counter()
+    rows = run(args.domains, args.precisions, args.targets, args.seed)
+    seconds = time.perf_counter() - start
+    text = markdown(rows, args.domains, args.precisions, args.targets, args.seed, seconds)
+    save_text(args.out, text)
+    save_json(args.out.with_suffix(".json"), [{"label": label, **{k: v for k, v in r.to_json().items()
+                                                                  if k != "trials"}} for _, label, _, r in rows])
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
