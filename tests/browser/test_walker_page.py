@@ -67,3 +67,28 @@ def test_more_step_size_shows_a_new_clip(live_server, browser, tmp_path):
     assert page.eval_on_selector("#video", "v => v.dataset.rollout") == second
     assert not errors, errors
     page.close()
+
+
+def test_another_domain_in_the_page(live_server, browser, tmp_path):
+    """Lane change through the same page: pick it, start, press "more sharpness", a new clip plays."""
+    settings = Settings(data_dir=REPO / "data", models_dir=REPO / "models", database_url=f"sqlite:///{tmp_path}/rba.db",
+                        cache_dir=tmp_path / "clips", warm_start=False, prerender=False)
+    assert ("global", "onehot") in Catalog(settings).available("lane_change"), "lane_change artifacts are missing"
+    url = live_server(settings)
+    page = browser.new_page(viewport={"width": 1280, "height": 800})
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(url)
+    page.wait_for_function("() => document.body.dataset.state === 'idle'")
+    assert page.locator("#domain option").count() >= 4  # walker, lane_change, manipulator, snake
+    page.select_option("#domain", "lane_change")
+    page.select_option("#method", "global/onehot")
+    page.get_by_role("button", name="New session").click()
+    page.wait_for_function(PLAYING, arg="", timeout=90_000)
+    first = page.eval_on_selector("#video", "v => v.dataset.rollout")
+    page.get_by_role("button", name="more sharpness").click()
+    page.wait_for_function(PLAYING, arg=first, timeout=90_000)
+    assert "more sharpness" in page.locator("#history").inner_text()
+    page.screenshot(path=str(RESULTS / "screenshot-lane-change.png"))
+    assert not errors, errors
+    page.close()
