@@ -17,6 +17,7 @@ from torch import nn
 from rba.learn.global_reward import GlobalReward
 from rba.learn.local_reward import LocalReward
 from rba.learn.ranker import AttributeRanker
+from rba.learn.vae import FrameVAE
 from rba.paths import models_dir
 from rba.storage import load_json, load_torch, save_json, save_torch
 
@@ -42,7 +43,12 @@ def _build_local_reward(card: dict) -> nn.Module:
                        arch["layers"], arch["lstm_hidden"], arch["lstm_layers"], arch["anchor_stride"])
 
 
+def _build_vae(card: dict) -> nn.Module:
+    return FrameVAE(card["architecture"]["latent"])
+
+
 BUILDERS: dict[str, Callable[[dict], nn.Module]] = {
+    "vae": _build_vae,
     "ranker": _build_ranker,
     "global_reward": _build_global_reward,
     "local_reward": _build_local_reward,

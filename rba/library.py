@@ -224,6 +224,7 @@ def build_all(domain_name: str, seed: int = 0, sizes: dict[str, int] | None = No
               root: Path | None = None, progress: bool = True) -> dict[str, SkillLibrary]:
     """Generate and save every split; check that no test parameters occur in train."""
     sizes = {**DEFAULT_SIZES, **(sizes or {})}
+    get_domain(domain_name).prepare(seed)
     libs = {s: generate(domain_name, s, sizes[s], seed, workers, progress) for s in SPLITS}
     train_rows = {tuple(row) for row in libs["train"].params}
     leaked = sum(tuple(row) in train_rows for row in libs["test"].params)

@@ -18,6 +18,7 @@ __all__ = ["AttributeSpec", "Domain", "Rollout", "domain_names", "domain_target"
 _BUILTIN: dict[str, str] = {
     "walker": "rba.domains.walker:Walker",
     "lane_change": "rba.domains.lane_change:LaneChange",
+    "lane_change_image": "rba.domains.lane_change_image:LaneChangeImage",
     "manipulator": "rba.domains.manipulator:Manipulator",
     "snake": "rba.domains.snake:Snake",
 }

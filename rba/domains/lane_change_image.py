@@ -1,0 +1,79 @@
+"""Lane change seen as images (the paper's setting): states are VAE latents of rendered frames.
+
+The scene, the skill, the attributes and the clips are ``lane_change``'s. Only the states
+differ: at each 5 Hz state time the scene is rendered as a 64x64 grayscale frame (60 m of road
+across, centred on the ego car); that frame and the two from the previous state times, stacked
+as channels, go through a small convolutional VAE (``rba.learn.vae``) and the latent mean is
+the state. ``prepare`` trains the VAE once on frames of ``train``-like rollouts and saves it as
+``models/lane_change_image/vae-frames.pt`` (with its card); ``rollout`` needs it.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+
+import numpy as np
+
+from rba.domains.base import Rollout
+from rba.domains.lane_change import DECIDE_EVERY, LaneChange
+from rba.learn.vae import SIZE, STACK, VAEConfig
+
+log = logging.getLogger(__name__)
+IMAGE_VIEW = 60.0  # m of road across a 64-pixel frame (≈ 1 px/m; a lane is 4 px)
+LATENT = 16
+VAE_ROLLOUTS = 300  # rollouts whose frames train the VAE
+
+
+class LaneChangeImage(LaneChange):
+    name = "lane_change_image"
+    state_dim = LATENT
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._vae_model = None
+        self._vae_lock = threading.Lock()
+
+    def frames(self, rollout: Rollout) -> np.ndarray:
+        """uint8 [T, 3, 64, 64]: at each state time, the frames of this and the two previous state times."""
+        n = len(rollout.states)
+        rows = np.arange(n) * DECIDE_EVERY + DECIDE_EVERY - 1  # replay row of each state
+        gray = np.stack([f.mean(2) for f in self.render(rollout, SIZE, SIZE, IMAGE_VIEW, rows)]).astype(np.uint8)
+        idx = np.clip(np.arange(n)[:, None] - np.arange(STACK - 1, -1, -1)[None, :], 0, n - 1)
+        return gray[idx]
+
+    def _vae(self):
+        with self._vae_lock:
+            if self._vae_model is None:
+                from rba.artifacts import load_model
+
+                self._vae_model = load_model(self.name, "vae", "frames").model
+            return self._vae_model
+
+    def rollout(self, params: dict[str, float], seed: int) -> Rollout:
+        r = super().rollout(params, seed)
+        r.domain = self.name
+        r.states = self._vae().embed(self.frames(r)).astype(np.float32)
+        return r
+
+    def prepare(self, seed: int = 0) -> None:
+        """Train and save the VAE unless it exists (frames of kinematic lane-change rollouts)."""
+        from rba.artifacts import ModelNotFoundError, load_model, save_model
+        from rba.learn.vae import train_vae
+
+        try:
+            load_model(self.name, "vae", "frames")
+            return
+        except ModelNotFoundError:
+            pass
+        rng = np.random.default_rng(10_000 + seed)
+        kinematic = [LaneChange.rollout(self, self.sample_params(rng), seed=i) for i in range(VAE_ROLLOUTS)]
+        frames = np.concatenate([self.frames(r) for r in kinematic])
+        log.info("training the frame VAE on %d stacked frames", len(frames))
+        cfg = VAEConfig(latent=LATENT, seed=seed)
+        model, stats = train_vae(frames, cfg, progress=lambda s, n, loss: log.info("vae step %d/%d loss %.1f",
+                                                                                   s, n, loss))
+        save_model(model, {"domain": self.name, "kind": "vae", "representation": "frames",
+                           "architecture": {"latent": LATENT, "size": SIZE, "stack": STACK, "view_m": IMAGE_VIEW},
+                           "training": stats})
+        self._vae_model = None
