@@ -49,6 +49,9 @@ PARAM_RANGES = {
     "span": (5.0, 9.0),  # joints that fold
     "period": (1.2, 5.0),  # s per cycle
 }
+GRID_AMPLITUDES, GRID_WAVELENGTHS = 31, 23  # the fold-shape lookup grid
+AMPLITUDE_STEP = (PARAM_RANGES["amplitude"][1] - PARAM_RANGES["amplitude"][0]) / (GRID_AMPLITUDES - 1)
+WAVELENGTH_STEP = (PARAM_RANGES["wavelength"][1] - PARAM_RANGES["wavelength"][0]) / (GRID_WAVELENGTHS - 1)
 SPEED_RANGE = (0.008, 0.05)  # m/s: the speed sample_params aims for
 ADVANCE_PER_CYCLE = 0.9  # advance per cycle / (compression × body length), measured
 FOLD_CENTRE = 7  # the fold is centred on joint 7; joints 1-2 and 12-13 (the anchored ends) stay straight
@@ -118,6 +121,8 @@ class Snake(Domain):
         shapes, reached = _shape_table()
         best = int(np.argmin(((reached - (width, compression)) / (0.1, 0.05)) ** 2 @ np.ones(2)))
         amplitude, wavelength, span = shapes[best]
+        amplitude += rng.uniform(-0.5, 0.5) * AMPLITUDE_STEP  # continuous within the grid cell: no two
+        wavelength += rng.uniform(-0.5, 0.5) * WAVELENGTH_STEP  # rollouts share parameters by accident
         speed = rng.uniform(*SPEED_RANGE)
         period = ADVANCE_PER_CYCLE * reached[best, 1] * BODY_LENGTH / speed
         return {"amplitude": float(amplitude), "wavelength": float(wavelength), "span": float(span),
@@ -205,8 +210,8 @@ CAMERA_ELEVATION = -60.0  # degrees: from above and behind the side
 @functools.cache
 def _shape_table() -> tuple[np.ndarray, np.ndarray]:
     """Fold parameters on a grid [n, 3] and the (width, compression) each reaches kinematically [n, 2]."""
-    grid = np.array([(a, w, n) for a in np.linspace(*PARAM_RANGES["amplitude"], 31)
-                     for w in np.linspace(*PARAM_RANGES["wavelength"], 23)
+    grid = np.array([(a, w, n) for a in np.linspace(*PARAM_RANGES["amplitude"], GRID_AMPLITUDES)
+                     for w in np.linspace(*PARAM_RANGES["wavelength"], GRID_WAVELENGTHS)
                      for n in range(int(PARAM_RANGES["span"][0]), int(PARAM_RANGES["span"][1]) + 1)])
     return grid, np.array([fold_geometry(fold_shape(*row)) for row in grid])
 
