@@ -65,11 +65,11 @@ class LiveServer:
     """``rba serve`` in a subprocess with its own database and clip cache."""
 
     def __init__(self, prerender: bool, workdir: Path, data_dir: Path | None, models_dir: Path | None,
-                 register: str | None) -> None:
+                 register: str | None, cache_dir: Path | None = None) -> None:
         self.port = free_port()
         self.url = f"http://{HOST}:{self.port}"
         env = {**os.environ, "RBA_DATABASE_URL": f"sqlite:///{workdir / 'bench.db'}",
-               "RBA_CACHE_DIR": str(workdir / "clips"), "RBA_PRERENDER": str(prerender).lower(),
+               "RBA_CACHE_DIR": str(cache_dir or workdir / "clips"), "RBA_PRERENDER": str(prerender).lower(),
                "RBA_WARM_START": "false", "RBA_LOG_LEVEL": "warning", "MUJOCO_GL": "egl"}
         if data_dir:
             env["RBA_DATA_DIR"] = str(data_dir)
@@ -183,7 +183,7 @@ def summarize(values: list[float]) -> dict:
 def run_config(args, users: int, prerender: bool) -> dict:
     load_before = round(os.getloadavg()[0], 2)  # other work on the machine skews every number below
     workdir = Path(tempfile.mkdtemp(prefix=f"rba-bench-{users}-{'on' if prerender else 'off'}-"))
-    server = LiveServer(prerender, workdir, args.data_dir, args.models_dir, args.register)
+    server = LiveServer(prerender, workdir, args.data_dir, args.models_dir, args.register, args.cache_dir)
     try:
         with httpx.Client(base_url=server.url, timeout=REQUEST_TIMEOUT) as c:  # warm-up: models + first clip
             t = time.perf_counter()
@@ -239,8 +239,9 @@ def markdown(report: dict) -> str:
         f"`{report['command']}`  ",
         f"{report['date']} · {report['machine']} · domain `{a['domain']}` ({a['method']}/{a['rep']}) · "
         f"{a['rounds']} rounds per user · watching {a['watch']:g} s per clip · time limit {a['time_limit']:g} s "
-        "per configuration · fresh database and cold clip cache per configuration (after a one-session warm-up "
-        "that renders the shared first clip)",
+        "per configuration · fresh database per configuration · "
+        + (f"warm clip cache (`{a['cache_dir']}`, filled beforehand with `rba cache`)" if a.get("cache_dir") else
+           "cold clip cache per configuration (after a one-session warm-up that renders the shared first clip)"),
         "",
         "| users | prerender | rounds done | feedback p50 / p95 (ms) | next clip playable p50 / p95 / max (ms) "
         "| next clip ready at answer | clips rendered | wall (s) | errors | load avg before → after |",
@@ -290,6 +291,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--watch", type=float, default=3.0, help="seconds a user watches each clip before answering")
     p.add_argument("--time-limit", type=float, default=240.0, help="seconds per configuration; users stop after")
     p.add_argument("--ramp", type=float, default=3.0, help="seconds over which the users arrive")
+    p.add_argument("--cache-dir", type=Path, default=None,
+                   help="a clip cache filled beforehand (`rba cache walker`), shared by every configuration; "
+                        "default: a cold cache per configuration")
     p.add_argument("--domain", default="walker")
     p.add_argument("--method", default="global")
     p.add_argument("--rep", default="onehot")

@@ -105,6 +105,30 @@ def cmd_render(args) -> int:
     return 0
 
 
+def cmd_cache(args) -> int:
+    """Render every clip of a split into the app's clip cache, so no one waits for a render."""
+    import time
+
+    from tqdm import tqdm
+
+    from rba.library import SkillLibrary
+    from server.clips import ClipCache
+    from server.settings import Settings
+
+    settings = Settings()
+    lib = SkillLibrary.load(args.domain, args.split)
+    cache = ClipCache(settings.clip_dir, args.width or settings.clip_width, args.height or settings.clip_height, 1)
+    start, made = time.perf_counter(), 0
+    for rollout_id in tqdm(lib.ids, desc=f"{args.domain}/{args.split} clips", unit="clip"):
+        key = cache.key(lib, rollout_id)
+        if not cache.cached(key):
+            cache.get(key, lib)
+            made += 1
+    print(f"{len(lib)} clips of {args.domain}/{args.split} in {settings.clip_dir}: {made} rendered in "
+          f"{time.perf_counter() - start:.0f} s, {len(lib) - made} were cached already")
+    return 0
+
+
 def cmd_serve(args) -> int:
     from server.main import run
 
@@ -137,6 +161,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="'quick': a shorter rθ; 'tiny': the CI smoke preset")
     t.add_argument("--seed", type=int, default=0)
     t.set_defaults(func=cmd_train)
+
+    c = sub.add_parser("cache", help="render every clip of a split into the app's clip cache (RBA_CACHE_DIR)")
+    c.add_argument("domain", type=_domain)
+    c.add_argument("--split", choices=("serve", "train", "test"), default="serve")
+    c.add_argument("--width", type=_positive, default=None, help="default: RBA_CLIP_WIDTH (320)")
+    c.add_argument("--height", type=_positive, default=None, help="default: RBA_CLIP_HEIGHT (240)")
+    c.set_defaults(func=cmd_cache)
 
     e = sub.add_parser("eval", help="run the paper's protocol with simulated users")
     e.add_argument("--domain", type=_domain, required=True)

@@ -294,3 +294,6 @@ def warm_up(svc: Services) -> None:
     if svc.settings.prerender:
         for key, state in starts:
             render_clips(svc, key[0], next_clips(svc, key, state, None, lambda: svc.stopping), lambda: svc.stopping)
+    if svc.settings.prerender_library:
+        for name in dict.fromkeys(key[0] for key, _ in starts):
+            render_clips(svc, name, list(svc.catalog.library(name).ids), lambda: svc.stopping)

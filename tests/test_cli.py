@@ -50,3 +50,17 @@ def test_eval_and_render_on_toy(toy_roots, tmp_path, monkeypatch, capsys):
     assert main(["render", "toy", "serve-00003", str(clip)]) == 0
     head = clip.read_bytes()[:64]
     assert b"ftyp" in head and b"moov" in clip.read_bytes()[:4096]  # faststart: moov before mdat
+
+
+def test_cache_renders_every_clip_once(toy_roots, tmp_path, monkeypatch, capsys):
+    from rba.cli import main
+
+    data, _, _ = toy_roots
+    monkeypatch.setenv("RBA_DATA_DIR", str(data))
+    monkeypatch.setenv("RBA_CACHE_DIR", str(tmp_path / "clips"))
+    assert main(["cache", "toy", "--split", "test", "--width", "64", "--height", "48"]) == 0
+    assert len(list((tmp_path / "clips").rglob("*.mp4"))) == 40
+    assert "40 rendered" in capsys.readouterr().out
+    assert main(["cache", "toy", "--split", "test", "--width", "64", "--height", "48"]) == 0
+    out = capsys.readouterr().out
+    assert "0 rendered" in out and "40 were cached already" in out
