@@ -37,8 +37,8 @@ ANCHOR_LINKS = 2  # links per anchored end
 ANCHORED, SLIDING = 1.5, 0.03  # link friction (the floor's is 0.03)
 CONTROL_EVERY = 5  # physics steps (2 ms) per control step: 100 Hz
 STATE_EVERY = 10  # control steps per state: 10 Hz
-FRAME_EVERY = 3  # control steps per rendered frame: 33.3 fps
-CYCLES = 3  # concertina cycles per clip
+FRAME_EVERY = 4  # control steps per rendered frame: 25 fps (the snake is slow)
+CYCLES = 2  # concertina cycles per clip
 SETTLE = 0.3  # s straight and still before the first cycle
 MAX_HEADING_DRIFT = np.deg2rad(30)  # success: the snake keeps roughly its heading
 MIN_ADVANCE = 0.03  # m the centre of mass must move forward
@@ -183,7 +183,8 @@ class Snake(Domain):
         proxies = {"bend_width": float(np.percentile(widths, 95)),
                    "compression": float(np.percentile(compressions, 95)),
                    "speed": float(np.linalg.norm(advance) / duration)}
-        return Rollout("", self.name, dict(params), seed, np.asarray(states, dtype=np.float32), np.asarray(replay),
+        return Rollout("", self.name, dict(params), seed, np.asarray(states, dtype=np.float32),
+                       np.asarray(replay, dtype=np.float32),  # qpos for rendering: float32 halves the library
                        proxies, bool(success), info={"forward_m": forward, "heading_rad": float(heading)})
 
     def render(self, rollout: Rollout, width: int, height: int) -> Iterator[np.ndarray]:
