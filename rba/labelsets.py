@@ -37,13 +37,21 @@ ClipRef = Field(min_length=1, max_length=128)
 
 class NewAttribute(_Strict):
     name: str = Field(description="lower-case identifier, e.g. speed")
-    description: str = Field(min_length=3, max_length=300, description="one sentence: what more of it looks like")
+    description: str = Field(description="one sentence (3-300 characters): what more of it looks like")
 
     @field_validator("name")
     @classmethod
     def _name(cls, v: str) -> str:
         if not ATTRIBUTE_NAME.match(v):
             raise ValueError(f"attribute name {v!r} must match {ATTRIBUTE_NAME.pattern} (lower case, digits, _)")
+        return v
+
+    @field_validator("description")
+    @classmethod
+    def _description(cls, v: str) -> str:
+        v = v.strip()
+        if not 3 <= len(v) <= 300:
+            raise ValueError("a description is one sentence of 3-300 characters")
         return v
 
 

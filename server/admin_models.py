@@ -11,7 +11,7 @@ from pydantic import BaseModel, field_validator
 from sqlalchemy import JSON, Column, DateTime, Text, UniqueConstraint
 from sqlmodel import Field, SQLModel
 
-from rba.labelsets import ATTRIBUTE_NAME, Comparison, LocalChange, Ordering
+from rba.labelsets import Comparison, LocalChange, NewAttribute, Ordering
 from server.models import as_utc, utcnow
 
 BUILTIN_VERSION = "builtin"  # the models shipped under models/<domain>/
@@ -129,25 +129,10 @@ class ActiveModel(SQLModel, table=True):
 
 # -- API bodies and responses -------------------------------------------------------------------
 
-class AttributeCreate(BaseModel):
+class AttributeCreate(NewAttribute):
+    """Body of POST /api/admin/attributes."""
+
     domain: str
-    name: str
-    description: str
-
-    @field_validator("name")
-    @classmethod
-    def _name(cls, v: str) -> str:
-        if not ATTRIBUTE_NAME.match(v):
-            raise ValueError(f"attribute name {v!r} must match {ATTRIBUTE_NAME.pattern} (lower case, digits, _)")
-        return v
-
-    @field_validator("description")
-    @classmethod
-    def _description(cls, v: str) -> str:
-        v = v.strip()
-        if not 3 <= len(v) <= 300:
-            raise ValueError("a description is one sentence of 3-300 characters")
-        return v
 
 
 class LabelCreate(BaseModel):

@@ -24,7 +24,7 @@ import mujoco
 import numpy as np
 
 from rba.domains.base import AttributeSpec, Domain, Rollout
-from rba.domains.mujoco_render import ThreadRenderers
+from rba.domains.mujoco_render import Camera, ThreadRenderers
 
 CONTROL_EVERY = 10  # physics steps (1 ms) per control step: 100 Hz
 RAW_EVERY = 2  # control steps per raw sample: 50 Hz
@@ -164,18 +164,8 @@ class Manipulator(Domain):
                        info={"ball_rise_m": float(ball_rise), "climb_m": float(climb)})
 
     def render(self, rollout: Rollout, width: int, height: int) -> Iterator[np.ndarray]:
-        model = self._physics()
-        data = mujoco.MjData(model)
-        renderer = self._renderers.get(model, int(width), int(height))
-        cam = mujoco.MjvCamera()
-        cam.type = mujoco.mjtCamera.mjCAMERA_FREE
-        cam.lookat[:] = CAMERA_LOOKAT
-        cam.distance, cam.azimuth, cam.elevation = CAMERA_DISTANCE, 90.0, CAMERA_ELEVATION
-        for qpos in rollout.replay:
-            data.qpos[:] = qpos
-            mujoco.mj_forward(model, data)
-            renderer.update_scene(data, camera=cam)
-            yield renderer.render().copy()
+        camera = Camera(CAMERA_DISTANCE, CAMERA_ELEVATION, CAMERA_LOOKAT)
+        return self._renderers.replay(self._physics(), rollout.replay, width, height, camera)
 
 
 CAMERA_LOOKAT = (0.15, 0.0, 0.42)  # m: between the low and the raised hand

@@ -10,12 +10,26 @@ from __future__ import annotations
 import atexit
 import threading
 import weakref
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 
 import mujoco
+import numpy as np
 
 _ALL: weakref.WeakSet = weakref.WeakSet()
 _registered = threading.Lock()
 _at_exit = False
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A free camera; ``aim(data)`` (if given) moves what it looks at, frame by frame."""
+
+    distance: float  # m
+    elevation: float  # degrees
+    lookat: tuple[float, float, float] = (0.0, 0.0, 0.0)  # m
+    azimuth: float = 90.0  # degrees: looking along +y, i.e. at the x-z plane
+    aim: Callable[[mujoco.MjData], tuple[float, float, float]] | None = None
 
 
 class ThreadRenderers:
@@ -38,6 +52,23 @@ class ThreadRenderers:
             cache[width, height] = renderer
             self._made.append(renderer)
         return cache[width, height]
+
+    def replay(self, model: mujoco.MjModel, qposes: np.ndarray, width: int, height: int,
+               camera: Camera) -> Iterator[np.ndarray]:
+        """HxWx3 uint8 frames of the model posed at each row of ``qposes``."""
+        data = mujoco.MjData(model)
+        renderer = self.get(model, int(width), int(height))
+        cam = mujoco.MjvCamera()
+        cam.type = mujoco.mjtCamera.mjCAMERA_FREE
+        cam.distance, cam.azimuth, cam.elevation = camera.distance, camera.azimuth, camera.elevation
+        cam.lookat[:] = camera.lookat
+        for qpos in qposes:
+            data.qpos[:] = qpos
+            mujoco.mj_forward(model, data)
+            if camera.aim is not None:
+                cam.lookat[:] = camera.aim(data)
+            renderer.update_scene(data, camera=cam)  # update + render with no yield between: safe to interleave
+            yield renderer.render().copy()
 
     def close(self) -> None:
         for renderer in self._made:

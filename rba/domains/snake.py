@@ -27,7 +27,7 @@ import mujoco
 import numpy as np
 
 from rba.domains.base import AttributeSpec, Domain, Rollout
-from rba.domains.mujoco_render import ThreadRenderers
+from rba.domains.mujoco_render import Camera, ThreadRenderers
 
 XML = Path(__file__).resolve().parent / "assets" / "snake.xml"
 LINKS = 14
@@ -188,20 +188,10 @@ class Snake(Domain):
                        proxies, bool(success), info={"forward_m": forward, "heading_rad": float(heading)})
 
     def render(self, rollout: Rollout, width: int, height: int) -> Iterator[np.ndarray]:
-        model = self._physics()
-        data = mujoco.MjData(model)
-        renderer = self._renderers.get(model, int(width), int(height))
-        cam = mujoco.MjvCamera()
-        cam.type = mujoco.mjtCamera.mjCAMERA_FREE
-        cam.distance, cam.azimuth, cam.elevation = CAMERA_DISTANCE, 90.0, CAMERA_ELEVATION
-        first = rollout.replay[0]
-        for qpos in rollout.replay:
-            data.qpos[:] = qpos
-            mujoco.mj_forward(model, data)
-            com = data.subtree_com[1]
-            cam.lookat[:] = (float(com[0]) - 0.1, float(first[1]), 0.0)
-            renderer.update_scene(data, camera=cam)
-            yield renderer.render().copy()
+        y0 = float(rollout.replay[0][1])
+        camera = Camera(CAMERA_DISTANCE, CAMERA_ELEVATION,  # follows the centre of mass forward
+                        aim=lambda data: (float(data.subtree_com[1][0]) - 0.1, y0, 0.0))
+        return self._renderers.replay(self._physics(), rollout.replay, width, height, camera)
 
 
 CAMERA_DISTANCE = 1.4  # m

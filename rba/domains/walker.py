@@ -52,7 +52,7 @@ import mujoco
 import numpy as np
 
 from rba.domains.base import AttributeSpec, Domain, Rollout
-from rba.domains.mujoco_render import ThreadRenderers
+from rba.domains.mujoco_render import Camera, ThreadRenderers
 
 # ---------------------------------------------------------------- model geometry (m, kg)
 DT = 0.0025  # physics timestep of the walker model (s)
@@ -577,19 +577,9 @@ class Walker(Domain):
     # ------------------------------------------------------------------ rendering
     def render(self, rollout: Rollout, width: int, height: int) -> Iterator[np.ndarray]:
         model, _ = self._physics()
-        data = mujoco.MjData(model)
-        renderer = self._renderers.get(model, int(width), int(height))
-        cam = mujoco.MjvCamera()
-        cam.type = mujoco.mjtCamera.mjCAMERA_FREE
-        cam.distance = CAMERA_DISTANCE
-        cam.azimuth = 90.0
-        cam.elevation = CAMERA_ELEVATION
-        for qpos in rollout.replay:
-            data.qpos[:] = qpos
-            mujoco.mj_forward(model, data)
-            cam.lookat[:] = (float(data.xpos[1, 0]), 0.0, CAMERA_LOOKAT_Z)
-            renderer.update_scene(data, camera=cam)  # update + render with no yield between: safe to interleave
-            yield renderer.render().copy()
+        camera = Camera(CAMERA_DISTANCE, CAMERA_ELEVATION,  # follows the torso along x
+                        aim=lambda data: (float(data.xpos[1, 0]), 0.0, CAMERA_LOOKAT_Z))
+        return self._renderers.replay(model, rollout.replay, width, height, camera)
 
 
 CAMERA_DISTANCE = 3.3  # m from the torso, side view
