@@ -37,8 +37,9 @@ class Settings(BaseSettings):
                                   "enforced while the body streams in")
     upload_max_uncompressed: int = Field(default=200 * 2**20, ge=1024, description="what an uploaded .npz may "
                                          "expand to (bytes): refuses zip bombs")
-    prerender_library: bool = Field(default=False, description="after the warm-up, render every serve clip not "
-                                    "cached yet (background, lowest priority): then no one waits for a render")
+    prerender_library: bool = Field(default=True, description="after the warm-up, render every serve clip not "
+                                    "cached yet (background, niced; once: the cache is on disk): then no one waits "
+                                    "for a render")
     warm_start: bool = Field(default=True, description="load models and render first clips after start-up")
     log_level: str = "info"
 
