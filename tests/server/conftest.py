@@ -43,6 +43,7 @@ def make_settings(toy_roots, tmp_path) -> Callable[..., Settings]:
 
     def make(**overrides) -> Settings:
         values = {"data_dir": data, "models_dir": models, "cache_dir": tmp_path / "clips", "warm_start": False,
+                  "prerender_library": False,
                   "prerender": False, "database_url": f"sqlite:///{tmp_path / 'rba.db'}"}
         return Settings(**{**values, **overrides})
 

@@ -121,3 +121,13 @@ def test_background_renders_give_way_to_requested_ones(tmp_path):
         assert out == [1]
         cache._want(key, -1)
     assert next(frames) == 2
+
+
+def test_prerender_library_renders_every_serve_clip_once(make_settings, toy_roots):
+    settings = make_settings(warm_start=True, prerender=True, prerender_library=True, clip_width=32, clip_height=24)
+    with TestClient(create_app(settings)) as c:
+        svc = c.app.state.services
+        assert svc.wait_idle(240)
+        lib = SkillLibrary.load("toy", "serve", toy_roots[0])
+        assert all(svc.clips.cached(svc.clips.key(lib, rid)) for rid in lib.ids)
+        assert svc.clips.renders == len(lib)  # each clip once, however many jobs asked
