@@ -13,7 +13,9 @@ cover the middle 80 % of its climb: peak speeds would count tremor as speed); ``
 50 Hz: zero for a smooth path, growing with jitter.
 
 States (10 Hz) stack the last 5 raw 50 Hz samples (hand x, z, pointing angle; ball x, z;
-shoulder, elbow, wrist angles), so jitter within 0.1 s is visible to the models.
+shoulder, elbow, wrist angles), so jitter within 0.1 s is visible to the models, plus the third
+differences of the hand's x and z over those 5 samples (mm): zero for any path up to a
+quadratic, so they show the jitter itself rather than the smooth lift (which is 1000x larger).
 """
 
 from __future__ import annotations
@@ -73,7 +75,7 @@ class Manipulator(Domain):
         AttributeSpec("instability", "How shaky and jittery the arm's motion is.", "mm", epsilon=0.1,
                       high_precision_epsilon=0.015),
     )
-    state_dim = STACK * len(RAW_FEATURES)
+    state_dim = STACK * len(RAW_FEATURES) + 2 * (STACK - 3)
     param_names = tuple(PARAM_RANGES)
     frame_rate = FRAME_RATE
 
@@ -146,7 +148,9 @@ class Manipulator(Domain):
                 replay.append(data.qpos.copy())
         raw_arr = np.asarray(raw, dtype=np.float64)
         n_states = len(raw_arr) // STACK
-        states = raw_arr[: n_states * STACK].reshape(n_states, STACK * len(RAW_FEATURES)).astype(np.float32)
+        windows = raw_arr[: n_states * STACK].reshape(n_states, STACK, len(RAW_FEATURES))
+        jitter = 1000.0 * np.diff(windows[:, :, :2], n=3, axis=1).reshape(n_states, -1)  # mm, [n, 2 x 2]
+        states = np.concatenate([windows.reshape(n_states, -1), jitter], 1).astype(np.float32)
         hand = raw_arr[:, :2]
         z = hand[:, 1]
         z0, z1 = z[: int(HOLD_BEFORE * 50)].mean(), z[-int(0.3 * 50):].mean()
