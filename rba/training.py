@@ -43,7 +43,7 @@ class GlobalTrainConfig:
     @classmethod
     def preset(cls, name: str, seed: int = 0) -> GlobalTrainConfig:
         if name == "tiny":
-            return cls(RankerConfig(steps=80, hidden=64, seed=seed),
+            return cls(RankerConfig(steps=200, hidden=64, seed=seed),
                        GlobalRewardConfig(steps=120, hidden=64, seed=seed))
         if name == "quick":
             return cls(RankerConfig(seed=seed), GlobalRewardConfig(steps=300, hidden=128, seed=seed))

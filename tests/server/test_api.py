@@ -42,7 +42,7 @@ def test_create_session_returns_the_first_clip(client, session):
 
 
 @pytest.mark.parametrize(("body", "message"), [
-    ({"domain": "atlantis"}, "unknown domain 'atlantis'; valid: walker, toy"),
+    ({"domain": "atlantis"}, "unknown domain 'atlantis'; valid: walker, lane_change"),
     ({"domain": "toy", "method": "magic"}, f"unknown method 'magic'; valid: {', '.join(attribute_methods())}"),
     ({"domain": "toy", "rep": "braille"}, "unknown rep 'braille'; valid: onehot, language"),
     ({"domain": "toy", "rep": "language"}, "no trained global/language models for toy; available: global/onehot"),
@@ -185,7 +185,7 @@ def test_clip_is_an_mp4_with_etag_and_ranges(client, session):
     ("/api/clips/toy/..%5C..%5Cetc%5Cpasswd.mp4", r"unknown rollout id '..\\..\\etc\\passwd' in toy/serve"),
     ("/api/clips/toy/..%2F..%2Fetc%2Fpasswd.mp4", "no API route /api/clips/toy/../../etc/passwd.mp4"),
     ("/api/clips/toy/train-00001.mp4", "unknown rollout id 'train-00001' in toy/serve"),
-    ("/api/clips/atlantis/serve-00001.mp4", "unknown domain 'atlantis'; valid: walker, toy"),
+    ("/api/clips/atlantis/serve-00001.mp4", "unknown domain 'atlantis'; valid: walker, lane_change"),
     ("/api/clips/walker/serve-00001.mp4", "no serve library for 'walker'"),
 ])
 def test_unknown_clips_are_404(client, path, message):
