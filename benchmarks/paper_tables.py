@@ -52,10 +52,13 @@ def _cell(sr: float, af: float | None, sd: float | None) -> str:
     return f"{sr:.2f} / " + ("–" if af is None else f"{af:.2f} ({sd:.2f})")
 
 
-def run(domains: list[str], precisions: list[str], targets: int, seed: int) -> list[tuple[str, str, int, EvalResult]]:
+def run(domains: list[str], precisions: list[str], targets: int, seed: int,
+        labels: list[str]) -> list[tuple[str, str, int, EvalResult]]:
     out = []
     for domain in domains:
         for i, (method, rep, label) in enumerate(METHODS):
+            if label not in labels:
+                continue
             try:
                 ctx = load_context(domain, method, rep)
             except (ModelNotFoundError, LibraryNotFoundError) as exc:
@@ -83,8 +86,9 @@ def markdown(rows, domains: list[str], precisions: list[str], targets: int, seed
             lines.append(f"| {domain} | {label} | {_cell(r.success_rate, r.avg_feedback, r.std_feedback)} | "
                          f"{_cell(*paper[i]) if paper else '–'} |")
         lines.append("")
+    methods = " ".join(sorted({label for _, label, _, _ in rows}, key=[m[2] for m in METHODS].index))
     command = (f"python benchmarks/paper_tables.py --domains {' '.join(domains)} --precisions {' '.join(precisions)} "
-               f"--targets {targets} --seed {seed}")
+               f"--methods {methods} --targets {targets} --seed {seed}")
     lines += [f"Command: `{command}`; wall time {seconds / 60:.1f} min; {dt.date.today().isoformat()}, "
               f"Python {platform.python_version()}, CPU only.", ""]
     return "\n".join(lines)
@@ -94,13 +98,14 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--domains", nargs="+", default=list(domain_names()), choices=domain_names())
     ap.add_argument("--precisions", nargs="+", default=["normal", "high"], choices=["normal", "high"])
+    ap.add_argument("--methods", nargs="+", default=[m[2] for m in METHODS], choices=[m[2] for m in METHODS])
     ap.add_argument("--targets", type=int, default=20)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=RESULTS / "paper_tables.md")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     start = time.perf_counter()
-    rows = run(args.domains, args.precisions, args.targets, args.seed)
+    rows = run(args.domains, args.precisions, args.targets, args.seed, args.methods)
     seconds = time.perf_counter() - start
     text = markdown(rows, args.domains, args.precisions, args.targets, args.seed, seconds)
     save_text(args.out, text)
