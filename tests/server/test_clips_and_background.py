@@ -123,11 +123,16 @@ def test_background_renders_give_way_to_requested_ones(tmp_path):
     assert next(frames) == 2
 
 
-def test_prerender_library_renders_every_serve_clip_once(make_settings, toy_roots):
-    settings = make_settings(warm_start=True, prerender=True, prerender_library=True, clip_width=32, clip_height=24)
+def test_prerender_library_renders_every_serve_clip_once(make_settings, toy_roots, tmp_path):
+    from rba.library import build_all
+
+    data = tmp_path / "small"  # a 24-clip serve library: the test is about coverage, not volume
+    build_all("toy", seed=3, sizes={"train": 12, "serve": 24, "test": 4}, workers=1, root=data, progress=False)
+    settings = make_settings(data_dir=data, warm_start=True, prerender=True, prerender_library=True,
+                             clip_width=32, clip_height=24)
     with TestClient(create_app(settings)) as c:
         svc = c.app.state.services
         assert svc.wait_idle(240)
-        lib = SkillLibrary.load("toy", "serve", toy_roots[0])
+        lib = SkillLibrary.load("toy", "serve", data)
         assert all(svc.clips.cached(svc.clips.key(lib, rid)) for rid in lib.ids)
         assert svc.clips.renders == len(lib)  # each clip once, however many jobs asked
