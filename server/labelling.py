@@ -165,7 +165,7 @@ async def store_upload(svc: Services, db: Session, form: dict) -> tuple[DatasetP
         problems += [f"trajectory name {c!r} is also a library rollout id; rename it" for c in clash[:5]]
         problems += labels.problems(declared_attributes(db, domain.name), library | set(trajectories),
                                     domain.attribute_names)
-        if not labels.size():
+        if not labels.size() and labels.new_attributes:  # problems() reports a wholly empty set itself
             problems.append("labels: no orderings, comparisons or local_changes to learn from")
     if problems:
         raise UploadProblems(problems)

@@ -31,7 +31,6 @@ class GlobalRewardConfig:
     steps: int = 1000  # gradient steps (cosine-decayed learning rate)
     batch_trajectories: int = 48  # trajectories per step
     batch_targets: int = 16  # targets per step; every trajectory pair is compared for every target
-    neighbours: int = 0  # per near-target, add this many of its ζ-nearest trajectories (close calls)
     slack: float = 0.05  # ξ_r, in standardised ζ units
     target_noise: float = 0.1  # std of the jitter added to v(τ0), standardised units
     uniform_targets: float = 0.5  # fraction of targets drawn uniformly from the ζ box
@@ -133,18 +132,15 @@ def train_global_reward(data: Ragged, zeta: np.ndarray, cfg: GlobalRewardConfig,
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(cfg.steps, 1))
     m, b = min(cfg.batch_trajectories, n), cfg.batch_targets
-    knn = torch.cdist(v_all, v_all).argsort(1)[:, 1:cfg.neighbours + 1] if cfg.neighbours else None
     loss_val = float("nan")
     for step in range(cfg.steps):
         idx = torch.randperm(n, generator=gen)[:m]
-        if knn is not None:  # the ordering that matters at the argmax is among close neighbours
-            idx = torch.cat([idx, knn[idx[:b]].flatten()])  # a repeat only re-weights its pairs
         # targets near some of the batch's own trajectories (close calls) or anywhere in the ζ box
         vt = v_all[idx[:b]] + cfg.target_noise * torch.randn(b, k, generator=gen)
         uniform = torch.rand(b, generator=gen) < cfg.uniform_targets
         vt[uniform] = lo + (hi - lo) * torch.rand(int(uniform.sum()), k, generator=gen)
         states, seg = data.select(idx)
-        returns = segment_sum(model.rewards(model.state_features(states), vt), seg, len(idx))  # [B, M]
+        returns = segment_sum(model.rewards(model.state_features(states), vt), seg, m)  # [B, M]
         dist = torch.cdist(vt, v_all[idx])  # [B, M]
         gap = dist[:, None, :] - dist[:, :, None]  # gap[b, i, j] = d_j − d_i > 0: i is closer
         mask = torch.triu(gap.abs() > cfg.slack, diagonal=1)
