@@ -148,7 +148,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("domain", type=_domain)
     b.add_argument("--seed", type=int, default=0)
     b.add_argument("--train", type=_positive, default=300, help="rollouts in train (labels come from these)")
-    b.add_argument("--serve", type=_positive, default=1200, help="rollouts the agent chooses from")
+    b.add_argument("--serve", type=_positive, default=None,
+                   help="rollouts the agent chooses from (default: the domain's serve_size)")
     b.add_argument("--test", type=_positive, default=120, help="held-out target behaviours")
     b.add_argument("--workers", type=_positive, default=2, help="simulation processes")
     b.set_defaults(func=cmd_build)

@@ -23,7 +23,7 @@ from rba.storage import load_json, load_npz, save_json, save_npz
 log = logging.getLogger(__name__)
 
 SPLITS = ("train", "serve", "test")
-DEFAULT_SIZES = {"train": 300, "serve": 1200, "test": 120}
+DEFAULT_SIZES = {"train": 300, "test": 120}  # serve: the domain's ``serve_size``
 FORMAT_VERSION = 1
 
 
@@ -223,8 +223,9 @@ def generate(domain_name: str, split: str, n: int, seed: int = 0, workers: int =
 def build_all(domain_name: str, seed: int = 0, sizes: dict[str, int] | None = None, workers: int = 2,
               root: Path | None = None, progress: bool = True) -> dict[str, SkillLibrary]:
     """Generate and save every split; check that no test parameters occur in train."""
-    sizes = {**DEFAULT_SIZES, **(sizes or {})}
-    get_domain(domain_name).prepare(seed)
+    domain = get_domain(domain_name)
+    sizes = {**DEFAULT_SIZES, "serve": domain.serve_size, **{k: v for k, v in (sizes or {}).items() if v is not None}}
+    domain.prepare(seed)
     libs = {s: generate(domain_name, s, sizes[s], seed, workers, progress) for s in SPLITS}
     train_rows = {tuple(row) for row in libs["train"].params}
     leaked = sum(tuple(row) in train_rows for row in libs["test"].params)

@@ -1,9 +1,10 @@
 """Every registered domain end to end: the tiny CI preset of the whole pipeline, and its shipped artifacts."""
 
+import numpy as np
 import pytest
 
 from rba.artifacts import load_model
-from rba.domains import domain_names
+from rba.domains import domain_names, get_domain
 from rba.evaluate import evaluate
 from rba.library import SkillLibrary, build_all
 from rba.paths import REPO_ROOT
@@ -41,3 +42,14 @@ def test_shipped_artifacts_serve_a_fresh_clone(domain):
             assert card["data"]["serve"] == serve.version, f"{kind}-{rep} was trained on another library"
     result = evaluate(domain, "global", "onehot", targets=5, seed=1, data_root=data, models_root=models)
     assert result.success_rate >= 0.8
+
+
+@pytest.mark.parametrize("domain", SHIPPED)
+def test_epsilons_follow_the_design_contract(domain):
+    """DESIGN §3: ε splits each proxy's range over the library into 5–10 buckets; high precision 5–10× finer."""
+    serve = SkillLibrary.load(domain, "serve", REPO_ROOT / "data")
+    spec = get_domain(domain)
+    buckets = np.ptp(serve.proxies, axis=0) / spec.epsilons("normal")
+    finer = (spec.epsilons("normal") / spec.epsilons("high")).round(6)
+    assert np.all((buckets >= 5) & (buckets <= 10)), dict(zip(spec.attribute_names, buckets.round(1), strict=True))
+    assert np.all((finer >= 5) & (finer <= 10)), dict(zip(spec.attribute_names, finer.round(1), strict=True))

@@ -95,11 +95,13 @@ def body_metrics(points: np.ndarray) -> tuple[float, float]:
 class Snake(Domain):
     name = "snake"
     attributes = (
+        # ε: a seventh of each proxy's range over the library (DESIGN §3: 5–10 buckets); high precision 5× finer
         AttributeSpec("bend_width", "How wide the snake's body bends sideways as it folds.", "m",
-                      epsilon=0.012, high_precision_epsilon=0.002),
+                      epsilon=0.027, high_precision_epsilon=0.0054),
         AttributeSpec("compression", "How tightly the snake bunches its body together before stretching out.",
-                      "fraction of body length", epsilon=0.008, high_precision_epsilon=0.0013),
-        AttributeSpec("speed", "How fast the snake moves forward.", "m/s", epsilon=0.006, high_precision_epsilon=0.001),
+                      "fraction of body length", epsilon=0.019, high_precision_epsilon=0.0038),
+        AttributeSpec("speed", "How fast the snake moves forward.", "m/s", epsilon=0.011,
+                      high_precision_epsilon=0.0022),
     )
     state_dim = (LINKS - 1) + 2 + 1 + 1
     param_names = tuple(PARAM_RANGES)
