@@ -63,7 +63,7 @@ def zeta_vs_proxy(domains: list[str], out: Path) -> None:
     plt.close(fig)
 
 
-def sample_efficiency(domains: list[str], sizes: list[int], out: Path) -> dict:
+def sample_efficiency(domains: list[str], sizes: list[int], local_steps: int, out: Path) -> dict:
     curves: dict[str, dict[str, list[float]]] = {}
     for d in domains:
         try:
@@ -79,7 +79,8 @@ def sample_efficiency(domains: list[str], sizes: list[int], out: Path) -> dict:
                 metrics = train_global(d, "onehot", g, models_root=Path(tmp))
                 curves[d]["zeta"].append(float(np.mean([m["pairwise_accuracy"] for m in metrics["ranker"].values()])))
                 loc = LocalTrainConfig()
-                loc = replace(loc, labels=replace(loc.labels, max_pairs=n))
+                loc = replace(loc, labels=replace(loc.labels, max_pairs=n),
+                              reward=replace(loc.reward, steps=local_steps))
                 lm = train_local(d, "onehot", loc, models_root=Path(tmp))
                 curves[d]["local"].append(lm["local_reward"]["target_vs_negative"])
             log.info("%s n=%d: ζσ %.3f, local %.3f", d, n, curves[d]["zeta"][-1], curves[d]["local"][-1])
@@ -107,14 +108,17 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--domains", nargs="+", default=list(domain_names()), choices=domain_names())
     ap.add_argument("--sizes", nargs="+", type=int, default=[25, 50, 100, 200])
+    ap.add_argument("--local-steps", type=int, default=LocalTrainConfig().reward.steps,
+                    help="RBA-Local gradient steps per curve point (fewer: a cheaper, rougher curve)")
     ap.add_argument("--skip-curves", action="store_true", help="only the ζσ-vs-proxy figure (no training)")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     start = time.perf_counter()
     zeta_vs_proxy(args.domains, RESULTS / "zeta_vs_proxy.png")
     if not args.skip_curves:
-        curves = sample_efficiency(args.domains, args.sizes, RESULTS / "sample_efficiency.png")
-        save_json(RESULTS / "sample_efficiency.json", {"sizes": args.sizes, "curves": curves,
+        curves = sample_efficiency(args.domains, args.sizes, args.local_steps, RESULTS / "sample_efficiency.png")
+        save_json(RESULTS / "sample_efficiency.json", {"sizes": args.sizes, "local_steps": args.local_steps,
+                                                       "curves": curves,
                                                        "seconds": round(time.perf_counter() - start)})
 
 
