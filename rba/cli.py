@@ -23,6 +23,18 @@ def _domain(name: str) -> str:
     return name
 
 
+def _with_states(domain: str, states: str) -> str:
+    """The registered domain for ``domain`` seen through ``states``: ``<domain>_<states>``, e.g. lane_change_image."""
+    from rba.domains import domain_names
+
+    if states == "kinematic":
+        return domain
+    kinds = ["kinematic"] + [n.removeprefix(f"{domain}_") for n in domain_names() if n.startswith(f"{domain}_")]
+    if f"{domain}_{states}" not in domain_names():
+        raise LookupError(f"domain {domain!r} has no {states!r} states; valid: {', '.join(kinds)}")
+    return f"{domain}_{states}"
+
+
 def _positive(text: str) -> int:
     value = int(text)
     if value <= 0:
@@ -152,6 +164,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="rollouts the agent chooses from (default: the domain's serve_size)")
     b.add_argument("--test", type=_positive, default=120, help="held-out target behaviours")
     b.add_argument("--workers", type=_positive, default=2, help="simulation processes")
+    b.add_argument("--states", default="kinematic",
+                   help="kinematic (default) or another registered view, e.g. image for lane_change")
     b.set_defaults(func=cmd_build)
 
     t = sub.add_parser("train", help="train RBA-Global (ζσ, rθ) and/or RBA-Local (rθ) and write model cards")
@@ -161,6 +175,8 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--preset", choices=("default", "quick", "tiny"), default="default",
                    help="'quick': a shorter rθ; 'tiny': the CI smoke preset")
     t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--states", default="kinematic",
+                   help="kinematic (default) or another registered view, e.g. image for lane_change")
     t.set_defaults(func=cmd_train)
 
     c = sub.add_parser("cache", help="render every clip of a split into the app's clip cache (RBA_CACHE_DIR)")
@@ -168,6 +184,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--split", choices=("serve", "train", "test"), default="serve")
     c.add_argument("--width", type=_positive, default=None, help="default: RBA_CLIP_WIDTH (320)")
     c.add_argument("--height", type=_positive, default=None, help="default: RBA_CLIP_HEIGHT (240)")
+    c.add_argument("--states", default="kinematic",
+                   help="kinematic (default) or another registered view, e.g. image for lane_change")
     c.set_defaults(func=cmd_cache)
 
     e = sub.add_parser("eval", help="run the paper's protocol with simulated users")
@@ -181,6 +199,8 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--all-methods", action="store_true",
                    help="evaluate every method and representation (ignores --method/--rep); JSON is a list")
     e.add_argument("--json", help="write the full result (trials included) here")
+    e.add_argument("--states", default="kinematic",
+                   help="kinematic (default) or another registered view, e.g. image for lane_change")
     e.set_defaults(func=cmd_eval)
 
     r = sub.add_parser("render", help="render a library rollout to an MP4 (H.264)")
@@ -189,6 +209,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("out", help="output .mp4 path")
     r.add_argument("--width", type=_positive, default=320)
     r.add_argument("--height", type=_positive, default=240)
+    r.add_argument("--states", default="kinematic",
+                   help="kinematic (default) or another registered view, e.g. image for lane_change")
     r.set_defaults(func=cmd_render)
 
     s = sub.add_parser("serve", help="start the web app")
@@ -203,6 +225,8 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
     try:
+        if hasattr(args, "states"):
+            args.domain = _with_states(args.domain, args.states)
         return args.func(args)
     except (LookupError, ValueError, FileNotFoundError, OSError) as exc:
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
