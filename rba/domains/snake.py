@@ -103,7 +103,10 @@ class Snake(Domain):
         AttributeSpec("speed", "How fast the snake moves forward.", "m/s", epsilon=0.011,
                       high_precision_epsilon=0.0022),
     )
-    state_dim = (LINKS - 1) + 2 + 1 + 1
+    # joint angles, centre-of-mass velocity (m/s), head-tail distance / length, body width now (m), anchor phase;
+    # the width lifted bend_width's ζσ held-out accuracy from 0.92 to 0.96 (a sum over states cannot easily
+    # rebuild a shape measure from 13 angles)
+    state_dim = (LINKS - 1) + 2 + 1 + 1 + 1
     param_names = tuple(PARAM_RANGES)
     frame_rate = 1.0 / (FRAME_EVERY * CONTROL_EVERY * 0.002)
 
@@ -174,7 +177,9 @@ class Snake(Domain):
                 vel = (com - prev_com) / (STATE_EVERY * dt) if k else np.zeros(2)
                 prev_com = com
                 head_tail = np.linalg.norm(points[0] - points[-1]) / BODY_LENGTH
-                states.append([*data.qpos[7:], *vel, head_tail, 1.0 if head_anchor else -1.0 if tail_anchor else 0.0])
+                width_now = body_metrics(points)[0]
+                states.append([*data.qpos[7:], *vel, head_tail, width_now,
+                               1.0 if head_anchor else -1.0 if tail_anchor else 0.0])
             coms.append(data.subtree_com[bodies[0]][:2].copy())
         coms_arr = np.asarray(coms)
         advance = coms_arr[-1] - coms_arr[int(SETTLE / dt)]

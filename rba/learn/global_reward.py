@@ -3,8 +3,11 @@
 Trained as a state-only Bradley-Terry reward on triplets (τ0, τ1, τ2): with v_t near
 v(τ0), τ1 ≻ τ2 when ‖v(τ1) − v_t‖ < ‖v(τ2) − v_t‖ − ξ. Labels come from ζσ only (no
 proxies). Departures from the paper: targets are also drawn uniformly from the box the
-search explores (its queries are rarely exactly some v(τ0)), and each step compares every
-pair of a trajectory batch under every target of a target batch (many triplets per pass).
+search explores (its queries are rarely exactly some v(τ0)), each step compares every pair
+of a trajectory batch under every target of a target batch (many triplets per pass), and
+triplets are weighted by how close their nearer trajectory is to the target (``focus``):
+the agent only ever uses the top of rθ's ranking, so that is where its accuracy matters
+(walker, argmax over serve within ε of a test target: 0.83 unweighted, 0.93 with focus 0.3).
 """
 
 from __future__ import annotations
@@ -34,6 +37,7 @@ class GlobalRewardConfig:
     slack: float = 0.05  # ξ_r, in standardised ζ units
     target_noise: float = 0.1  # std of the jitter added to v(τ0), standardised units
     uniform_targets: float = 0.5  # fraction of targets drawn uniformly from the ζ box
+    focus: float | None = 0.3  # triplet weight ∝ exp(−d(target, nearer)/focus), standardised ζ units; None: equal
     lr: float = 1e-3
     weight_decay: float = 1e-5
     seed: int = 0
@@ -145,7 +149,12 @@ def train_global_reward(data: Ragged, zeta: np.ndarray, cfg: GlobalRewardConfig,
         gap = dist[:, None, :] - dist[:, :, None]  # gap[b, i, j] = d_j − d_i > 0: i is closer
         mask = torch.triu(gap.abs() > cfg.slack, diagonal=1)
         logits = (returns[:, :, None] - returns[:, None, :])[mask]
-        loss = F.binary_cross_entropy_with_logits(logits, (gap[mask] > 0).float())
+        weight = None
+        if cfg.focus is not None:
+            nearer = torch.minimum(dist[:, :, None], dist[:, None, :])[mask]
+            weight = torch.exp(-nearer / cfg.focus)
+            weight = weight / weight.mean()
+        loss = F.binary_cross_entropy_with_logits(logits, (gap[mask] > 0).float(), weight=weight)
         opt.zero_grad()
         loss.backward()
         opt.step()
