@@ -25,6 +25,17 @@ def test_reward_argmax_lands_near_targets(toy_roots):
     assert metrics["argmax_within_epsilon"]["normal"] >= 0.6, metrics  # chance is ~0.05
 
 
+def test_focus_weights_favour_triplets_near_the_target():
+    from rba.learn.global_reward import focus_weights
+
+    w = focus_weights(torch.tensor([0.0, 0.3, 3.0]), 0.3)
+    assert torch.isclose(w.mean(), torch.tensor(1.0))
+    assert w[0] > w[1] > w[2] and torch.isclose(w[0] / w[1], torch.tensor(np.e))
+    assert focus_weights(torch.tensor([1.0]), None) is None
+    with pytest.raises(ValueError, match="focus must be positive"):
+        focus_weights(torch.tensor([1.0]), 0.0)
+
+
 def test_cards_record_held_out_numbers(toy_roots):
     _, models, metrics = toy_roots
     card = json.loads((models / "toy" / "ranker-onehot.json").read_text())

@@ -118,6 +118,16 @@ class LibraryScorer:
         return int(np.argmax(ret))
 
 
+def focus_weights(nearer: torch.Tensor, focus: float | None) -> torch.Tensor | None:
+    """Triplet weights ∝ exp(−nearer / focus), mean 1: close calls near the target count most."""
+    if focus is None:
+        return None
+    if focus <= 0:
+        raise ValueError(f"focus must be positive or None, got {focus}")
+    weight = torch.exp(-nearer / focus)
+    return weight / weight.mean()
+
+
 def train_global_reward(data: Ragged, zeta: np.ndarray, cfg: GlobalRewardConfig,
                         progress=None) -> tuple[GlobalReward, dict]:
     """Fit rθ on trajectories ``data`` whose ζσ scores are ``zeta`` (float[N, k]).
@@ -149,11 +159,7 @@ def train_global_reward(data: Ragged, zeta: np.ndarray, cfg: GlobalRewardConfig,
         gap = dist[:, None, :] - dist[:, :, None]  # gap[b, i, j] = d_j − d_i > 0: i is closer
         mask = torch.triu(gap.abs() > cfg.slack, diagonal=1)
         logits = (returns[:, :, None] - returns[:, None, :])[mask]
-        weight = None
-        if cfg.focus is not None:
-            nearer = torch.minimum(dist[:, :, None], dist[:, None, :])[mask]
-            weight = torch.exp(-nearer / cfg.focus)
-            weight = weight / weight.mean()
+        weight = focus_weights(torch.minimum(dist[:, :, None], dist[:, None, :])[mask], cfg.focus)
         loss = F.binary_cross_entropy_with_logits(logits, (gap[mask] > 0).float(), weight=weight)
         opt.zero_grad()
         loss.backward()
