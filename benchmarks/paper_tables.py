@@ -47,6 +47,8 @@ PAPER = {
     },
 }
 
+PAPER_ROW = {"lane_change_image": "lane_change"}  # the paper's lane change observes images
+
 
 def _cell(sr: float, af: float | None, sd: float | None) -> str:
     return f"{sr:.2f} / " + ("–" if af is None else f"{af:.2f} ({sd:.2f})")
@@ -82,7 +84,7 @@ def markdown(rows, domains: list[str], precisions: list[str], targets: int, seed
         for domain, label, i, r in rows:
             if r.precision != precision:
                 continue
-            paper = PAPER[precision].get(domain)
+            paper = PAPER[precision].get(PAPER_ROW.get(domain, domain))
             lines.append(f"| {domain} | {label} | {_cell(r.success_rate, r.avg_feedback, r.std_feedback)} | "
                          f"{_cell(*paper[i]) if paper else '–'} |")
         lines.append("")
