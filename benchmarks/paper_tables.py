@@ -6,6 +6,8 @@ numbers. Writes ``benchmarks/results/paper_tables.md`` (and ``.json``).
 
     python benchmarks/paper_tables.py                         # every domain, both precisions
     python benchmarks/paper_tables.py --domains lane_change --precisions normal --targets 5
+    python benchmarks/paper_tables.py --domains snake --merge benchmarks/results/paper_tables.json
+                                                    # re-measure one domain, keep the others' rows
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from rba.domains import domain_names
 from rba.evaluate import EvalResult, evaluate
 from rba.interact import load_context
 from rba.library import LibraryNotFoundError
-from rba.storage import save_json, save_text
+from rba.storage import load_json, save_json, save_text
 
 log = logging.getLogger("paper_tables")
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -74,6 +76,18 @@ def run(domains: list[str], precisions: list[str], targets: int, seed: int,
     return out
 
 
+def merged(rows, path: Path) -> list:
+    """Rows from an earlier run's JSON that this run did not re-measure, then this run's rows."""
+    fresh = {(d, label, r.precision) for d, label, _, r in rows}
+    order = [m[2] for m in METHODS]
+    old = []
+    for row in load_json(path):
+        result = EvalResult(**{**row, "trials": []})
+        if (result.domain, row["label"], result.precision) not in fresh:
+            old.append((result.domain, row["label"], order.index(row["label"]), result))
+    return sorted(old + rows, key=lambda x: (x[0], x[2]))
+
+
 def markdown(rows, domains: list[str], precisions: list[str], targets: int, seed: int, seconds: float) -> str:
     lines = ["# The paper's tables, measured", "",
              f"{targets} held-out targets per domain and method (seed {seed}), 500-feedback budget; AF over "
@@ -104,12 +118,17 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--targets", type=int, default=20)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=RESULTS / "paper_tables.md")
+    ap.add_argument("--merge", type=Path,
+                    help="an earlier run's .json: keep its rows for what this run does not measure")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     start = time.perf_counter()
     rows = run(args.domains, args.precisions, args.targets, args.seed, args.methods)
     seconds = time.perf_counter() - start
-    text = markdown(rows, args.domains, args.precisions, args.targets, args.seed, seconds)
+    if args.merge:
+        rows = merged(rows, args.merge)
+        seconds += sum(r.seconds for d, _, _, r in rows if d not in args.domains)
+    text = markdown(rows, sorted({d for d, *_ in rows}), args.precisions, args.targets, args.seed, seconds)
     save_text(args.out, text)
     save_json(args.out.with_suffix(".json"), [{"label": label, **{k: v for k, v in r.to_json().items()
                                                                   if k != "trials"}} for _, label, _, r in rows])
