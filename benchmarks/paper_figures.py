@@ -27,6 +27,7 @@ import numpy as np
 
 from rba.artifacts import ModelNotFoundError, load_model
 from rba.domains import domain_names, get_domain
+from rba.learn.ranker import RankerConfig
 from rba.library import LibraryNotFoundError, SkillLibrary
 from rba.storage import save_json
 from rba.training import GlobalTrainConfig, LocalTrainConfig, train_global, train_local
@@ -63,7 +64,8 @@ def zeta_vs_proxy(domains: list[str], out: Path) -> None:
     plt.close(fig)
 
 
-def sample_efficiency(domains: list[str], sizes: list[int], local_steps: int, out: Path) -> dict:
+def sample_efficiency(domains: list[str], sizes: list[int], ranker_steps: int, local_steps: int,
+                      out: Path) -> dict:
     curves: dict[str, dict[str, list[float]]] = {}
     for d in domains:
         try:
@@ -75,7 +77,8 @@ def sample_efficiency(domains: list[str], sizes: list[int], local_steps: int, ou
         for n in sizes:
             with tempfile.TemporaryDirectory() as tmp:
                 g = GlobalTrainConfig()
-                g = replace(g, ranker=replace(g.ranker, max_labelled=n), reward=replace(g.reward, steps=1))
+                g = replace(g, ranker=replace(g.ranker, max_labelled=n, steps=ranker_steps),
+                            reward=replace(g.reward, steps=1))
                 metrics = train_global(d, "onehot", g, models_root=Path(tmp))
                 curves[d]["zeta"].append(float(np.mean([m["pairwise_accuracy"] for m in metrics["ranker"].values()])))
                 loc = LocalTrainConfig()
@@ -108,16 +111,21 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--domains", nargs="+", default=list(domain_names()), choices=domain_names())
     ap.add_argument("--sizes", nargs="+", type=int, default=[25, 50, 100, 200])
+    ap.add_argument("--ranker-steps", type=int, default=RankerConfig().steps, help="ζσ gradient steps per curve point")
     ap.add_argument("--local-steps", type=int, default=LocalTrainConfig().reward.steps,
                     help="RBA-Local gradient steps per curve point (fewer: a cheaper, rougher curve)")
     ap.add_argument("--skip-curves", action="store_true", help="only the ζσ-vs-proxy figure (no training)")
+    ap.add_argument("--skip-zeta", action="store_true", help="only the sample-efficiency curves")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     start = time.perf_counter()
-    zeta_vs_proxy(args.domains, RESULTS / "zeta_vs_proxy.png")
+    if not args.skip_zeta:
+        zeta_vs_proxy(args.domains, RESULTS / "zeta_vs_proxy.png")
     if not args.skip_curves:
-        curves = sample_efficiency(args.domains, args.sizes, args.local_steps, RESULTS / "sample_efficiency.png")
-        save_json(RESULTS / "sample_efficiency.json", {"sizes": args.sizes, "local_steps": args.local_steps,
+        curves = sample_efficiency(args.domains, args.sizes, args.ranker_steps, args.local_steps,
+                                   RESULTS / "sample_efficiency.png")
+        save_json(RESULTS / "sample_efficiency.json", {"sizes": args.sizes, "ranker_steps": args.ranker_steps,
+                                                       "local_steps": args.local_steps,
                                                        "curves": curves,
                                                        "seconds": round(time.perf_counter() - start)})
 
