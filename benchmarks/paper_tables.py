@@ -57,7 +57,8 @@ def _cell(sr: float, af: float | None, sd: float | None) -> str:
 
 
 def run(domains: list[str], precisions: list[str], targets: int, seed: int,
-        labels: list[str]) -> list[tuple[str, str, int, EvalResult]]:
+        labels: list[str], on_row=None) -> list[tuple[str, str, int, EvalResult]]:
+    """Evaluate every requested domain × method × precision; ``on_row(rows so far)`` after each."""
     out = []
     for domain in domains:
         for i, (method, rep, label) in enumerate(METHODS):
@@ -73,6 +74,8 @@ def run(domains: list[str], precisions: list[str], targets: int, seed: int,
                 log.info("%s %s %s: SR %.2f AF %s (%.0f s)", domain, label, precision, r.success_rate,
                          r.avg_feedback, r.seconds)
                 out.append((domain, label, i, r))
+                if on_row:
+                    on_row(out)
     return out
 
 
@@ -123,16 +126,19 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     start = time.perf_counter()
-    rows = run(args.domains, args.precisions, args.targets, args.seed, args.methods)
-    seconds = time.perf_counter() - start
-    if args.merge:
-        rows = merged(rows, args.merge)
-        seconds += sum(r.seconds for d, _, _, r in rows if d not in args.domains)
-    text = markdown(rows, sorted({d for d, *_ in rows}), args.precisions, args.targets, args.seed, seconds)
-    save_text(args.out, text)
-    save_json(args.out.with_suffix(".json"), [{"label": label, **{k: v for k, v in r.to_json().items()
-                                                                  if k != "trials"}} for _, label, _, r in rows])
-    print(text)
+
+    def write(rows) -> str:  # after every row: a long run stopped early still leaves its measured rows
+        seconds = time.perf_counter() - start
+        if args.merge:
+            rows = merged(rows, args.merge)
+            seconds += sum(r.seconds for d, _, _, r in rows if d not in args.domains)
+        text = markdown(rows, sorted({d for d, *_ in rows}), args.precisions, args.targets, args.seed, seconds)
+        save_text(args.out, text)
+        save_json(args.out.with_suffix(".json"), [{"label": label, **{k: v for k, v in r.to_json().items()
+                                                                      if k != "trials"}} for _, label, _, r in rows])
+        return text
+
+    print(write(run(args.domains, args.precisions, args.targets, args.seed, args.methods, on_row=write)))
 
 
 if __name__ == "__main__":
