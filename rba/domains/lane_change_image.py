@@ -28,7 +28,6 @@ VAE_ROLLOUTS = 300  # rollouts whose frames train the VAE
 class LaneChangeImage(LaneChange):
     name = "lane_change_image"
     state_dim = LATENT
-    serve_size = 1200  # every state costs a rendered frame here; the kinematic domain carries the dense library
 
     def __init__(self) -> None:
         super().__init__()
