@@ -164,8 +164,6 @@ def build_parser() -> argparse.ArgumentParser:
                    help="rollouts the agent chooses from (default: the domain's serve_size)")
     b.add_argument("--test", type=_positive, default=120, help="held-out target behaviours")
     b.add_argument("--workers", type=_positive, default=2, help="simulation processes")
-    b.add_argument("--states", default="kinematic",
-                   help="kinematic (default) or another registered view, e.g. image for lane_change")
     b.set_defaults(func=cmd_build)
 
     t = sub.add_parser("train", help="train RBA-Global (ζσ, rθ) and/or RBA-Local (rθ) and write model cards")
@@ -175,8 +173,6 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--preset", choices=("default", "quick", "tiny"), default="default",
                    help="'quick': a shorter rθ; 'tiny': the CI smoke preset")
     t.add_argument("--seed", type=int, default=0)
-    t.add_argument("--states", default="kinematic",
-                   help="kinematic (default) or another registered view, e.g. image for lane_change")
     t.set_defaults(func=cmd_train)
 
     c = sub.add_parser("cache", help="render every clip of a split into the app's clip cache (RBA_CACHE_DIR)")
@@ -184,8 +180,6 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--split", choices=("serve", "train", "test"), default="serve")
     c.add_argument("--width", type=_positive, default=None, help="default: RBA_CLIP_WIDTH (320)")
     c.add_argument("--height", type=_positive, default=None, help="default: RBA_CLIP_HEIGHT (240)")
-    c.add_argument("--states", default="kinematic",
-                   help="kinematic (default) or another registered view, e.g. image for lane_change")
     c.set_defaults(func=cmd_cache)
 
     e = sub.add_parser("eval", help="run the paper's protocol with simulated users")
@@ -199,8 +193,6 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--all-methods", action="store_true",
                    help="evaluate every method and representation (ignores --method/--rep); JSON is a list")
     e.add_argument("--json", help="write the full result (trials included) here")
-    e.add_argument("--states", default="kinematic",
-                   help="kinematic (default) or another registered view, e.g. image for lane_change")
     e.set_defaults(func=cmd_eval)
 
     r = sub.add_parser("render", help="render a library rollout to an MP4 (H.264)")
@@ -209,9 +201,11 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("out", help="output .mp4 path")
     r.add_argument("--width", type=_positive, default=320)
     r.add_argument("--height", type=_positive, default=240)
-    r.add_argument("--states", default="kinematic",
-                   help="kinematic (default) or another registered view, e.g. image for lane_change")
     r.set_defaults(func=cmd_render)
+
+    for command in (b, t, c, e, r):  # every command that names a domain can pick its view
+        command.add_argument("--states", default="kinematic",
+                             help="kinematic (default) or another registered view, e.g. image for lane_change")
 
     s = sub.add_parser("serve", help="start the web app")
     s.add_argument("--host", default=None)
