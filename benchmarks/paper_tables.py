@@ -49,6 +49,7 @@ PAPER = {
     },
 }
 
+LABELS = [label for _, _, label in METHODS]  # the tables' row order
 PAPER_ROW = {"lane_change_image": "lane_change"}  # the paper's lane change observes images
 
 
@@ -82,12 +83,11 @@ def run(domains: list[str], precisions: list[str], targets: int, seed: int,
 def merged(rows, path: Path) -> list:
     """Rows from an earlier run's JSON that this run did not re-measure, then this run's rows."""
     fresh = {(d, label, r.precision) for d, label, _, r in rows}
-    order = [m[2] for m in METHODS]
     old = []
     for row in load_json(path):
-        result = EvalResult(**{**row, "trials": []})
+        result = EvalResult(**{**{k: v for k, v in row.items() if k != "label"}, "trials": []})
         if (result.domain, row["label"], result.precision) not in fresh:
-            old.append((result.domain, row["label"], order.index(row["label"]), result))
+            old.append((result.domain, row["label"], LABELS.index(row["label"]), result))
     return sorted(old + rows, key=lambda x: (x[0], x[2]))
 
 
@@ -105,10 +105,10 @@ def markdown(rows, domains: list[str], precisions: list[str], targets: int, seed
             lines.append(f"| {domain} | {label} | {_cell(r.success_rate, r.avg_feedback, r.std_feedback)} | "
                          f"{_cell(*paper[i]) if paper else '–'} |")
         lines.append("")
-    methods = " ".join(sorted({label for _, label, _, _ in rows}, key=[m[2] for m in METHODS].index))
+    methods = " ".join(sorted({label for _, label, _, _ in rows}, key=LABELS.index))
     command = (f"python benchmarks/paper_tables.py --domains {' '.join(domains)} --precisions {' '.join(precisions)} "
                f"--methods {methods} --targets {targets} --seed {seed}")
-    lines += [f"Command: `{command}`; wall time {seconds / 60:.1f} min; {dt.date.today().isoformat()}, "
+    lines += [f"Command: `{command}`; {seconds / 60:.1f} min of evaluation; {dt.date.today().isoformat()}, "
               f"Python {platform.python_version()}, CPU only.", ""]
     return "\n".join(lines)
 
@@ -117,7 +117,7 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--domains", nargs="+", default=list(domain_names()), choices=domain_names())
     ap.add_argument("--precisions", nargs="+", default=["normal", "high"], choices=["normal", "high"])
-    ap.add_argument("--methods", nargs="+", default=[m[2] for m in METHODS], choices=[m[2] for m in METHODS])
+    ap.add_argument("--methods", nargs="+", default=LABELS, choices=LABELS)
     ap.add_argument("--targets", type=int, default=20)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=RESULTS / "paper_tables.md")
