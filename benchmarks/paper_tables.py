@@ -8,6 +8,7 @@ numbers. Writes ``benchmarks/results/paper_tables.md`` (and ``.json``).
     python benchmarks/paper_tables.py --domains lane_change --precisions normal --targets 5
     python benchmarks/paper_tables.py --domains snake --merge benchmarks/results/paper_tables.json
                                                     # re-measure one domain, keep the others' rows
+    python benchmarks/paper_tables.py --report-only --merge a.json b.json   # combine parallel runs
 """
 
 from __future__ import annotations
@@ -16,7 +17,6 @@ import argparse
 import datetime as dt
 import logging
 import platform
-import time
 from pathlib import Path
 
 from rba.artifacts import ModelNotFoundError
@@ -80,15 +80,17 @@ def run(domains: list[str], precisions: list[str], targets: int, seed: int,
     return out
 
 
-def merged(rows, path: Path) -> list:
-    """Rows from an earlier run's JSON that this run did not re-measure, then this run's rows."""
-    fresh = {(d, label, r.precision) for d, label, _, r in rows}
-    old = []
-    for row in load_json(path):
-        result = EvalResult(**{**{k: v for k, v in row.items() if k != "label"}, "trials": []})
-        if (result.domain, row["label"], result.precision) not in fresh:
-            old.append((result.domain, row["label"], LABELS.index(row["label"]), result))
-    return sorted(old + rows, key=lambda x: (x[0], x[2]))
+def merged(rows, paths: list[Path]) -> list:
+    """Rows of earlier runs' JSON (a later file's row replaces an earlier one's), then this run's rows."""
+    kept: dict[tuple[str, str, str], tuple] = {}
+    for path in paths:
+        for row in load_json(path):
+            result = EvalResult(**{**{k: v for k, v in row.items() if k != "label"}, "trials": []})
+            kept[(result.domain, row["label"], result.precision)] = (result.domain, row["label"],
+                                                                     LABELS.index(row["label"]), result)
+    for row in rows:
+        kept[(row[0], row[1], row[3].precision)] = row
+    return sorted(kept.values(), key=lambda x: (x[0], x[2]))
 
 
 def markdown(rows, domains: list[str], precisions: list[str], targets: int, seed: int, seconds: float) -> str:
@@ -121,24 +123,27 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--targets", type=int, default=20)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=RESULTS / "paper_tables.md")
-    ap.add_argument("--merge", type=Path,
-                    help="an earlier run's .json: keep its rows for what this run does not measure")
+    ap.add_argument("--merge", type=Path, nargs="+", default=[],
+                    help="earlier runs' .json (later files win): keep their rows for what this run does not measure")
+    ap.add_argument("--report-only", action="store_true",
+                    help="measure nothing: write the report from the --merge files (runs made in parallel)")
     args = ap.parse_args(argv)
+    if args.report_only and not args.merge:
+        ap.error("--report-only needs --merge: the .json files of the runs to report")
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
-    start = time.perf_counter()
 
     def write(rows) -> str:  # after every row: a long run stopped early still leaves its measured rows
-        seconds = time.perf_counter() - start
-        if args.merge:
-            rows = merged(rows, args.merge)
-            seconds += sum(r.seconds for d, _, _, r in rows if d not in args.domains)
+        rows = merged(rows, args.merge)
+        seconds = sum(r.seconds for *_, r in rows)  # evaluation time of every row in the report
         text = markdown(rows, sorted({d for d, *_ in rows}), args.precisions, args.targets, args.seed, seconds)
         save_text(args.out, text)
         save_json(args.out.with_suffix(".json"), [{"label": label, **{k: v for k, v in r.to_json().items()
                                                                       if k != "trials"}} for _, label, _, r in rows])
         return text
 
-    print(write(run(args.domains, args.precisions, args.targets, args.seed, args.methods, on_row=write)))
+    rows = [] if args.report_only else run(args.domains, args.precisions, args.targets, args.seed, args.methods,
+                                           on_row=write)
+    print(write(rows))
 
 
 if __name__ == "__main__":

@@ -2,6 +2,8 @@
 
 import importlib.util
 
+import pytest
+
 from rba.evaluate import EvalResult
 from rba.paths import REPO_ROOT
 from rba.storage import save_json
@@ -20,8 +22,31 @@ def test_merge_keeps_rows_this_run_did_not_measure(tmp_path):
                for d, p in (("walker", "normal"), ("walker", "high"), ("snake", "normal"))]
     save_json(tmp_path / "t.json", [{k: v for k, v in row.items() if k != "trials"} for row in earlier])
     fresh = [("walker", "RBA-Global", 0, _result("walker", "normal", 1.0))]
-    rows = paper_tables.merged(fresh, tmp_path / "t.json")
+    rows = paper_tables.merged(fresh, [tmp_path / "t.json"])
     got = {(d, r.precision): r.success_rate for d, _, _, r in rows}
     assert got == {("snake", "normal"): 0.5, ("walker", "normal"): 1.0, ("walker", "high"): 0.5}
     text = paper_tables.markdown(rows, ["snake", "walker"], ["normal"], 20, 0, 60.0)
     assert "| walker | RBA-Global | 1.00 / 2.00 (1.00) | 1.00 / 3.75 (1.47) |" in text
+
+
+def _save(path, rows):
+    save_json(path, [{"label": label, **{k: v for k, v in r.to_json().items() if k != "trials"}} for label, r in rows])
+
+
+def test_report_only_combines_parallel_runs_later_file_wins(tmp_path):
+    _save(tmp_path / "a.json", [("RBA-Global", _result("walker", "normal", 0.5)),
+                                ("PbRL", _result("snake", "high", 0.25))])
+    _save(tmp_path / "b.json", [("RBA-Global", _result("walker", "normal", 0.9))])
+    out = tmp_path / "t.md"
+    paper_tables.main(["--report-only", "--merge", str(tmp_path / "a.json"), str(tmp_path / "b.json"),
+                       "--out", str(out)])
+    text = out.read_text()
+    assert "| walker | RBA-Global | 0.90 / 2.00 (1.00) |" in text
+    assert "| snake | PbRL | 0.25 / 2.00 (1.00) |" in text
+    assert "0.50 /" not in text
+
+
+def test_report_only_without_merge_says_what_is_missing(capsys):
+    with pytest.raises(SystemExit):
+        paper_tables.main(["--report-only"])
+    assert "--report-only needs --merge" in capsys.readouterr().err
