@@ -69,6 +69,7 @@ class LaneChange(Domain):
     state_dim = len(STATE_FEATURES)
     param_names = tuple(PARAM_RANGES)
     frame_rate = float(SIM_HZ)
+    serve_size = 3600  # 1,200 leaves 19 % of test targets with no serve clip within the high-precision ε
 
     def __init__(self) -> None:
         self._local = threading.local()  # one highway-env per thread (simulation and rendering)

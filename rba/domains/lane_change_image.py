@@ -28,6 +28,7 @@ VAE_ROLLOUTS = 300  # rollouts whose frames train the VAE
 class LaneChangeImage(LaneChange):
     name = "lane_change_image"
     state_dim = LATENT
+    serve_size = 1200  # every image rollout costs ~60 renders; the denser kinematic library is not needed here
 
     def __init__(self) -> None:
         super().__init__()
