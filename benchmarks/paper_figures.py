@@ -23,6 +23,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
+import matplotlib.ticker
 import numpy as np
 
 from rba.artifacts import ModelNotFoundError, load_model
@@ -88,23 +89,28 @@ def sample_efficiency(domains: list[str], sizes: list[int], ranker_steps: int, l
                 curves[d]["local"].append(lm["local_reward"]["target_vs_negative"])
             log.info("%s n=%d: ζσ %.3f, local %.3f", d, n, curves[d]["zeta"][-1], curves[d]["local"][-1])
     if curves:
-        fig, axes = plt.subplots(1, 2, figsize=(9, 3.4))
-        for d, c in curves.items():
-            axes[0].plot(sizes, c["zeta"], marker="o", label=d)
-            axes[1].plot(sizes, c["local"], marker="o", label=d)
-        axes[0].set_title("ζσ: pairwise accuracy on test")
-        axes[0].set_xlabel("labelled clips")
-        axes[1].set_title("RBA-Local: target above negative on test")
-        axes[1].set_xlabel("labelled local-change pairs")
-        for ax in axes:
-            ax.set_xscale("log")
-            ax.set_xticks(sizes, [str(s) for s in sizes])
-            ax.grid(alpha=0.3)
-            ax.legend(fontsize=8)
-        fig.tight_layout()
-        fig.savefig(out, dpi=110)
-        plt.close(fig)
+        plot_sample_efficiency(curves, sizes, ranker_steps, local_steps, out)
     return curves
+
+
+def plot_sample_efficiency(curves: dict, sizes: list[int], ranker_steps: int, local_steps: int, out: Path) -> None:
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.6))
+    for d, c in curves.items():
+        axes[0].plot(sizes, c["zeta"], marker="o", label=d)
+        axes[1].plot(sizes, c["local"], marker="o", label=d)
+    axes[0].set_title(f"ζσ: pairwise accuracy on test ({ranker_steps} steps)", fontsize=10)
+    axes[0].set_xlabel("labelled clips")
+    axes[1].set_title(f"RBA-Local: target above negative on test ({local_steps} steps)", fontsize=10)
+    axes[1].set_xlabel("labelled local-change pairs")
+    for ax in axes:
+        ax.set_xscale("log")
+        ax.set_xticks(sizes, [str(s) for s in sizes])
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
 
 
 def main(argv: list[str] | None = None) -> None:
