@@ -72,7 +72,7 @@ def cmd_train(args) -> int:
     for method in methods:
         for rep in reps:
             if method == "global":
-                metrics = train_global(args.domain, rep, GlobalTrainConfig.preset(args.preset, args.seed))
+                metrics = train_global(args.domain, rep, GlobalTrainConfig.preset(args.preset, args.seed, args.domain))
             else:
                 metrics = train_local(args.domain, rep, LocalTrainConfig.preset(args.preset, args.seed))
             print(json.dumps({"domain": args.domain, "method": method, "rep": rep, **metrics}, indent=2))

@@ -41,13 +41,15 @@ class GlobalTrainConfig:
     reward: GlobalRewardConfig = field(default_factory=GlobalRewardConfig)
 
     @classmethod
-    def preset(cls, name: str, seed: int = 0) -> GlobalTrainConfig:
+    def preset(cls, name: str, seed: int = 0, domain: str | None = None) -> GlobalTrainConfig:
+        """``tiny`` (CI), ``quick`` or ``default``; ``default`` takes ``domain``'s ζσ steps if it sets them."""
         if name == "tiny":
             return cls(RankerConfig(steps=200, hidden=64, seed=seed),
                        GlobalRewardConfig(steps=120, hidden=64, seed=seed))
         if name == "quick":
             return cls(RankerConfig(seed=seed), GlobalRewardConfig(steps=300, hidden=128, seed=seed))
-        return cls(RankerConfig(seed=seed), GlobalRewardConfig(seed=seed))
+        steps = get_domain(domain).ranker_steps if domain else None
+        return cls(RankerConfig(seed=seed, **({"steps": steps} if steps else {})), GlobalRewardConfig(seed=seed))
 
 
 def weights_sha(model: torch.nn.Module) -> str:
@@ -157,7 +159,7 @@ def train_global(domain_name: str, rep: str, cfg: GlobalTrainConfig | None = Non
     ``sources`` say about them; attributes that ``sources`` declare new are labelled by
     ``sources`` alone, and a fifth of their pairs is held out to measure ζσ on.
     """
-    cfg = cfg or GlobalTrainConfig()
+    cfg = cfg or GlobalTrainConfig.preset("default", domain=domain_name)
     sources = sources or []
     declared = _declared(sources, lambda labels, name: bool(labels.pairs(name)))
     domain, (train, serve, test), embed, attrs = _training_inputs(domain_name, rep, data_root, declared.values())

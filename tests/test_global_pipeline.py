@@ -97,3 +97,13 @@ def test_simulated_users_reach_targets(toy_roots):
     test = SkillLibrary.load("toy", "test", data)
     for trial in result.trials:
         assert any(np.allclose(list(trial.target.values()), row) for row in test.proxies)
+
+
+def test_default_preset_takes_a_domains_ranker_steps():
+    from rba.learn.ranker import RankerConfig
+    from rba.training import GlobalTrainConfig
+
+    assert GlobalTrainConfig.preset("default", 3, "lane_change_image").ranker.steps == 3200
+    walker = GlobalTrainConfig.preset("default", 3, "walker").ranker
+    assert (walker.steps, walker.seed) == (RankerConfig().steps, 3)
+    assert GlobalTrainConfig.preset("tiny", 0, "lane_change_image").ranker.steps == 200  # CI stays tiny

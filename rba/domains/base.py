@@ -50,6 +50,7 @@ class Domain(ABC):
     param_names: tuple[str, ...]  # keys of sample_params(), in a fixed order
     frame_rate: float  # frames per second of ``replay`` (and of rendered clips)
     serve_size: int = 1200  # rollouts in ``serve`` by default: denser where high-precision targets need it
+    ranker_steps: int | None = None  # ζσ gradient steps of `rba train` where RankerConfig's default underfits
 
     @abstractmethod
     def sample_params(self, rng: np.random.Generator) -> dict[str, float]:

@@ -45,13 +45,13 @@ STATE_FEATURES = (
 )
 
 
-def _make_env(width: int = 320, height: int = 240, view: float = VIEW_METRES):
+def _make_env(width: int = 320, height: int = 240, view: float = VIEW_METRES, ego_at: float = 0.5):
     import gymnasium as gym
     import highway_env  # noqa: F401  (registers highway-v0)
 
     config = {"lanes_count": 2, "vehicles_count": 0, "simulation_frequency": SIM_HZ,
               "policy_frequency": SIM_HZ // DECIDE_EVERY, "duration": DURATION + 1, "screen_width": width,
-              "screen_height": height, "scaling": width / view, "centering_position": [0.5, 0.5],
+              "screen_height": height, "scaling": width / view, "centering_position": [ego_at, 0.5],
               "offscreen_rendering": True, "action": {"type": "DiscreteMetaAction"}}
     env = gym.make("highway-v0", render_mode="rgb_array", config=config)
     env.reset(seed=0)
@@ -74,11 +74,12 @@ class LaneChange(Domain):
     def __init__(self) -> None:
         self._local = threading.local()  # one highway-env per thread (simulation and rendering)
 
-    def _env(self, width: int = 320, height: int = 240, view: float = VIEW_METRES):
+    def _env(self, width: int = 320, height: int = 240, view: float = VIEW_METRES, ego_at: float = 0.5):
         envs = self._local.__dict__.setdefault("envs", {})
-        if (width, height, view) not in envs:
-            envs[width, height, view] = _make_env(width, height, view)
-        return envs[width, height, view]
+        key = (width, height, view, ego_at)
+        if key not in envs:
+            envs[key] = _make_env(*key)
+        return envs[key]
 
     def sample_params(self, rng: np.random.Generator) -> dict[str, float]:
         return {k: float(rng.uniform(lo, hi)) for k, (lo, hi) in PARAM_RANGES.items()}
@@ -134,9 +135,10 @@ class LaneChange(Domain):
                        info={"final_lateral_m": float(final_y), "crashed": float(crashed)})
 
     def render(self, rollout: Rollout, width: int, height: int, view: float = VIEW_METRES,
-               frames: np.ndarray | None = None) -> Iterator[np.ndarray]:
-        """Frames of ``rollout`` (or only the replay rows ``frames``), ``view`` metres of road across."""
-        env = self._env(int(width), int(height), view)
+               frames: np.ndarray | None = None, ego_at: float = 0.5) -> Iterator[np.ndarray]:
+        """Frames of ``rollout`` (or only the replay rows ``frames``), ``view`` metres of road across,
+        the ego car ``ego_at`` of the way across from the left (traffic drives rightwards)."""
+        env = self._env(int(width), int(height), view, ego_at)
         ego, follower = self._scene(env, 10.0, 1.0)
         rows = rollout.replay if frames is None else rollout.replay[frames]
         for ex, ey, eh, fx, fy, fh in rows:
