@@ -158,8 +158,9 @@ def run_job(job_id: str, settings_json: dict, registry: dict[str, str]) -> None:
             metrics = train_local(domain, rep, LocalTrainConfig.preset(preset), data_root=settings.data_dir,
                                   models_root=tmp, sources=sources, on_progress=progress)
         else:
-            metrics = train_global(domain, rep, GlobalTrainConfig.preset(preset), data_root=settings.data_dir,
-                                   models_root=tmp, sources=sources, on_progress=progress)
+            cfg = GlobalTrainConfig.preset(preset, domain=domain)
+            metrics = train_global(domain, rep, cfg, data_root=settings.data_dir, models_root=tmp, sources=sources,
+                                   on_progress=progress)
         version = f"{domain}-{dt.datetime.now(dt.UTC):%Y%m%d-%H%M%S}-{job_id[:6]}"
         with Session(engine) as db:
             job = db.get(TrainJob, job_id)
