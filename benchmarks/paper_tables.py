@@ -93,6 +93,11 @@ def merged(rows, paths: list[Path]) -> list:
     return sorted(kept.values(), key=lambda x: (x[0], x[2]))
 
 
+def json_rows(rows) -> list[dict]:
+    """The report's JSON: one object per row, its label and result without the per-trial detail."""
+    return [{"label": label, **{k: v for k, v in r.to_json().items() if k != "trials"}} for _, label, _, r in rows]
+
+
 def markdown(rows, domains: list[str], precisions: list[str], targets: int, seed: int, seconds: float) -> str:
     lines = ["# The paper's tables, measured", "",
              f"{targets} held-out targets per domain and method (seed {seed}), 500-feedback budget; AF over "
@@ -135,10 +140,10 @@ def main(argv: list[str] | None = None) -> None:
     def write(rows) -> str:  # after every row: a long run stopped early still leaves its measured rows
         rows = merged(rows, args.merge)
         seconds = sum(r.seconds for *_, r in rows)  # evaluation time of every row in the report
-        text = markdown(rows, sorted({d for d, *_ in rows}), args.precisions, args.targets, args.seed, seconds)
+        shown = [p for p in ("normal", "high") if p in args.precisions or any(r.precision == p for *_, r in rows)]
+        text = markdown(rows, sorted({d for d, *_ in rows}), shown, args.targets, args.seed, seconds)
         save_text(args.out, text)
-        save_json(args.out.with_suffix(".json"), [{"label": label, **{k: v for k, v in r.to_json().items()
-                                                                      if k != "trials"}} for _, label, _, r in rows])
+        save_json(args.out.with_suffix(".json"), json_rows(rows))
         return text
 
     rows = [] if args.report_only else run(args.domains, args.precisions, args.targets, args.seed, args.methods,

@@ -17,10 +17,13 @@ def _result(domain: str, precision: str, sr: float) -> EvalResult:
     return EvalResult(domain, "global", "onehot", precision, 0.0, 0, sr, 2.0, 1.0, 3.0, [])
 
 
+def _save(path, rows):
+    save_json(path, paper_tables.json_rows([(r.domain, label, 0, r) for label, r in rows]))
+
+
 def test_merge_keeps_rows_this_run_did_not_measure(tmp_path):
-    earlier = [{"label": "RBA-Global", **_result(d, p, 0.5).to_json()}
-               for d, p in (("walker", "normal"), ("walker", "high"), ("snake", "normal"))]
-    save_json(tmp_path / "t.json", [{k: v for k, v in row.items() if k != "trials"} for row in earlier])
+    _save(tmp_path / "t.json", [("RBA-Global", _result(d, p, 0.5))
+                                for d, p in (("walker", "normal"), ("walker", "high"), ("snake", "normal"))])
     fresh = [("walker", "RBA-Global", 0, _result("walker", "normal", 1.0))]
     rows = paper_tables.merged(fresh, [tmp_path / "t.json"])
     got = {(d, r.precision): r.success_rate for d, _, _, r in rows}
@@ -29,21 +32,18 @@ def test_merge_keeps_rows_this_run_did_not_measure(tmp_path):
     assert "| walker | RBA-Global | 1.00 / 2.00 (1.00) | 1.00 / 3.75 (1.47) |" in text
 
 
-def _save(path, rows):
-    save_json(path, [{"label": label, **{k: v for k, v in r.to_json().items() if k != "trials"}} for label, r in rows])
-
-
 def test_report_only_combines_parallel_runs_later_file_wins(tmp_path):
     _save(tmp_path / "a.json", [("RBA-Global", _result("walker", "normal", 0.5)),
                                 ("PbRL", _result("snake", "high", 0.25))])
     _save(tmp_path / "b.json", [("RBA-Global", _result("walker", "normal", 0.9))])
     out = tmp_path / "t.md"
     paper_tables.main(["--report-only", "--merge", str(tmp_path / "a.json"), str(tmp_path / "b.json"),
-                       "--out", str(out)])
+                       "--precisions", "high", "--out", str(out)])
     text = out.read_text()
     assert "| walker | RBA-Global | 0.90 / 2.00 (1.00) |" in text
     assert "| snake | PbRL | 0.25 / 2.00 (1.00) |" in text
     assert "0.50 /" not in text
+    assert "## Table 1" in text and "## Table 2" in text  # a merged report shows every precision it has rows for
 
 
 def test_report_only_without_merge_says_what_is_missing(capsys):
