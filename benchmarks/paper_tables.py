@@ -58,11 +58,11 @@ def _cell(sr: float, af: float | None, sd: float | None) -> str:
 
 
 def run(domains: list[str], precisions: list[str], targets: int, seed: int,
-        labels: list[str], on_row=None) -> list[tuple[str, str, int, EvalResult]]:
+        labels: list[str], on_row=None) -> list[tuple[str, str, EvalResult]]:
     """Evaluate every requested domain × method × precision; ``on_row(rows so far)`` after each."""
     out = []
     for domain in domains:
-        for i, (method, rep, label) in enumerate(METHODS):
+        for method, rep, label in METHODS:
             if label not in labels:
                 continue
             try:
@@ -74,7 +74,7 @@ def run(domains: list[str], precisions: list[str], targets: int, seed: int,
                 r = evaluate(domain, method, rep, targets, seed, precision=precision, context=ctx)
                 log.info("%s %s %s: SR %.2f AF %s (%.0f s)", domain, label, precision, r.success_rate,
                          r.avg_feedback, r.seconds)
-                out.append((domain, label, i, r))
+                out.append((domain, label, r))
                 if on_row:
                     on_row(out)
     return out
@@ -86,16 +86,15 @@ def merged(rows, paths: list[Path]) -> list:
     for path in paths:
         for row in load_json(path):
             result = EvalResult(**{**{k: v for k, v in row.items() if k != "label"}, "trials": []})
-            kept[(result.domain, row["label"], result.precision)] = (result.domain, row["label"],
-                                                                     LABELS.index(row["label"]), result)
-    for row in rows:
-        kept[(row[0], row[1], row[3].precision)] = row
-    return sorted(kept.values(), key=lambda x: (x[0], x[2]))
+            kept[(result.domain, row["label"], result.precision)] = (result.domain, row["label"], result)
+    for domain, label, result in rows:
+        kept[(domain, label, result.precision)] = (domain, label, result)
+    return sorted(kept.values(), key=lambda x: (x[0], LABELS.index(x[1])))
 
 
 def json_rows(rows) -> list[dict]:
     """The report's JSON: one object per row, its label and result without the per-trial detail."""
-    return [{"label": label, **{k: v for k, v in r.to_json().items() if k != "trials"}} for _, label, _, r in rows]
+    return [{"label": label, **{k: v for k, v in r.to_json().items() if k != "trials"}} for _, label, r in rows]
 
 
 def markdown(rows, domains: list[str], precisions: list[str], targets: int, seed: int, seconds: float) -> str:
@@ -105,14 +104,14 @@ def markdown(rows, domains: list[str], precisions: list[str], targets: int, seed
     for precision in precisions:
         title = "Table 1 — normal precision" if precision == "normal" else "Table 2 — high precision"
         lines += [f"## {title}", "", "| domain | method | ours | paper |", "|---|---|---|---|"]
-        for domain, label, i, r in rows:
+        for domain, label, r in rows:
             if r.precision != precision:
                 continue
             paper = PAPER[precision].get(PAPER_ROW.get(domain, domain))
             lines.append(f"| {domain} | {label} | {_cell(r.success_rate, r.avg_feedback, r.std_feedback)} | "
-                         f"{_cell(*paper[i]) if paper else '–'} |")
+                         f"{_cell(*paper[LABELS.index(label)]) if paper else '–'} |")
         lines.append("")
-    methods = " ".join(sorted({label for _, label, _, _ in rows}, key=LABELS.index))
+    methods = " ".join(sorted({label for _, label, _ in rows}, key=LABELS.index))
     command = (f"python benchmarks/paper_tables.py --domains {' '.join(domains)} --precisions {' '.join(precisions)} "
                f"--methods {methods} --targets {targets} --seed {seed}")
     lines += [f"Command: `{command}`; {seconds / 60:.1f} min of evaluation; {dt.date.today().isoformat()}, "

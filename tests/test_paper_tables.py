@@ -18,15 +18,15 @@ def _result(domain: str, precision: str, sr: float) -> EvalResult:
 
 
 def _save(path, rows):
-    save_json(path, paper_tables.json_rows([(r.domain, label, 0, r) for label, r in rows]))
+    save_json(path, paper_tables.json_rows([(r.domain, label, r) for label, r in rows]))
 
 
 def test_merge_keeps_rows_this_run_did_not_measure(tmp_path):
     _save(tmp_path / "t.json", [("RBA-Global", _result(d, p, 0.5))
                                 for d, p in (("walker", "normal"), ("walker", "high"), ("snake", "normal"))])
-    fresh = [("walker", "RBA-Global", 0, _result("walker", "normal", 1.0))]
+    fresh = [("walker", "RBA-Global", _result("walker", "normal", 1.0))]
     rows = paper_tables.merged(fresh, [tmp_path / "t.json"])
-    got = {(d, r.precision): r.success_rate for d, _, _, r in rows}
+    got = {(d, r.precision): r.success_rate for d, _, r in rows}
     assert got == {("snake", "normal"): 0.5, ("walker", "normal"): 1.0, ("walker", "high"): 0.5}
     text = paper_tables.markdown(rows, ["snake", "walker"], ["normal"], 20, 0, 60.0)
     assert "| walker | RBA-Global | 1.00 / 2.00 (1.00) | 1.00 / 3.75 (1.47) |" in text
