@@ -1,0 +1,182 @@
+"""The shape of the code: the import graph of ``rba/`` and ``server/`` and the longest functions.
+
+``tests/test_architecture.py`` holds the rules (``rba`` never imports ``server``; no import cycles; short functions);
+this script prints the numbers and writes ``benchmarks/results/code_shape.md``:
+
+    python benchmarks/code_shape.py
+
+Every ``import`` statement counts, inside functions too (a lazy import is still a dependency), except those under
+``if TYPE_CHECKING:``. An import names the deepest module it reaches: ``from rba.domains import get_domain`` is an
+edge to ``rba.domains``; ``from rba.learn import ranker`` to ``rba.learn.ranker``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import datetime as dt
+from dataclasses import dataclass
+from pathlib import Path
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("rba", "server")
+RESULTS = REPO_ROOT / "benchmarks" / "results" / "code_shape.md"
+
+
+def module_files(root: Path = REPO_ROOT) -> dict[str, Path]:
+    """Dotted module name -> file, for every module of ``PACKAGES``."""
+    found = {}
+    for package in PACKAGES:
+        for path in sorted((root / package).rglob("*.py")):
+            parts = path.relative_to(root).with_suffix("").parts
+            found[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    return found
+
+
+def _is_type_checking(node: ast.If) -> bool:
+    test = node.test
+    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
+        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING")
+
+
+def _imports(tree: ast.AST) -> list[ast.Import | ast.ImportFrom]:
+    """Every import statement of ``tree`` except those guarded by ``if TYPE_CHECKING:``."""
+    found, stack = [], [tree]
+    while stack:
+        node = stack.pop()
+        if isinstance(node, ast.If) and _is_type_checking(node):
+            stack.extend(node.orelse)
+            continue
+        if isinstance(node, ast.Import | ast.ImportFrom):
+            found.append(node)
+        stack.extend(ast.iter_child_nodes(node))
+    return found
+
+
+def _resolve(name: str, modules: dict[str, Path]) -> str | None:
+    """The deepest known module that ``name`` (a dotted path) lies in, or None if it is outside the project."""
+    parts = name.split(".")
+    for end in range(len(parts), 0, -1):
+        candidate = ".".join(parts[:end])
+        if candidate in modules:
+            return candidate
+    return None
+
+
+def _targets(node: ast.Import | ast.ImportFrom, module: str, is_package: bool) -> list[str]:
+    if isinstance(node, ast.Import):
+        return [alias.name for alias in node.names]
+    base = node.module or ""
+    if node.level:  # relative: from .x import y
+        anchor = module.split(".") if is_package else module.split(".")[:-1]
+        anchor = anchor[: len(anchor) - (node.level - 1)]
+        base = ".".join([*anchor, base] if base else anchor)
+    return [f"{base}.{alias.name}" for alias in node.names]
+
+
+def import_graph(root: Path = REPO_ROOT) -> dict[str, set[str]]:
+    """Module -> the project modules it imports (self-edges dropped)."""
+    modules = module_files(root)
+    graph: dict[str, set[str]] = {}
+    for module, path in modules.items():
+        edges = set()
+        for node in _imports(ast.parse(path.read_text(), str(path))):
+            for target in _targets(node, module, path.name == "__init__.py"):
+                resolved = _resolve(target, modules)
+                if resolved is not None and resolved != module:
+                    edges.add(resolved)
+        graph[module] = edges
+    return graph
+
+
+def back_edges(graph: dict[str, set[str]]) -> list[tuple[str, str]]:
+    """Imports of ``server`` from ``rba`` (the library must not know the web app)."""
+    return sorted((a, b) for a, edges in graph.items() for b in edges
+                  if a.split(".")[0] == "rba" and b.split(".")[0] == "server")
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan), each sorted."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return sorted(found)
+
+
+@dataclass(frozen=True)
+class Function:
+    file: str
+    name: str
+    line: int
+    lines: int
+
+
+def functions(root: Path = REPO_ROOT, package: str | None = None) -> list[Function]:
+    """Every function and method of ``PACKAGES`` (or of one ``package``), longest first."""
+    found = []
+    for module, path in module_files(root).items():
+        if package and module.split(".")[0] != package:
+            continue
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                found.append(Function(str(path.relative_to(root)), node.name, node.lineno,
+                                      node.end_lineno - node.lineno + 1))
+    return sorted(found, key=lambda f: (-f.lines, f.file, f.line))
+
+
+def report(root: Path = REPO_ROOT, top: int = 8) -> str:
+    graph = import_graph(root)
+    lines = ["# The shape of the code", "",
+             f"{len(graph)} modules in {', '.join(PACKAGES)}; "
+             f"{sum(len(e) for e in graph.values())} import edges (function-level imports included).", "",
+             f"- rba → server imports (back-edges): {len(back_edges(graph))}"]
+    lines += [f"  - {a} → {b}" for a, b in back_edges(graph)]
+    lines.append(f"- import cycles: {len(cycles(graph))}")
+    lines += [f"  - {' ↔ '.join(c)}" for c in cycles(graph)]
+    for package in PACKAGES:
+        lines += ["", f"Longest functions in `{package}/`:", "", "| lines | function |", "|---|---|"]
+        lines += [f"| {f.lines} | `{f.file}:{f.line}` {f.name} |" for f in functions(root, package)[:top]]
+    lines += ["", f"Command: `python benchmarks/code_shape.py`; {dt.date.today().isoformat()}."]
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--root", type=Path, default=REPO_ROOT, help="a checkout to measure (default: this one)")
+    parser.add_argument("--no-write", action="store_true", help="print only; leave the results file alone")
+    args = parser.parse_args()
+    text = report(args.root.resolve())
+    print(text, end="")
+    if not args.no_write:
+        RESULTS.write_text(text)
+
+
+if __name__ == "__main__":
+    main()
