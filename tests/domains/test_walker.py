@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rba.domains.walker import DT, FRAME_RATE, STATE_EVERY, Walker
+from rba.domains.walker import FRAME_RATE, STATE_EVERY, Walker
 
 BASE = {"step_length": 0.5, "landing_speed": 0.5, "swing_duration": 0.5, "swing_height": 0.08}
 
@@ -28,7 +28,7 @@ def test_contract(walker: Walker) -> None:
     assert r.states.dtype == np.float32 and r.states.ndim == 2 and r.states.shape[1] == walker.state_dim
     assert r.replay.dtype == np.float64 and r.replay.shape[1] == 9
     # states every STATE_EVERY physics steps and frames at FRAME_RATE cover the same clip
-    expected = FRAME_RATE * STATE_EVERY * DT
+    expected = FRAME_RATE * STATE_EVERY * walker.physics().timestep()
     assert abs(len(r.replay) / len(r.states) - expected) < 0.05 * expected
     assert set(r.proxies) == {"step_size", "softness"}
     assert all(np.isfinite(v) for v in r.proxies.values())
