@@ -130,7 +130,7 @@ def _clip(x: float, lo: float, hi: float) -> float:
 
 
 # ---------------------------------------------------------------- the model and its named quantities
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class WalkerGeometry:
     """The walker's dimensions (m), joint limits (rad) and motor gears (N·m), read from the MuJoCo model.
 
@@ -215,19 +215,21 @@ class WalkerGeometry:
         """Planar forward kinematics of qpos ``q``: hip x, z, then per foot (right, left) ankle x, z,
         foot-centre x, z and clearance (lowest point of the capsule above the floor)."""
         iz, ix, iy = root
+        to_hip, thigh, shank, to_foot = self.torso_to_hip, self.thigh, self.shank, self.ankle_to_foot
+        sin, cos = math.sin, math.cos
         th = q[iy]
-        hx = q[ix] - self.torso_to_hip * math.sin(th)
-        hz = self.torso_z0 + q[iz] - self.torso_to_hip * math.cos(th)
+        hx = q[ix] - to_hip * sin(th)
+        hz = self.torso_z0 + q[iz] - to_hip * cos(th)
         out = [hx, hz]
         for j in (legs, legs + 3):
             a = q[j] - th
             b = a + q[j + 1]
             g = b + q[j + 2]
-            ax = hx + self.thigh * math.sin(a) + self.shank * math.sin(b)
-            az = hz - self.thigh * math.cos(a) - self.shank * math.cos(b)
-            sg = math.sin(g)
-            fx = ax + self.ankle_to_foot * math.cos(g)
-            fz = az + self.ankle_to_foot * sg
+            ax = hx + thigh * sin(a) + shank * sin(b)
+            az = hz - thigh * cos(a) - shank * cos(b)
+            sg = sin(g)
+            fx = ax + to_foot * cos(g)
+            fz = az + to_foot * sg
             out += [ax, az, fx, fz, fz - self.foot_radius - self.foot_half * abs(sg)]
         return tuple(out)
 
@@ -389,7 +391,7 @@ class WalkerPhysics:
 
 
 # ---------------------------------------------------------------- the gait
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class GaitPlan:
     """The commanded gait (from the skill parameters) and what follows from it for the whole clip."""
 
