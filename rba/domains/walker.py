@@ -37,6 +37,15 @@ Attributes (proxies grow with the attribute)
   (first foot–floor contact of the descending foot), mean over the later two steps.
 * ``softness``: minus the swing foot's peak speed in the last 50 ms before touchdown,
   mean over the later two steps.
+
+Code (dm_control suite style)
+-----------------------------
+:class:`WalkerGeometry` holds the dimensions read from the MuJoCo model; :class:`WalkerPhysics`
+wraps model and data with named getters (``torso_height()``, ``hip_position()``,
+``foot_positions()``...); :class:`GaitPlan` is what the parameters command; a
+:class:`GaitController`'s ``control(t, physics)`` gives each physics step's :class:`Command`;
+:func:`run` steps and records (:class:`Recording`), and :func:`measure` turns the recording into
+proxies, success and diagnostics.
 """
 
 
@@ -211,20 +220,19 @@ class WalkerGeometry:
         db = (-thigh * sa * vx + thigh * ca * vz) / det
         return da, db
 
-    def feet(self, q: list[float], root: tuple[int, int, int], legs: int) -> tuple[float, ...]:
-        """Planar forward kinematics of qpos ``q``: hip x, z, then per foot (right, left) ankle x, z,
-        foot-centre x, z and clearance (lowest point of the capsule above the floor)."""
-        iz, ix, iy = root
+    def kinematics(self, rootz: float, rootx: float, pitch: float, joints: list[float]) -> tuple[float, ...]:
+        """Planar forward kinematics: hip x, z, then per foot (right, left) ankle x, z, foot-centre
+        x, z and clearance (lowest point of the capsule above the floor). ``joints`` as LEG_JOINTS."""
         to_hip, thigh, shank, to_foot = self.torso_to_hip, self.thigh, self.shank, self.ankle_to_foot
         sin, cos = math.sin, math.cos
-        th = q[iy]
-        hx = q[ix] - to_hip * sin(th)
-        hz = self.torso_z0 + q[iz] - to_hip * cos(th)
+        th = pitch
+        hx = rootx - to_hip * sin(th)
+        hz = self.torso_z0 + rootz - to_hip * cos(th)
         out = [hx, hz]
-        for j in (legs, legs + 3):
-            a = q[j] - th
-            b = a + q[j + 1]
-            g = b + q[j + 2]
+        for j in (0, 3):
+            a = joints[j] - th
+            b = a + joints[j + 1]
+            g = b + joints[j + 2]
             ax = hx + thigh * sin(a) + shank * sin(b)
             az = hz - thigh * cos(a) - shank * cos(b)
             sg = sin(g)
@@ -252,6 +260,8 @@ class WalkerPhysics:
         self._legs = int(model.jnt_qposadr[mujoco.mj_name2id(model, joint, LEG_JOINTS[0])])
         legs = [int(model.jnt_qposadr[mujoco.mj_name2id(model, joint, j)]) for j in LEG_JOINTS]
         assert legs == list(range(self._legs, self._legs + 6)) and model.nq == model.nv, "walker joint layout"
+        motors = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, i) for i in range(model.nu)]
+        assert tuple(motors) == LEG_JOINTS, "walker motors: one per leg joint, in LEG_JOINTS order"
         self._torso_body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "torso")
         self._dt = float(model.opt.timestep)
         # views into data, made once: each `data.qpos` makes a new array object (costly every step)
@@ -283,7 +293,8 @@ class WalkerPhysics:
         data.qpos[:] = qpos
         data.qvel[:] = qvel
         mujoco.mj_forward(model, data)
-        k0 = self.geometry.feet(data.qpos.tolist(), self._root, self._legs)
+        (iz, ix, iy), legs, q = self._root, self._legs, data.qpos.tolist()
+        k0 = self.geometry.kinematics(q[iz], q[ix], q[iy], q[legs:legs + 6])
         data.qpos[self._root[0]] -= min(k0[6], k0[11]) + 1e-4
         mujoco.mj_forward(model, data)
         self._prev_feet, self._foot_vel = None, (0.0, 0.0, 0.0, 0.0)
@@ -293,8 +304,8 @@ class WalkerPhysics:
         q, v = self._qpos.tolist(), self._qvel.tolist()
         self._q = q
         (iz, ix, iy), legs = self._root, self._legs
-        kin = self.geometry.feet(q, self._root, legs)
         self._joints, self._joint_vel = q[legs:legs + 6], v[legs:legs + 6]
+        kin = self.geometry.kinematics(q[iz], q[ix], q[iy], self._joints)
         self._torso = (self.geometry.torso_z0 + q[iz], q[ix], q[iy])
         self._torso_vel = (v[iz], v[ix], v[iy])
         self._hip = (kin[0], kin[1])
