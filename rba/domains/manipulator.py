@@ -68,6 +68,63 @@ def quadratic_residual(points: np.ndarray, window: int = 5) -> float:
     return float(np.sqrt((res**2).sum(1).mean(1)).mean())
 
 
+def _grasp(model: mujoco.MjModel, data: mujoco.MjData, pinch: int) -> None:
+    """Start with the arm down and close the gripper on the ball, held in place meanwhile."""
+    data.qpos[:4] = Q_DOWN
+    mujoco.mj_kinematics(model, data)
+    # the ball's slide joints have ref = its default place, so their qpos are its x and z
+    hold = data.site_xpos[pinch][[0, 2]] + np.array([0.0, BALL_IN_HAND])
+    data.ctrl[4] = GRASP
+    for _ in range(SETTLE_STEPS):
+        data.qpos[8:10], data.qvel[8:11] = hold, 0.0
+        tau = KP * (Q_DOWN - data.qpos[:4]) - KD * data.qvel[:4] + data.qfrc_bias[:4]
+        data.ctrl[:4] = np.clip(tau / model.actuator_gear[:4, 0], -1.0, 1.0)
+        mujoco.mj_step(model, data)
+    data.qpos[8:10], data.qvel[8:11] = hold, 0.0
+    mujoco.mj_forward(model, data)
+
+
+class LiftController:
+    """The lift: PD with gravity compensation toward a minimum-jerk joint path, plus the held tremor."""
+
+    def __init__(self, duration: float, tremor: float, rng: np.random.Generator, gear: np.ndarray) -> None:
+        self.duration, self.tremor = duration, tremor
+        self._rng, self._gear = rng, gear
+        self._noise = np.zeros(4)
+
+    def control(self, t: float, k: int, data: mujoco.MjData) -> np.ndarray:
+        """Arm motor commands at control step ``k`` (time ``t``): a new tremor sample every TREMOR_HOLD steps."""
+        q_ref = Q_DOWN + (Q_UP - Q_DOWN) * min_jerk(np.array((t - HOLD_BEFORE) / self.duration))
+        if self.tremor and k % TREMOR_HOLD == 0 and HOLD_BEFORE <= t < HOLD_BEFORE + self.duration + 0.3:
+            self._noise = self.tremor * self._rng.standard_normal(4)
+        elif k % TREMOR_HOLD == 0:
+            self._noise = np.zeros(4)
+        tau = KP * (q_ref + self._noise - data.qpos[:4]) - KD * data.qvel[:4] + data.qfrc_bias[:4]
+        return np.clip(tau / self._gear, -1.0, 1.0)
+
+
+def measure(raw: np.ndarray) -> tuple[np.ndarray, dict[str, float], bool, dict[str, float]]:
+    """States, proxies, success and diagnostics from the raw 50 Hz samples [T, RAW_FEATURES]."""
+    n_states = len(raw) // STACK
+    windows = raw[: n_states * STACK].reshape(n_states, STACK, len(RAW_FEATURES))
+    jitter = 1000.0 * np.diff(windows[:, :, :2], n=3, axis=1).reshape(n_states, -1)  # mm, [n, 2 x 2]
+    states = np.concatenate([windows.reshape(n_states, -1), jitter], 1).astype(np.float32)
+    hand = raw[:, :2]
+    z = hand[:, 1]
+    z0, z1 = z[: int(HOLD_BEFORE * 50)].mean(), z[-int(0.3 * 50):].mean()
+    climb = z1 - z0
+    t = np.arange(len(z)) / 50.0
+    t10 = t[np.argmax(z >= z0 + 0.1 * climb)]
+    t90 = t[np.argmax(z >= z0 + 0.9 * climb)]
+    speed = 0.8 * climb / max(t90 - t10, 1e-3)
+    instability = 1000.0 * quadratic_residual(hand)  # mm
+    ball_rise = raw[-1, 4] - raw[0, 4]
+    held = np.linalg.norm(raw[-1, 3:5] - raw[-1, :2]) < 0.08
+    success = bool(held and ball_rise > MIN_RISE and np.isfinite(states).all())
+    return (states, {"speed": float(speed), "instability": instability}, success,
+            {"ball_rise_m": float(ball_rise), "climb_m": float(climb)})
+
+
 class Manipulator(Domain):
     name = "manipulator"
     attributes = (
@@ -109,36 +166,14 @@ class Manipulator(Domain):
         model = self._physics()
         data = mujoco.MjData(model)
         pinch, ball = self._ids(model)
-        rng = np.random.default_rng(seed)
-        duration, tremor = float(params["duration"]), float(params["tremor"])
-        # start: arm down, ball in the closed gripper
-        data.qpos[:4] = Q_DOWN
-        mujoco.mj_kinematics(model, data)
-        # the ball's slide joints have ref = its default place, so their qpos are its x and z
-        hold = data.site_xpos[pinch][[0, 2]] + np.array([0.0, BALL_IN_HAND])
-        data.ctrl[4] = GRASP
-        for _ in range(SETTLE_STEPS):  # close the gripper on the ball, held in place meanwhile
-            data.qpos[8:10], data.qvel[8:11] = hold, 0.0
-            tau = KP * (Q_DOWN - data.qpos[:4]) - KD * data.qvel[:4] + data.qfrc_bias[:4]
-            data.ctrl[:4] = np.clip(tau / model.actuator_gear[:4, 0], -1.0, 1.0)
-            mujoco.mj_step(model, data)
-        data.qpos[8:10], data.qvel[8:11] = hold, 0.0
-        mujoco.mj_forward(model, data)
+        _grasp(model, data, pinch)
+        controller = LiftController(float(params["duration"]), float(params["tremor"]), np.random.default_rng(seed),
+                                    model.actuator_gear[:4, 0])
         dt_control = model.opt.timestep * CONTROL_EVERY
-        total = HOLD_BEFORE + duration + HOLD_AFTER
-        n_control = round(total / dt_control)
-        gear = model.actuator_gear[:4, 0]
-        noise = np.zeros(4)
+        n_control = round((HOLD_BEFORE + controller.duration + HOLD_AFTER) / dt_control)
         raw, replay = [], []
         for k in range(n_control):
-            t = k * dt_control
-            q_ref = Q_DOWN + (Q_UP - Q_DOWN) * min_jerk(np.array((t - HOLD_BEFORE) / duration))
-            if tremor and k % TREMOR_HOLD == 0 and HOLD_BEFORE <= t < HOLD_BEFORE + duration + 0.3:
-                noise = tremor * rng.standard_normal(4)
-            elif k % TREMOR_HOLD == 0:
-                noise = np.zeros(4)
-            tau = KP * (q_ref + noise - data.qpos[:4]) - KD * data.qvel[:4] + data.qfrc_bias[:4]
-            data.ctrl[:4] = np.clip(tau / gear, -1.0, 1.0)
+            data.ctrl[:4] = controller.control(k * dt_control, k, data)
             mujoco.mj_step(model, data, nstep=CONTROL_EVERY)
             if k % RAW_EVERY == 0:
                 r = data.site_xmat[pinch].reshape(3, 3)
@@ -146,26 +181,8 @@ class Manipulator(Domain):
                             data.xpos[ball][0], data.xpos[ball][2], *data.qpos[1:4]])
             if k % FRAME_EVERY == 0:
                 replay.append(data.qpos.copy())
-        raw_arr = np.asarray(raw, dtype=np.float64)
-        n_states = len(raw_arr) // STACK
-        windows = raw_arr[: n_states * STACK].reshape(n_states, STACK, len(RAW_FEATURES))
-        jitter = 1000.0 * np.diff(windows[:, :, :2], n=3, axis=1).reshape(n_states, -1)  # mm, [n, 2 x 2]
-        states = np.concatenate([windows.reshape(n_states, -1), jitter], 1).astype(np.float32)
-        hand = raw_arr[:, :2]
-        z = hand[:, 1]
-        z0, z1 = z[: int(HOLD_BEFORE * 50)].mean(), z[-int(0.3 * 50):].mean()
-        climb = z1 - z0
-        t = np.arange(len(z)) / 50.0
-        t10 = t[np.argmax(z >= z0 + 0.1 * climb)]
-        t90 = t[np.argmax(z >= z0 + 0.9 * climb)]
-        speed = 0.8 * climb / max(t90 - t10, 1e-3)
-        instability = 1000.0 * quadratic_residual(hand)  # mm
-        ball_rise = raw_arr[-1, 4] - raw_arr[0, 4]
-        held = np.linalg.norm(raw_arr[-1, 3:5] - raw_arr[-1, :2]) < 0.08
-        success = bool(held and ball_rise > MIN_RISE and np.isfinite(states).all())
-        return Rollout("", self.name, dict(params), seed, states, np.asarray(replay),
-                       {"speed": float(speed), "instability": instability}, success,
-                       info={"ball_rise_m": float(ball_rise), "climb_m": float(climb)})
+        states, proxies, success, info = measure(np.asarray(raw, dtype=np.float64))
+        return Rollout("", self.name, dict(params), seed, states, np.asarray(replay), proxies, success, info)
 
     def render(self, rollout: Rollout, width: int, height: int) -> Iterator[np.ndarray]:
         camera = Camera(CAMERA_DISTANCE, CAMERA_ELEVATION, CAMERA_LOOKAT)

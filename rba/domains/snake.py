@@ -21,6 +21,7 @@ from __future__ import annotations
 import copy
 import functools
 from collections.abc import Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import mujoco
@@ -92,6 +93,74 @@ def body_metrics(points: np.ndarray) -> tuple[float, float]:
     return float(lateral.max() - lateral.min()), float(compression)
 
 
+class ConcertinaController:
+    """Two-anchor concertina: the head anchored while the body folds, then the tail while it straightens."""
+
+    def __init__(self, fold: np.ndarray, period: float) -> None:
+        self.fold, self.period = fold, period
+
+    def control(self, t: float) -> tuple[np.ndarray, np.ndarray, float]:
+        """Joint targets, which links are anchored, and the anchor phase (1 head, -1 tail, 0 settling) at
+        time ``t`` (negative while settling)."""
+        period = self.period
+        phase = (t % period) / period if t >= 0 else -1.0
+        head_anchor = 0 <= phase < 0.5
+        tail_anchor = phase >= 0.5
+        if t < 0:
+            target, anchors = np.zeros(LINKS - 1), np.ones(LINKS, dtype=bool)
+        else:
+            s = smoothstep(phase / 0.5) if head_anchor else 1.0 - smoothstep((phase - 0.5) / 0.5)
+            mirror = -1.0 if int(t // period) % 2 else 1.0  # alternate folds: their steering cancels
+            target = mirror * s * self.fold
+            anchors = np.zeros(LINKS, dtype=bool)
+            anchors[:ANCHOR_LINKS] = head_anchor
+            anchors[-ANCHOR_LINKS:] = tail_anchor
+        return target, anchors, 1.0 if head_anchor else -1.0 if tail_anchor else 0.0
+
+
+@dataclass
+class SnakeRecording:
+    """What a rollout keeps: states (10 Hz), replay (qpos), body shape after settling, centre of mass."""
+
+    prev_com: np.ndarray  # centre of mass at the previous state (m)
+    states: list[list[float]] = field(default_factory=list)
+    replay: list[np.ndarray] = field(default_factory=list)
+    widths: list[float] = field(default_factory=list)
+    compressions: list[float] = field(default_factory=list)
+    coms: list[np.ndarray] = field(default_factory=list)  # per control step
+
+    def record(self, k: int, t: float, dt: float, data: mujoco.MjData, bodies: np.ndarray, anchor: float) -> None:
+        points = data.xpos[bodies][:, :2] + 0.5 * LINK_LENGTH * -_forward(data.xmat[bodies])
+        if t >= 0:
+            w, c = body_metrics(points)
+            self.widths.append(w)
+            self.compressions.append(c)
+        if k % FRAME_EVERY == 0:
+            self.replay.append(data.qpos.copy())
+        if k % STATE_EVERY == 0:
+            com = data.subtree_com[bodies[0]][:2].copy()
+            vel = (com - self.prev_com) / (STATE_EVERY * dt) if k else np.zeros(2)
+            self.prev_com = com
+            head_tail = np.linalg.norm(points[0] - points[-1]) / BODY_LENGTH
+            width_now = body_metrics(points)[0]
+            self.states.append([*data.qpos[7:], *vel, head_tail, width_now, anchor])
+        self.coms.append(data.subtree_com[bodies[0]][:2].copy())
+
+
+def measure(rec: SnakeRecording, period: float, dt: float, data: mujoco.MjData,
+            bodies: np.ndarray) -> tuple[dict[str, float], bool, dict[str, float]]:
+    """Proxies (95th percentiles of the shape after settling, mean speed), success and diagnostics."""
+    heading = _heading(data.xmat[bodies[0]])
+    coms_arr = np.asarray(rec.coms)
+    advance = coms_arr[-1] - coms_arr[int(SETTLE / dt)]
+    forward = float(advance[0])
+    success = forward > MIN_ADVANCE and abs(heading) < MAX_HEADING_DRIFT and np.isfinite(data.qpos).all()
+    proxies = {"bend_width": float(np.percentile(rec.widths, 95)),
+               "compression": float(np.percentile(rec.compressions, 95)),
+               "speed": float(np.linalg.norm(advance) / (CYCLES * period))}
+    return proxies, bool(success), {"forward_m": forward, "heading_rad": float(heading)}
+
+
 class Snake(Domain):
     name = "snake"
     attributes = (
@@ -138,61 +207,25 @@ class Snake(Domain):
         data = mujoco.MjData(model)
         geoms = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, f"link{i}") for i in range(LINKS)])
         bodies = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"link{i}") for i in range(LINKS)])
-        fold = fold_shape(float(params["amplitude"]), float(params["wavelength"]), float(params["span"]))
-        period = float(params["period"])
+        controller = ConcertinaController(
+            fold_shape(float(params["amplitude"]), float(params["wavelength"]), float(params["span"])),
+            float(params["period"]))
         rng = np.random.default_rng(seed)
         data.qpos[7:] = 0.01 * rng.standard_normal(LINKS - 1)  # a barely bent start: seeds differ slightly
         mujoco.mj_forward(model, data)
         dt = model.opt.timestep * CONTROL_EVERY
-        n_control = round((SETTLE + CYCLES * period) / dt)
-        start_com = data.subtree_com[bodies[0]][:2].copy()
-        states, replay, widths, compressions, coms = [], [], [], [], []
-        prev_com = start_com.copy()
-        for k in range(n_control):
+        rec = SnakeRecording(data.subtree_com[bodies[0]][:2].copy())
+        for k in range(round((SETTLE + CYCLES * controller.period) / dt)):
             t = k * dt - SETTLE
-            phase = (t % period) / period if t >= 0 else -1.0
-            head_anchor = 0 <= phase < 0.5
-            tail_anchor = phase >= 0.5
-            if t < 0:
-                target, anchors = np.zeros(LINKS - 1), np.ones(LINKS, dtype=bool)
-            else:
-                s = smoothstep(phase / 0.5) if head_anchor else 1.0 - smoothstep((phase - 0.5) / 0.5)
-                mirror = -1.0 if int(t // period) % 2 else 1.0  # alternate folds: their steering cancels
-                target = mirror * s * fold
-                anchors = np.zeros(LINKS, dtype=bool)
-                anchors[:ANCHOR_LINKS] = head_anchor
-                anchors[-ANCHOR_LINKS:] = tail_anchor
+            target, anchors, anchor = controller.control(t)
             model.geom_friction[geoms, 0] = np.where(anchors, ANCHORED, SLIDING)
             data.ctrl[:] = target
             mujoco.mj_step(model, data, nstep=CONTROL_EVERY)
-            points = data.xpos[bodies][:, :2] + 0.5 * LINK_LENGTH * -_forward(data.xmat[bodies])
-            if t >= 0:
-                w, c = body_metrics(points)
-                widths.append(w)
-                compressions.append(c)
-            if k % FRAME_EVERY == 0:
-                replay.append(data.qpos.copy())
-            if k % STATE_EVERY == 0:
-                com = data.subtree_com[bodies[0]][:2].copy()
-                vel = (com - prev_com) / (STATE_EVERY * dt) if k else np.zeros(2)
-                prev_com = com
-                head_tail = np.linalg.norm(points[0] - points[-1]) / BODY_LENGTH
-                width_now = body_metrics(points)[0]
-                states.append([*data.qpos[7:], *vel, head_tail, width_now,
-                               1.0 if head_anchor else -1.0 if tail_anchor else 0.0])
-            coms.append(data.subtree_com[bodies[0]][:2].copy())
-        coms_arr = np.asarray(coms)
-        advance = coms_arr[-1] - coms_arr[int(SETTLE / dt)]
-        duration = CYCLES * period
-        forward = float(advance[0])
-        heading = _heading(data.xmat[bodies[0]])
-        success = forward > MIN_ADVANCE and abs(heading) < MAX_HEADING_DRIFT and np.isfinite(data.qpos).all()
-        proxies = {"bend_width": float(np.percentile(widths, 95)),
-                   "compression": float(np.percentile(compressions, 95)),
-                   "speed": float(np.linalg.norm(advance) / duration)}
-        return Rollout("", self.name, dict(params), seed, np.asarray(states, dtype=np.float32),
-                       np.asarray(replay, dtype=np.float32),  # qpos for rendering: float32 halves the library
-                       proxies, bool(success), info={"forward_m": forward, "heading_rad": float(heading)})
+            rec.record(k, t, dt, data, bodies, anchor)
+        proxies, success, info = measure(rec, controller.period, dt, data, bodies)
+        return Rollout("", self.name, dict(params), seed, np.asarray(rec.states, dtype=np.float32),
+                       np.asarray(rec.replay, dtype=np.float32),  # qpos for rendering: float32 halves the library
+                       proxies, success, info)
 
     def render(self, rollout: Rollout, width: int, height: int) -> Iterator[np.ndarray]:
         y0 = float(rollout.replay[0][1])

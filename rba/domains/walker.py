@@ -37,7 +37,17 @@ Attributes (proxies grow with the attribute)
   (first foot–floor contact of the descending foot), mean over the later two steps.
 * ``softness``: minus the swing foot's peak speed in the last 50 ms before touchdown,
   mean over the later two steps.
+
+Code (dm_control suite style)
+-----------------------------
+:class:`WalkerGeometry` holds the dimensions read from the MuJoCo model; :class:`WalkerPhysics`
+wraps model and data with named getters (``torso_height()``, ``hip_position()``,
+``foot_positions()``...); :class:`GaitPlan` is what the parameters command; a
+:class:`GaitController`'s ``control(t, physics)`` gives each physics step's :class:`Command`;
+:func:`run` steps and records (:class:`Recording`), and :func:`measure` turns the recording into
+proxies, success and diagnostics.
 """
+
 
 from __future__ import annotations
 
@@ -47,6 +57,8 @@ import os
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import mujoco
 import numpy as np
@@ -54,31 +66,9 @@ import numpy as np
 from rba.domains.base import AttributeSpec, Domain, Rollout
 from rba.domains.mujoco_render import Camera, ThreadRenderers
 
-# ---------------------------------------------------------------- model geometry (m, kg)
-DT = 0.0025  # physics timestep of the walker model (s)
-TORSO_Z0 = 1.3  # torso body height when rootz = 0 (m)
-TORSO_TO_HIP = 0.3  # torso centre to hip joints (m)
-THIGH = 0.45  # hip to knee (m)
-SHANK = 0.5  # knee to ankle (m)
-ANKLE_TO_FOOT = 0.06  # ankle joint to foot geom centre, along the foot (m)
-FOOT_RADIUS = 0.05  # foot capsule radius (m)
-FOOT_HALF = 0.1  # foot capsule half-length (m)
-THIGH_RADIUS = 0.05  # thigh capsule radius (m)
-TORSO_RADIUS = 0.07  # torso capsule radius (m)
-TORSO_HALF = 0.3  # torso capsule half-length (m)
-GROUND_ANKLE_Z = FOOT_RADIUS  # ankle height of a flat foot on the floor (m)
-GRAVITY = 9.81  # m/s^2
-
-# qpos / qvel indices (the walker's joint order)
-ROOTZ, ROOTX, ROOTY = 0, 1, 2
-R_HIP, R_KNEE, R_ANKLE, L_HIP, L_KNEE, L_ANKLE = 3, 4, 5, 6, 7, 8
-JOINT_LOW = (math.radians(-20), math.radians(-150), math.radians(-45))  # hip, knee, ankle (rad)
-JOINT_HIGH = (math.radians(100), 0.0, math.radians(45))
-
 # ---------------------------------------------------------------- controller constants
-KP = (600.0, 400.0, 100.0)  # hip, knee, ankle stiffness (N·m/rad)
-KD = (30.0, 20.0, 4.0)  # hip, knee, ankle damping (N·m·s/rad)
-GEAR = (100.0, 50.0, 20.0)  # motor gear = torque limit (N·m)
+KP_HIP, KP_KNEE, KP_ANKLE = 600.0, 400.0, 100.0  # joint stiffness (N·m/rad)
+KD_HIP, KD_KNEE, KD_ANKLE = 30.0, 20.0, 4.0  # joint damping (N·m·s/rad)
 ASSIST_KZ, ASSIST_DZ = 4000.0, 300.0  # torso height spring (N/m), damper (N·s/m)
 ASSIST_KX, ASSIST_DX = 3000.0, 300.0  # torso horizontal spring (N/m), damper (N·s/m)
 ASSIST_KP, ASSIST_DP = 800.0, 60.0  # torso pitch spring (N·m/rad), damper (N·m·s/rad)
@@ -98,9 +88,12 @@ WEIGHT_SHIFT = 0.12  # last part of double support where the weight moves off th
 FINAL_STAND = 0.6  # standing after the last touchdown (s)
 N_STEPS = 3  # steps per clip
 LANDING_WINDOW = 0.05  # window before touchdown for the landing speed (s)
-START_ANKLE_X = -ANKLE_TO_FOOT  # ankles' x at the start: foot centres under the hip at x = 0 (m)
 INIT_JOINT_NOISE = 0.02  # seed-dependent initial joint perturbation, std (rad)
 INIT_VEL_NOISE = 0.05  # seed-dependent initial joint velocity perturbation, std (rad/s)
+MAX_DURATION = 40.0  # s: a clip ends here even if the gait never finishes
+# phases of the gait
+STAND, TRAVEL, HOVER, DESCENT, FINAL = 0, 1, 2, 3, 4  # settle/double support, swing travel, ..., final stand
+SWINGING = (TRAVEL, HOVER, DESCENT)
 
 # ---------------------------------------------------------------- fall / success criteria
 MIN_TORSO_HEIGHT = 0.7  # torso centre height (m)
@@ -129,6 +122,7 @@ STATE_FEATURES = (
     *("right_foot_clearance", "left_foot_clearance"),  # lowest point of each foot above the floor [m]
     *("right_foot_peak_speed", "left_foot_peak_speed"),  # max foot speed over the preceding 50 ms [m/s]
 )
+LEG_JOINTS = ("right_hip", "right_knee", "right_ankle", "left_hip", "left_knee", "left_ankle")
 
 
 def _smooth(u: float) -> tuple[float, float]:
@@ -140,71 +134,613 @@ def _smooth(u: float) -> tuple[float, float]:
     return u * u * (3.0 - 2.0 * u), 6.0 * u * (1.0 - u)
 
 
-def _leg_ik(dx: float, dz: float) -> tuple[float, float]:
-    """Absolute thigh and shank angles (rad, from the downward vertical, + = forward) that
-    put the ankle at (dx, dz) from the hip, knee bending forward."""
-    d2 = dx * dx + dz * dz
-    dmax = THIGH + SHANK - 1e-4
-    if d2 > dmax * dmax:
-        scale = dmax / math.sqrt(d2)
-        dx, dz, d2 = dx * scale, dz * scale, dmax * dmax
-    c = (d2 - THIGH * THIGH - SHANK * SHANK) / (2.0 * THIGH * SHANK)
-    c = 1.0 if c > 1.0 else (-1.0 if c < -1.0 else c)
-    bend = math.acos(c)  # = -knee angle
-    psi = math.atan2(dx, -dz)
-    alpha = psi + math.atan2(SHANK * math.sin(bend), THIGH + SHANK * c)
-    return alpha, alpha - bend
+def _clip(x: float, lo: float, hi: float) -> float:
+    return lo if x < lo else (hi if x > hi else x)
 
 
-def _leg_rates(alpha: float, beta: float, vx: float, vz: float) -> tuple[float, float]:
-    """Absolute thigh/shank angular rates that move the ankle at (vx, vz) relative to the hip."""
-    ca, sa, cb, sb = math.cos(alpha), math.sin(alpha), math.cos(beta), math.sin(beta)
-    det = THIGH * SHANK * (ca * sb - sa * cb)
-    if abs(det) < 0.02:  # near-straight knee: avoid the singularity
-        det = 0.02 if det >= 0 else -0.02
-    # J = [[L1 ca, L2 cb], [L1 sa, L2 sb]]
-    da = (SHANK * sb * vx - SHANK * cb * vz) / det
-    db = (-THIGH * sa * vx + THIGH * ca * vz) / det
-    return da, db
+# ---------------------------------------------------------------- the model and its named quantities
+@dataclass(frozen=True, slots=True)
+class WalkerGeometry:
+    """The walker's dimensions (m), joint limits (rad) and motor gears (N·m), read from the MuJoCo model.
+
+    Each is the model's own number for the XML value (``body_pos``, ``geom_size``, ``jnt_pos``,
+    ``jnt_range``, ``actuator_gear``), so the planar kinematics below compute exactly what they did
+    with the XML's numbers typed in: MuJoCo's own ``geom_xpos`` differs in the last bits (quaternion
+    composition), and the feedback controller amplifies such bits into different rollouts.
+    """
+
+    torso_z0: float  # torso body height when rootz = 0
+    torso_to_hip: float  # torso centre down to the hip joints
+    thigh: float  # hip to knee: the thigh capsule spans it
+    shank: float  # knee to ankle: the leg capsule spans it
+    ankle_to_foot: float  # ankle joint to foot geom centre, along the foot
+    foot_radius: float
+    foot_half: float  # foot capsule half-length
+    thigh_radius: float
+    torso_radius: float
+    torso_half: float  # torso capsule half-length
+    joint_low: tuple[float, float, float]  # hip, knee, ankle
+    joint_high: tuple[float, float, float]
+    gear: tuple[float, float, float]  # motor gear = torque limit (hip, knee, ankle)
+
+    @classmethod
+    def from_model(cls, model: mujoco.MjModel) -> WalkerGeometry:
+        def idx(kind: mujoco.mjtObj, name: str) -> int:
+            return mujoco.mj_name2id(model, kind, name)
+
+        body, geom, joint = mujoco.mjtObj.mjOBJ_BODY, mujoco.mjtObj.mjOBJ_GEOM, mujoco.mjtObj.mjOBJ_JOINT
+        legs = [idx(joint, j) for j in LEG_JOINTS[:3]]
+        motors = [idx(mujoco.mjtObj.mjOBJ_ACTUATOR, j) for j in LEG_JOINTS[:3]]
+        return cls(
+            torso_z0=float(model.body_pos[idx(body, "torso"), 2]),
+            torso_to_hip=-float(model.body_pos[idx(body, "right_thigh"), 2]),
+            thigh=2.0 * float(model.geom_size[idx(geom, "right_thigh"), 1]),
+            shank=2.0 * float(model.geom_size[idx(geom, "right_leg"), 1]),
+            ankle_to_foot=-float(model.jnt_pos[idx(joint, "right_ankle"), 0]),
+            foot_radius=float(model.geom_size[idx(geom, "right_foot"), 0]),
+            foot_half=float(model.geom_size[idx(geom, "right_foot"), 1]),
+            thigh_radius=float(model.geom_size[idx(geom, "right_thigh"), 0]),
+            torso_radius=float(model.geom_size[idx(geom, "torso"), 0]),
+            torso_half=float(model.geom_size[idx(geom, "torso"), 1]),
+            joint_low=tuple(float(model.jnt_range[j, 0]) for j in legs),
+            joint_high=tuple(float(model.jnt_range[j, 1]) for j in legs),
+            gear=tuple(float(model.actuator_gear[m, 0]) for m in motors),
+        )
+
+    @property
+    def ground_ankle_z(self) -> float:
+        """Ankle height of a flat foot on the floor."""
+        return self.foot_radius
+
+    def leg_ik(self, dx: float, dz: float) -> tuple[float, float]:
+        """Absolute thigh and shank angles (rad, from the downward vertical, + = forward) that
+        put the ankle at (dx, dz) from the hip, knee bending forward."""
+        thigh, shank = self.thigh, self.shank
+        d2 = dx * dx + dz * dz
+        dmax = thigh + shank - 1e-4
+        if d2 > dmax * dmax:
+            scale = dmax / math.sqrt(d2)
+            dx, dz, d2 = dx * scale, dz * scale, dmax * dmax
+        c = (d2 - thigh * thigh - shank * shank) / (2.0 * thigh * shank)
+        c = 1.0 if c > 1.0 else (-1.0 if c < -1.0 else c)
+        bend = math.acos(c)  # = -knee angle
+        psi = math.atan2(dx, -dz)
+        alpha = psi + math.atan2(shank * math.sin(bend), thigh + shank * c)
+        return alpha, alpha - bend
+
+    def leg_rates(self, alpha: float, beta: float, vx: float, vz: float) -> tuple[float, float]:
+        """Absolute thigh/shank angular rates that move the ankle at (vx, vz) relative to the hip."""
+        thigh, shank = self.thigh, self.shank
+        ca, sa, cb, sb = math.cos(alpha), math.sin(alpha), math.cos(beta), math.sin(beta)
+        det = thigh * shank * (ca * sb - sa * cb)
+        if abs(det) < 0.02:  # near-straight knee: avoid the singularity
+            det = 0.02 if det >= 0 else -0.02
+        # J = [[L1 ca, L2 cb], [L1 sa, L2 sb]]
+        da = (shank * sb * vx - shank * cb * vz) / det
+        db = (-thigh * sa * vx + thigh * ca * vz) / det
+        return da, db
+
+    def kinematics(self, rootz: float, rootx: float, pitch: float, joints: list[float]) -> tuple[float, ...]:
+        """Planar forward kinematics: hip x, z, then per foot (right, left) ankle x, z, foot-centre
+        x, z and clearance (lowest point of the capsule above the floor). ``joints`` as LEG_JOINTS."""
+        to_hip, thigh, shank, to_foot = self.torso_to_hip, self.thigh, self.shank, self.ankle_to_foot
+        sin, cos = math.sin, math.cos
+        th = pitch
+        hx = rootx - to_hip * sin(th)
+        hz = self.torso_z0 + rootz - to_hip * cos(th)
+        out = [hx, hz]
+        for j in (0, 3):
+            a = joints[j] - th
+            b = a + joints[j + 1]
+            g = b + joints[j + 2]
+            ax = hx + thigh * sin(a) + shank * sin(b)
+            az = hz - thigh * cos(a) - shank * cos(b)
+            sg = sin(g)
+            fx = ax + to_foot * cos(g)
+            fz = az + to_foot * sg
+            out += [ax, az, fx, fz, fz - self.foot_radius - self.foot_half * abs(sg)]
+        return tuple(out)
 
 
-def _torso_height(qpos) -> float:
-    """Height of the torso centre (m)."""
-    return TORSO_Z0 + qpos[ROOTZ]
+class WalkerPhysics:
+    """The walker's MuJoCo model and data with named getters, in the style of dm_control's suite.
+
+    ``observe()`` reads the state once per physics step (qpos/qvel as Python floats, the planar
+    kinematics, finite-difference foot velocities); the getters answer from that reading, so the
+    controller and the recorder see the same numbers.
+    """
+
+    def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, keep_alive: object = None) -> None:
+        self.model, self.data = model, data
+        self._keep_alive = keep_alive  # the dm_control Physics that owns model and data
+        self.geometry = WalkerGeometry.from_model(model)
+        joint = mujoco.mjtObj.mjOBJ_JOINT
+        adr = [int(model.jnt_qposadr[mujoco.mj_name2id(model, joint, j)]) for j in ("rootz", "rootx", "rooty")]
+        self._root: tuple[int, int, int] = (adr[0], adr[1], adr[2])
+        self._legs = int(model.jnt_qposadr[mujoco.mj_name2id(model, joint, LEG_JOINTS[0])])
+        legs = [int(model.jnt_qposadr[mujoco.mj_name2id(model, joint, j)]) for j in LEG_JOINTS]
+        assert legs == list(range(self._legs, self._legs + 6)) and model.nq == model.nv, "walker joint layout"
+        motors = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, i) for i in range(model.nu)]
+        assert tuple(motors) == LEG_JOINTS, "walker motors: one per leg joint, in LEG_JOINTS order"
+        self._torso_body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "torso")
+        self._dt = float(model.opt.timestep)
+        # views into data, made once: each `data.qpos` makes a new array object (costly every step)
+        self._qpos, self._qvel, self._ctrl = data.qpos, data.qvel, data.ctrl
+        self._applied, self._bias = data.qfrc_applied, data.qfrc_bias
+        self._q: list[float] = []
+        self._joints: list[float] = []
+        self._joint_vel: list[float] = []
+        self._torso = self._torso_vel = (0.0, 0.0, 0.0)  # height, x, pitch and their rates
+        self._hip = (0.0, 0.0)
+        self._ankles = self._feet = ((0.0, 0.0), (0.0, 0.0))
+        self._clearances = (0.0, 0.0)
+        self._prev_feet: tuple[float, float, float, float] | None = None
+        self._foot_vel = (0.0, 0.0, 0.0, 0.0)
+        self._speeds = (0.0, 0.0)
+
+    @classmethod
+    def from_suite(cls) -> WalkerPhysics:
+        from dm_control.suite import walker as suite_walker
+
+        physics = suite_walker.Physics.from_xml_string(*suite_walker.get_model_and_assets())
+        return cls(physics.model.ptr, physics.data.ptr, keep_alive=physics)
+
+    # ---------------------------------------------------------------- stepping
+    def reset(self, qpos: np.ndarray, qvel: np.ndarray) -> None:
+        """Start from ``qpos``/``qvel``, lowered so that the lower foot just touches the floor."""
+        model, data = self.model, self.data
+        mujoco.mj_resetData(model, data)
+        data.qpos[:] = qpos
+        data.qvel[:] = qvel
+        mujoco.mj_forward(model, data)
+        (iz, ix, iy), legs, q = self._root, self._legs, data.qpos.tolist()
+        k0 = self.geometry.kinematics(q[iz], q[ix], q[iy], q[legs:legs + 6])
+        data.qpos[self._root[0]] -= min(k0[6], k0[11]) + 1e-4
+        mujoco.mj_forward(model, data)
+        self._prev_feet, self._foot_vel = None, (0.0, 0.0, 0.0, 0.0)
+
+    def observe(self) -> None:
+        """Read this step's state; foot velocities are differences to the previous reading."""
+        q, v = self._qpos.tolist(), self._qvel.tolist()
+        self._q = q
+        (iz, ix, iy), legs = self._root, self._legs
+        self._joints, self._joint_vel = q[legs:legs + 6], v[legs:legs + 6]
+        kin = self.geometry.kinematics(q[iz], q[ix], q[iy], self._joints)
+        self._torso = (self.geometry.torso_z0 + q[iz], q[ix], q[iy])
+        self._torso_vel = (v[iz], v[ix], v[iy])
+        self._hip = (kin[0], kin[1])
+        self._ankles = ((kin[2], kin[3]), (kin[7], kin[8]))
+        self._feet = ((kin[4], kin[5]), (kin[9], kin[10]))
+        self._clearances = (kin[6], kin[11])
+        feet = (kin[4], kin[5], kin[9], kin[10])
+        if self._prev_feet is not None:
+            dt = self._dt
+            prx, prz, plx, plz = self._prev_feet
+            self._foot_vel = ((feet[0] - prx) / dt, (feet[1] - prz) / dt, (feet[2] - plx) / dt, (feet[3] - plz) / dt)
+        self._prev_feet = feet
+        vfr = self._foot_vel
+        self._speeds = (math.hypot(vfr[0], vfr[1]), math.hypot(vfr[2], vfr[3]))
+
+    def act(self, ctrl: tuple[float, ...], assist: tuple[float, float, float]) -> None:
+        """Set the motor commands and the torso assist (rootz, rootx, rooty forces), then step."""
+        ctrl_arr, applied = self._ctrl, self._applied
+        ctrl_arr[0], ctrl_arr[1], ctrl_arr[2], ctrl_arr[3], ctrl_arr[4], ctrl_arr[5] = ctrl
+        applied[self._root[0]], applied[self._root[1]], applied[self._root[2]] = assist
+        mujoco.mj_step(self.model, self.data)
+
+    # ---------------------------------------------------------------- named quantities (of the last observe)
+    def timestep(self) -> float:
+        return self._dt
+
+    def body_weight(self) -> float:
+        """Weight of the whole walker (N)."""
+        return float(self.model.body_subtreemass[self._torso_body]) * -float(self.model.opt.gravity[2])
+
+    def qpos(self) -> list[float]:
+        return self._q
+
+    def joint_angles(self) -> list[float]:
+        """Right hip, knee, ankle, left hip, knee, ankle (rad)."""
+        return self._joints
+
+    def joint_velocities(self) -> list[float]:
+        return self._joint_vel
+
+    def bias_forces(self) -> list[float]:
+        """MuJoCo's bias forces (gravity, Coriolis) on the leg joints, in joint_angles' order."""
+        return self._bias[self._legs:self._legs + 6].tolist()
+
+    def torso_height(self) -> float:
+        """Height of the torso centre (m)."""
+        return self._torso[0]
+
+    def torso_x(self) -> float:
+        return self._torso[1]
+
+    def torso_pitch(self) -> float:
+        """Torso pitch (rad, + = forward)."""
+        return self._torso[2]
+
+    def torso_velocity(self) -> tuple[float, float, float]:
+        """Torso vertical and horizontal speed (m/s) and pitch rate (rad/s)."""
+        return self._torso_vel
+
+    def hip_position(self) -> tuple[float, float]:
+        """World (x, z) of the hip joints (m)."""
+        return self._hip
+
+    def ankle_positions(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        """World (x, z) of the right and left ankle joints (m)."""
+        return self._ankles
+
+    def foot_positions(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        """World (x, z) of the right and left foot geom centres (m)."""
+        return self._feet
+
+    def foot_clearances(self) -> tuple[float, float]:
+        """Lowest point of each foot capsule above the floor (m)."""
+        return self._clearances
+
+    def foot_velocities(self) -> tuple[float, float, float, float]:
+        """Right vx, vz, left vx, vz of the foot centres (m/s), by finite difference of physics steps."""
+        return self._foot_vel
+
+    def foot_speeds(self) -> tuple[float, float]:
+        return self._speeds
+
+    def thigh_lowest_point(self) -> float:
+        """Lowest point of the thigh capsules above the floor (m): the hips or a knee."""
+        geo, joints, th, hz = self.geometry, self._joints, self._torso[2], self._hip[1]
+        knee_r = hz - geo.thigh * math.cos(joints[0] - th)
+        knee_l = hz - geo.thigh * math.cos(joints[3] - th)
+        return min(hz, knee_r, knee_l) - geo.thigh_radius
+
+    def torso_lowest_point(self) -> float:
+        """Lowest point of the torso capsule above the floor (m)."""
+        geo = self.geometry
+        return self._torso[0] - geo.torso_half * abs(math.cos(self._torso[2])) - geo.torso_radius
 
 
-def _hip_position(qpos) -> tuple[float, float]:
-    """World (x, z) of the hip joints (m)."""
-    th = qpos[ROOTY]
-    return qpos[ROOTX] - TORSO_TO_HIP * math.sin(th), TORSO_Z0 + qpos[ROOTZ] - TORSO_TO_HIP * math.cos(th)
+# ---------------------------------------------------------------- the gait
+@dataclass(frozen=True, slots=True)
+class GaitPlan:
+    """The commanded gait (from the skill parameters) and what follows from it for the whole clip."""
+
+    step_length: float  # m
+    landing_speed: float  # m/s
+    swing_duration: float  # s, before SWING_PER_METRE
+    swing_height: float  # m
+    lean: float  # planned forward torso lean (rad)
+    hip_height: float  # planned hip height (m)
+    ground_ankle_z: float  # ankle height of a flat foot on the floor (m)
+
+    @classmethod
+    def from_params(cls, params: dict[str, float], geometry: WalkerGeometry) -> GaitPlan:
+        """Long steps lower the hip (the trailing leg stays inside its hip limit) and lean the torso forward."""
+        step_len = float(params["step_length"])
+        half = 0.5 * step_len
+        ground = geometry.ground_ankle_z
+        return cls(
+            step_length=step_len,
+            landing_speed=float(params["landing_speed"]),
+            swing_duration=float(params["swing_duration"]),
+            swing_height=float(params["swing_height"]),
+            lean=MAX_LEAN * min(1.0, step_len / LEAN_FULL_STEP),
+            hip_height=min(HIP_HEIGHT_MAX, ground + math.sqrt(max(LEG_REACH**2 - half * half, 0.25))),
+            ground_ankle_z=ground,
+        )
+
+    @property
+    def hover_z(self) -> float:
+        """Swing ankle height where the hover before the descent holds it (m)."""
+        return self.ground_ankle_z + HOVER_CLEARANCE
+
+    @property
+    def floor_target(self) -> float:
+        """Ankle height the descent aims for, below the floor (m)."""
+        return self.ground_ankle_z - DESCENT_DEPTH
+
+    @property
+    def peak_z(self) -> float:
+        """Swing ankle height at mid swing (m)."""
+        return self.ground_ankle_z + max(self.swing_height, HOVER_CLEARANCE)
+
+    def start_pose(self, geometry: WalkerGeometry) -> list[float]:
+        """qpos standing with the feet together, the foot centres under the hip at x = 0."""
+        a, b = geometry.leg_ik(-geometry.ankle_to_foot, self.ground_ankle_z - self.hip_height)
+        lean = self.lean
+        q0 = [self.hip_height + geometry.torso_to_hip * math.cos(lean) - geometry.torso_z0,
+              geometry.torso_to_hip * math.sin(lean), lean]
+        return q0 + [a + lean, b - a, -b] * 2
 
 
-def _foot_positions(qpos) -> tuple[tuple[float, float], tuple[float, float]]:
-    """World (x, z) of the right and left foot geom centres (m)."""
-    k = _foot_kinematics(qpos)
-    return (k[2], k[3]), (k[7], k[8])
+@dataclass(frozen=True)
+class Touchdown:
+    """A swing foot's landing."""
+
+    t: float  # s
+    feet_distance: float  # horizontal distance between the foot centres (m)
+    landing_speed: float  # the swing foot's peak speed in the LANDING_WINDOW before (m/s)
+    forced: bool  # the descent timed out instead of touching the floor
 
 
-def _foot_kinematics(qpos) -> tuple[float, ...]:
-    """Planar forward kinematics: per foot (right then left) ankle x, z, foot-centre x, z and
-    the foot's clearance (lowest point of the capsule above the floor, m)."""
-    th = qpos[ROOTY]
-    hx = qpos[ROOTX] - TORSO_TO_HIP * math.sin(th)
-    hz = TORSO_Z0 + qpos[ROOTZ] - TORSO_TO_HIP * math.cos(th)
-    out = []
-    for j in (R_HIP, L_HIP):
-        a = qpos[j] - th
-        b = a + qpos[j + 1]
-        g = b + qpos[j + 2]
-        ax = hx + THIGH * math.sin(a) + SHANK * math.sin(b)
-        az = hz - THIGH * math.cos(a) - SHANK * math.cos(b)
-        sg = math.sin(g)
-        fx = ax + ANKLE_TO_FOOT * math.cos(g)
-        fz = az + ANKLE_TO_FOOT * sg
-        out += [ax, az, fx, fz, fz - FOOT_RADIUS - FOOT_HALF * abs(sg)]
-    return tuple(out)
+class Command(NamedTuple):
+    """One physics step's action: normalised motor commands and the torso assist's forces."""
+
+    ctrl: tuple[float, ...]  # right hip, knee, ankle, left hip, knee, ankle, in [-1, 1]
+    assist: tuple[float, float, float]  # rootz force (N), rootx force (N), rooty torque (N·m)
 
 
+class GaitController:
+    """Three scripted steps: the phase machine, the planned hip path, IK + PD on the legs, the torso assist.
+
+    ``control(t, physics)`` is called once per physics step (after ``physics.observe()``); it
+    advances the phases, records touchdowns and returns the step's :class:`Command`.
+    """
+
+    def __init__(self, plan: GaitPlan, physics: WalkerPhysics) -> None:
+        self.plan = plan
+        self.touchdowns: list[Touchdown] = []
+        self.t_end: float | None = None  # set at the last touchdown: the clip ends FINAL_STAND later
+        self._geo = physics.geometry
+        self._weight = physics.body_weight()
+        self._landing_window = round(LANDING_WINDOW / physics.timestep())  # physics steps
+        self._hover_z, self._floor_target, self._peak_z = plan.hover_z, plan.floor_target, plan.peak_z
+        self._cos_lean, self._sin_lean = math.cos(plan.lean), math.sin(plan.lean)
+        self._phase, self._phase_t0 = STAND, 0.0
+        self._step_i = 0  # index of the next / current step
+        self._swing = 0  # the swing (or next swing) leg: 0 right, 1 left
+        self._sw_x0 = self._sw_z0 = self._sw_xT = 0.0  # swing ankle start (x, z) and landing x
+        self._swing_t0, self._swing_dur = 0.0, 1.0
+        self._desc_z0 = 0.0
+        self._hip_from = self._hip_to = 0.0  # planned hip x at the start and end of the swing
+        self._hip_xd = self._hip_vd = 0.0  # planned hip x and its velocity now
+        self._speeds: list[float] = []  # swing foot speed at each physics step of this swing
+
+    def finished(self, t: float) -> bool:
+        return self.t_end is not None and t >= self.t_end
+
+    def control(self, t: float, physics: WalkerPhysics) -> Command:
+        self._advance(t, physics)
+        in_swing = self._phase in SWINGING
+        if in_swing:
+            s, ds = _smooth((t - self._swing_t0) / self._swing_dur)
+            self._hip_xd = self._hip_from + (self._hip_to - self._hip_from) * s
+            self._hip_vd = (self._hip_to - self._hip_from) * ds / self._swing_dur
+        else:
+            self._hip_vd = 0.0
+        target = self._swing_target(t) if in_swing else None
+        share_r = self._right_share(t, physics, in_swing)
+        ctrl = self._leg(0, physics, target, share_r) + self._leg(1, physics, target, 1.0 - share_r)
+        return Command(ctrl, self._assist(physics))
+
+    # ---------------------------------------------------------------- phase machine
+    def _wait(self) -> float:
+        """Standing time before the next swing."""
+        return SETTLE_TIME if self._step_i == 0 else DOUBLE_SUPPORT
+
+    def _advance(self, t: float, physics: WalkerPhysics) -> None:
+        speed = physics.foot_speeds()
+        if self._phase == STAND and self._step_i < N_STEPS and t - self._phase_t0 >= self._wait():
+            self._start_swing(t, physics)
+        if self._phase in SWINGING:
+            self._speeds.append(speed[self._swing])
+        if self._phase == TRAVEL and t - self._swing_t0 >= self._swing_dur:
+            self._phase, self._phase_t0 = HOVER, t
+        if self._phase == HOVER:
+            dt_h = t - self._phase_t0
+            if (dt_h >= HOVER_MIN and speed[self._swing] < HOVER_SLOW) or dt_h >= HOVER_MAX:
+                self._phase, self._phase_t0 = DESCENT, t
+                self._desc_z0 = self._hover_z
+        if self._phase == DESCENT:
+            forced = t - self._phase_t0 >= DESCENT_TIMEOUT
+            if physics.foot_clearances()[self._swing] < 0.0 or forced:
+                self._touch_down(t, physics, forced)
+
+    def _start_swing(self, t: float, physics: WalkerPhysics) -> None:
+        """Lift the next swing foot: it lands step_length ahead of the stance foot (of the start for step 0)."""
+        swing = self._swing = self._step_i % 2
+        self._phase, self._phase_t0 = TRAVEL, t
+        ankles = physics.ankle_positions()
+        self._sw_x0, self._sw_z0 = ankles[swing]
+        st_x = ankles[1 - swing][0]
+        self._sw_xT = (-self._geo.ankle_to_foot if self._step_i == 0 else st_x) + self.plan.step_length
+        self._swing_dur = self.plan.swing_duration + SWING_PER_METRE * abs(self._sw_xT - self._sw_x0)
+        self._swing_t0 = t
+        # the hip ends the swing over the feet's midpoint
+        self._hip_from, self._hip_to = self._hip_xd, 0.5 * (st_x + self._sw_xT) + self._geo.ankle_to_foot
+        self._speeds = []
+
+    def _touch_down(self, t: float, physics: WalkerPhysics, forced: bool) -> None:
+        peak = max(self._speeds[-self._landing_window:]) if self._speeds else 0.0
+        (rfx, _), (lfx, _) = physics.foot_positions()
+        self.touchdowns.append(Touchdown(t, abs(rfx - lfx), peak, forced))
+        self._step_i += 1
+        self._phase, self._phase_t0 = (STAND, t) if self._step_i < N_STEPS else (FINAL, t)
+        if self._phase == FINAL:
+            self.t_end = t + FINAL_STAND
+
+    # ---------------------------------------------------------------- targets
+    def _swing_target(self, t: float) -> tuple[float, float, float, float]:
+        """Swing ankle target x, vx, z, vz: lift, travel at clearance, hover, then a constant-speed descent."""
+        x0, xT = self._sw_x0, self._sw_xT
+        if self._phase == HOVER:
+            return xT, 0.0, self._hover_z, 0.0
+        if self._phase == DESCENT:
+            tz, tvz = self._desc_z0 - self.plan.landing_speed * (t - self._phase_t0), -self.plan.landing_speed
+            return (xT, 0.0, self._floor_target, 0.0) if tz <= self._floor_target else (xT, 0.0, tz, tvz)
+        dur, z0, peak, hover = self._swing_dur, self._sw_z0, self._peak_z, self._hover_z
+        u = (t - self._swing_t0) / dur
+        sx, dsx = _smooth((u - 0.15) / 0.85)
+        tx = x0 + (xT - x0) * sx
+        tvx = (xT - x0) * dsx / (0.85 * dur)
+        if u < 0.3:
+            sz, dsz = _smooth(u / 0.3)
+            return tx, tvx, z0 + (peak - z0) * sz, (peak - z0) * dsz / (0.3 * dur)
+        if u < 0.65:
+            return tx, tvx, peak, 0.0
+        sz, dsz = _smooth((u - 0.65) / 0.35)
+        return tx, tvx, peak + (hover - peak) * sz, (hover - peak) * dsz / (0.35 * dur)
+
+    def _right_share(self, t: float, physics: WalkerPhysics, in_swing: bool) -> float:
+        """The right leg's share of the body weight: by where the planned hip is between the ankles,
+        moved off the next swing foot in the last WEIGHT_SHIFT of double support."""
+        if in_swing:
+            return 0.0 if self._swing == 0 else 1.0
+        (rax, _), (lax, _) = physics.ankle_positions()
+        span = rax - lax
+        share_r = 0.5 if abs(span) < 0.05 else _clip((self._hip_xd - lax) / span, 0.0, 1.0)
+        if self._phase == STAND and self._step_i < N_STEPS:
+            left_t = self._wait() - (t - self._phase_t0)
+            if left_t < WEIGHT_SHIFT:  # unload the next swing foot
+                f = max(left_t, 0.0) / WEIGHT_SHIFT
+                share_r = share_r * f if self._step_i % 2 == 0 else 1.0 - (1.0 - share_r) * f
+        return share_r
+
+    # ---------------------------------------------------------------- torques
+    def _leg(self, leg: int, physics: WalkerPhysics, target: tuple[float, float, float, float] | None,
+             share: float) -> tuple[float, float, float]:
+        """Motor commands of one leg: PD toward IK targets plus feed-forward, clipped to the gears.
+
+        The swing leg reaches from the actual hip to ``target`` (feed-forward: the bias forces);
+        a stance leg reaches from its planted ankle to the planned hip (feed-forward: its ``share``
+        of the body weight, through the Jacobian transpose)."""
+        geo, plan, j = self._geo, self.plan, 3 * leg
+        if target is not None and leg == self._swing:
+            tx, tvx, tz, tvz = target
+            hx, hz = physics.hip_position()
+            al, be = geo.leg_ik(tx - hx, tz - hz)
+            da, db = geo.leg_rates(al, be, tvx - self._hip_vd, tvz)
+            qh = al + physics.torso_pitch()
+            ff = physics.bias_forces()[j:j + 3]
+        else:
+            ankx, ankz = physics.ankle_positions()[leg]
+            dx, dz = ankx - self._hip_xd, ankz - plan.hip_height
+            al, be = geo.leg_ik(dx, dz)
+            da, db = geo.leg_rates(al, be, -self._hip_vd, 0.0)
+            qh = al + plan.lean
+            w = self._weight * share
+            ff = (-w * dx, -w * geo.shank * math.sin(be), 0.0)
+        q, v = physics.joint_angles(), physics.joint_velocities()
+        (lo_h, lo_k, lo_a), (hi_h, hi_k, hi_a) = geo.joint_low, geo.joint_high
+        # clipped inline, as below: this runs twice per physics step
+        qh = lo_h if qh < lo_h else (hi_h if qh > hi_h else qh)
+        qk = be - al
+        qk = lo_k if qk < lo_k else (hi_k if qk > hi_k else qk)
+        qa = -be
+        qa = lo_a if qa < lo_a else (hi_a if qa > hi_a else qa)
+        gear_h, gear_k, gear_a = geo.gear
+        th_h = (KP_HIP * (qh - q[j]) + KD_HIP * (da - v[j]) + ff[0]) / gear_h
+        th_k = (KP_KNEE * (qk - q[j + 1]) + KD_KNEE * ((db - da) - v[j + 1]) + ff[1]) / gear_k
+        th_a = (KP_ANKLE * (qa - q[j + 2]) + KD_ANKLE * (-db - v[j + 2]) + ff[2]) / gear_a
+        return (-1.0 if th_h < -1.0 else (1.0 if th_h > 1.0 else th_h),
+                -1.0 if th_k < -1.0 else (1.0 if th_k > 1.0 else th_k),
+                -1.0 if th_a < -1.0 else (1.0 if th_a > 1.0 else th_a))
+
+    def _assist(self, physics: WalkerPhysics) -> tuple[float, float, float]:
+        """Spring-dampers pulling the torso toward the planned path (height, x, pitch)."""
+        plan, to_hip = self.plan, self._geo.torso_to_hip
+        vz, vx, vpitch = physics.torso_velocity()
+        tz_d = plan.hip_height + to_hip * self._cos_lean
+        tx_d = self._hip_xd + to_hip * self._sin_lean
+        fz = ASSIST_KZ * (tz_d - physics.torso_height()) - ASSIST_DZ * vz
+        fx = ASSIST_KX * (tx_d - physics.torso_x()) + ASSIST_DX * (self._hip_vd - vx)
+        tp = ASSIST_KP * (plan.lean - physics.torso_pitch()) - ASSIST_DP * vpitch
+        return fz, fx, tp
+
+
+# ---------------------------------------------------------------- recording and measuring
+@dataclass
+class Recording:
+    """What a rollout keeps as it runs: replay frames (30 fps), states (10 Hz), falls, assist effort."""
+
+    x_start: float  # torso x at the start (m)
+    frames: list[list[float]] = field(default_factory=list)  # qpos per replay frame
+    states: list[list[float]] = field(default_factory=list)  # STATE_FEATURES per state sample
+    fall_reason: str = ""  # empty while standing
+    assist_sq: float = 0.0  # sum over physics steps of the assist's vertical force squared (N²)
+    n_steps: int = 0  # physics steps simulated
+    _peaks: list[float] = field(init=False, default_factory=lambda: [0.0, 0.0])  # foot peak speeds since the last state
+    _next_frame: int = field(init=False, default=0)  # physics step of the next replay frame
+
+    def record(self, step: int, physics: WalkerPhysics) -> None:
+        (sp_r, sp_l), peaks = physics.foot_speeds(), self._peaks
+        if sp_r > peaks[0]:
+            peaks[0] = sp_r
+        if sp_l > peaks[1]:
+            peaks[1] = sp_l
+        if step == self._next_frame:
+            self.frames.append(physics.qpos())
+            self._next_frame = round(len(self.frames) / FRAME_RATE / physics.timestep())
+        if step % STATE_EVERY == 0:
+            self.states.append(state_features(physics, peaks[0], peaks[1], self.x_start))
+            peaks[:] = [0.0, 0.0]
+
+    def check_fall(self, physics: WalkerPhysics) -> None:
+        """Fallen: the torso low or pitched, or the torso or a thigh touching the floor."""
+        if self.fall_reason:
+            return
+        if physics.torso_height() < MIN_TORSO_HEIGHT or abs(physics.torso_pitch()) >= MAX_PITCH:
+            self.fall_reason = "torso low or pitched"
+        elif physics.thigh_lowest_point() < 0.0 or physics.torso_lowest_point() < 0.0:
+            self.fall_reason = "torso/thigh floor contact"
+
+    def count(self, command: Command) -> None:
+        fz = command.assist[0]
+        self.assist_sq += fz * fz
+        self.n_steps += 1
+
+
+def state_features(physics: WalkerPhysics, peak_r: float, peak_l: float, x_start: float) -> list[float]:
+    """One state, in STATE_FEATURES order."""
+    torso_x, torso_z = physics.torso_x(), physics.torso_height()
+    (rfx, rfz), (lfx, lfz) = physics.foot_positions()
+    return [
+        torso_z, physics.torso_pitch(), torso_x - x_start, *physics.torso_velocity(),
+        *physics.joint_angles(), *physics.joint_velocities(),
+        rfx - torso_x, rfz - torso_z, lfx - torso_x, lfz - torso_z,
+        *physics.foot_velocities(),
+        *physics.foot_clearances(),
+        peak_r, peak_l,
+    ]  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Measurement:
+    proxies: dict[str, float]
+    success: bool
+    info: dict[str, float]
+
+
+def measure(recording: Recording, touchdowns: list[Touchdown], plan: GaitPlan, weight: float,
+            dt: float) -> Measurement:
+    """Proxies (over the later two touchdowns), success and diagnostics of a finished rollout."""
+    later = touchdowns[1:] if len(touchdowns) > 1 else touchdowns
+    if later:
+        step_size = float(np.mean([td.feet_distance for td in later]))
+        landing = float(np.mean([td.landing_speed for td in later]))
+    else:
+        step_size, landing = 0.0, 0.0
+    fallen = bool(recording.fall_reason)
+    steps_taken = len(touchdowns) == N_STEPS and not any(td.forced for td in touchdowns)
+    info = {
+        "n_touchdowns": float(len(touchdowns)),
+        "fallen": float(fallen),
+        "assist_rms_vertical_frac": math.sqrt(recording.assist_sq / max(recording.n_steps, 1)) / weight,
+        "duration_s": recording.n_steps * dt,
+        "hip_height_plan_m": plan.hip_height,
+        "lean_plan_rad": plan.lean,
+    }
+    for i, td in enumerate(touchdowns):
+        info[f"touchdown{i}_t_s"] = td.t
+        info[f"touchdown{i}_feet_distance_m"] = td.feet_distance
+        info[f"touchdown{i}_landing_speed_mps"] = td.landing_speed
+    if fallen:
+        info["fall_reason_" + recording.fall_reason.replace(" ", "_").replace("/", "_")] = 1.0
+    return Measurement({"step_size": step_size, "softness": -landing}, steps_taken and not fallen, info)
+
+
+# ---------------------------------------------------------------- the domain
 class Walker(Domain):
     """dm_control walker taking three scripted, assisted steps (see the module docstring)."""
 
@@ -230,356 +766,58 @@ class Walker(Domain):
     frame_rate = FRAME_RATE
 
     def __init__(self) -> None:
-        self._model: mujoco.MjModel | None = None
-        self._data: mujoco.MjData | None = None
+        self._physics: WalkerPhysics | None = None
         self._renderers = ThreadRenderers()
 
-    # ------------------------------------------------------------------ simulator
-    def _physics(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
-        if self._model is None:
-            from dm_control.suite import walker as suite_walker
-
-            physics = suite_walker.Physics.from_xml_string(*suite_walker.get_model_and_assets())
-            self._physics_ref = physics  # keeps the model alive
-            self._model = physics.model.ptr
-            self._data = physics.data.ptr
-            assert abs(self._model.opt.timestep - DT) < 1e-12
-        return self._model, self._data
+    def physics(self) -> WalkerPhysics:
+        """The walker's physics, made on first use."""
+        if self._physics is None:
+            self._physics = WalkerPhysics.from_suite()
+        return self._physics
 
     # ------------------------------------------------------------------ skill
     def sample_params(self, rng: np.random.Generator) -> dict[str, float]:
         return {k: float(rng.uniform(lo, hi)) for k, (lo, hi) in PARAM_RANGES.items()}
 
     def rollout(self, params: dict[str, float], seed: int) -> Rollout:
-        sim = self._simulate(params, seed)
-        return Rollout(
-            id="",
-            domain=self.name,
-            params={k: float(params[k]) for k in self.param_names},
-            seed=int(seed),
-            states=sim["states"],
-            replay=sim["replay"],
-            proxies=sim["proxies"],
-            success=sim["success"],
-            info=sim["info"],
-        )
-
-    def _simulate(self, params: dict[str, float], seed: int) -> dict:
-        model, data = self._physics()
-        step_len = float(params["step_length"])
-        v_land = float(params["landing_speed"])
-        swing_base = float(params["swing_duration"])
-        swing_h = float(params["swing_height"])
-
-        # ---- plan constants
-        lean = MAX_LEAN * min(1.0, step_len / LEAN_FULL_STEP)
-        half = 0.5 * step_len
-        hip_h = min(HIP_HEIGHT_MAX, GROUND_ANKLE_Z + math.sqrt(max(LEG_REACH**2 - half * half, 0.25)))
-        sin_lean, cos_lean = math.sin(lean), math.cos(lean)
-        weight = float(model.body_subtreemass[1]) * GRAVITY  # N
-        gear_h, gear_k, gear_a = GEAR
-        kph, kpk, kpa = KP
-        kdh, kdk, kda = KD
-        lo_h, lo_k, lo_a = JOINT_LOW
-        hi_h, hi_k, hi_a = JOINT_HIGH
-        hover_z = GROUND_ANKLE_Z + HOVER_CLEARANCE
-        floor_target = GROUND_ANKLE_Z - DESCENT_DEPTH
-        peak_z = GROUND_ANKLE_Z + max(swing_h, HOVER_CLEARANCE)
-
-        # ---- initial state: feet together under the hip, seed-dependent small perturbation
-        rng = np.random.default_rng(seed)
-        mujoco.mj_resetData(model, data)
-        a, b = _leg_ik(START_ANKLE_X, GROUND_ANKLE_Z - hip_h)
-        q0 = [hip_h + TORSO_TO_HIP * cos_lean - TORSO_Z0, TORSO_TO_HIP * sin_lean, lean]
-        q0 += [a + lean, b - a, -b] * 2
-        q0 = np.array(q0) + np.concatenate([[0.0, 0.0, 0.0], rng.normal(0.0, INIT_JOINT_NOISE, 6)])
-        data.qpos[:] = q0
-        data.qvel[:] = np.concatenate([[0.0, 0.0, 0.0], rng.normal(0.0, INIT_VEL_NOISE, 6)])
-        mujoco.mj_forward(model, data)
-        # shift vertically so the lower foot just touches the floor
-        k0 = _foot_kinematics(data.qpos.tolist())
-        data.qpos[ROOTZ] -= min(k0[4], k0[9]) + 1e-4
-        mujoco.mj_forward(model, data)
-
-        qpos_arr, qvel_arr, ctrl = data.qpos, data.qvel, data.ctrl
-        qfrc_app, qfrc_bias = data.qfrc_applied, data.qfrc_bias
-        step_fn = mujoco.mj_step
-
-        x_start = float(qpos_arr[ROOTX])
-        # planted ankles (x) and the planned hip path
-        hip_from, hip_to = 0.0, 0.0
-        swing_t0 = 0.0
-        swing_dur = 1.0
-        hip_xd, hip_vd = 0.0, 0.0
-
-        # phases: 0 settle/double support, 1 swing travel, 2 hover, 3 descent, 4 final stand
-        phase = 0
-        phase_t0 = 0.0
-        step_i = 0  # index of the next / current step
-        swing = 0  # 0 right, 1 left
-        sw_x0 = sw_z0 = sw_xT = 0.0
-        desc_z0 = 0.0
-        touchdowns: list[tuple[float, float, float, float]] = []  # (t, feet distance, peak speed, forced)
-        fallen = False
-        fall_reason = ""
-
-        n_frame = 0
-        next_frame_step = 0
-        frames: list[list[float]] = []
-        states: list[list[float]] = []
-        q = qpos_arr.tolist()
-        kin = _foot_kinematics(q)
-        prev_feet = (kin[2], kin[3], kin[7], kin[8])
-        speeds_r: list[float] = []
-        speeds_l: list[float] = []
-        peak_r = peak_l = 0.0
-        vfr = (0.0, 0.0, 0.0, 0.0)
-        assist_sq = 0.0
-        n_steps_sim = 0
-
-        t_end = None
-        step = 0
-        max_steps = int(40.0 / DT)
-        while step < max_steps:
-            t = step * DT
-            q = qpos_arr.tolist()
-            v = qvel_arr.tolist()
-            kin = _foot_kinematics(q)
-            rax, raz, rfx, rfz, rcl, lax, laz, lfx, lfz, lcl = kin
-            # foot-centre velocities by finite difference of consecutive physics steps
-            if step > 0:
-                prx, prz, plx, plz = prev_feet
-                vfr = ((rfx - prx) / DT, (rfz - prz) / DT, (lfx - plx) / DT, (lfz - plz) / DT)
-            prev_feet = (rfx, rfz, lfx, lfz)
-            sp_r = math.hypot(vfr[0], vfr[1])
-            sp_l = math.hypot(vfr[2], vfr[3])
-            if sp_r > peak_r:
-                peak_r = sp_r
-            if sp_l > peak_l:
-                peak_l = sp_l
-
-            # ---- record (replay frames at 30 fps, states at 10 Hz)
-            if step == next_frame_step:
-                frames.append(q)
-                n_frame += 1
-                next_frame_step = round(n_frame / FRAME_RATE / DT)
-            if step % STATE_EVERY == 0:
-                states.append(self._state_features(q, v, kin, vfr, peak_r, peak_l, x_start))
-                peak_r = peak_l = 0.0
-            if t_end is not None and t >= t_end:
-                break
-
-            th = q[ROOTY]
-            torso_z = _torso_height(q)
-            hx, hz = _hip_position(q)
-
-            # ---- fall detection (torso / thigh contact, low torso, large pitch)
-            if not fallen:
-                knee_r = hz - THIGH * math.cos(q[R_HIP] - th)
-                knee_l = hz - THIGH * math.cos(q[L_HIP] - th)
-                low_torso = torso_z - TORSO_HALF * abs(math.cos(th)) - TORSO_RADIUS
-                if torso_z < MIN_TORSO_HEIGHT or abs(th) >= MAX_PITCH:
-                    fallen, fall_reason = True, "torso low or pitched"
-                elif min(hz, knee_r, knee_l) - THIGH_RADIUS < 0.0 or low_torso < 0.0:
-                    fallen, fall_reason = True, "torso/thigh floor contact"
-
-            # ---- phase logic
-            if phase == 0 and step_i < N_STEPS and t - phase_t0 >= (SETTLE_TIME if step_i == 0 else DOUBLE_SUPPORT):
-                # start swing step_i
-                swing = step_i % 2
-                phase, phase_t0 = 1, t
-                if swing == 0:
-                    sw_x0, sw_z0, st_x = rax, raz, lax
-                else:
-                    sw_x0, sw_z0, st_x = lax, laz, rax
-                sw_xT = (START_ANKLE_X if step_i == 0 else st_x) + step_len
-                swing_dur = swing_base + SWING_PER_METRE * abs(sw_xT - sw_x0)
-                swing_t0 = t
-                hip_from, hip_to = hip_xd, 0.5 * (st_x + sw_xT) + ANKLE_TO_FOOT  # over the feet's midpoint
-                if swing == 0:
-                    speeds_r = []
-                else:
-                    speeds_l = []
-            if phase in (1, 2, 3):
-                (speeds_r if swing == 0 else speeds_l).append(sp_r if swing == 0 else sp_l)
-            if phase == 1 and t - swing_t0 >= swing_dur:
-                phase, phase_t0 = 2, t
-            if phase == 2:
-                sp = sp_r if swing == 0 else sp_l
-                dt_h = t - phase_t0
-                if (dt_h >= HOVER_MIN and sp < HOVER_SLOW) or dt_h >= HOVER_MAX:
-                    phase, phase_t0 = 3, t
-                    desc_z0 = hover_z
-            if phase == 3:
-                clear = rcl if swing == 0 else lcl
-                forced = t - phase_t0 >= DESCENT_TIMEOUT
-                if clear < 0.0 or forced:
-                    sp_hist = speeds_r if swing == 0 else speeds_l
-                    n_win = round(LANDING_WINDOW / DT)
-                    peak = max(sp_hist[-n_win:]) if sp_hist else 0.0
-                    touchdowns.append((t, abs(rfx - lfx), peak, float(forced)))
-                    step_i += 1
-                    phase, phase_t0 = (0, t) if step_i < N_STEPS else (4, t)
-                    if phase == 4:
-                        t_end = t + FINAL_STAND
-
-            # ---- planned hip path
-            if phase in (1, 2, 3):
-                s, ds = _smooth((t - swing_t0) / swing_dur)
-                hip_xd = hip_from + (hip_to - hip_from) * s
-                hip_vd = (hip_to - hip_from) * ds / swing_dur
-            else:
-                hip_vd = 0.0
-            hip_zd = hip_h
-
-            # ---- swing foot target (ankle) and its velocity
-            in_swing = phase in (1, 2, 3)
-            if in_swing:
-                if phase == 1:
-                    u = (t - swing_t0) / swing_dur
-                    sx, dsx = _smooth((u - 0.15) / 0.85)
-                    tx = sw_x0 + (sw_xT - sw_x0) * sx
-                    tvx = (sw_xT - sw_x0) * dsx / (0.85 * swing_dur)
-                    if u < 0.3:
-                        sz, dsz = _smooth(u / 0.3)
-                        tz = sw_z0 + (peak_z - sw_z0) * sz
-                        tvz = (peak_z - sw_z0) * dsz / (0.3 * swing_dur)
-                    elif u < 0.65:
-                        tz, tvz = peak_z, 0.0
-                    else:
-                        sz, dsz = _smooth((u - 0.65) / 0.35)
-                        tz = peak_z + (hover_z - peak_z) * sz
-                        tvz = (hover_z - peak_z) * dsz / (0.35 * swing_dur)
-                elif phase == 2:
-                    tx, tvx, tz, tvz = sw_xT, 0.0, hover_z, 0.0
-                else:
-                    tx, tvx = sw_xT, 0.0
-                    tz = desc_z0 - v_land * (t - phase_t0)
-                    tvz = -v_land
-                    if tz <= floor_target:
-                        tz, tvz = floor_target, 0.0
-
-            # ---- weight shares of the stance legs
-            if in_swing:
-                share_r, share_l = (0.0, 1.0) if swing == 0 else (1.0, 0.0)
-            else:
-                span = rax - lax
-                if abs(span) < 0.05:
-                    share_r = 0.5
-                else:
-                    share_r = (hip_xd - lax) / span
-                    share_r = 0.0 if share_r < 0.0 else (1.0 if share_r > 1.0 else share_r)
-                if phase == 0 and step_i < N_STEPS:
-                    wait = SETTLE_TIME if step_i == 0 else DOUBLE_SUPPORT
-                    left_t = wait - (t - phase_t0)
-                    if left_t < WEIGHT_SHIFT:  # unload the next swing foot
-                        f = max(left_t, 0.0) / WEIGHT_SHIFT
-                        if step_i % 2 == 0:
-                            share_r *= f
-                        else:
-                            share_r = 1.0 - (1.0 - share_r) * f
-                share_l = 1.0 - share_r
-
-            bias = qfrc_bias.tolist()
-            # ---- per-leg joint targets and torques
-            for leg in (0, 1):
-                j = R_HIP if leg == 0 else L_HIP
-                ankx, ankz = (rax, raz) if leg == 0 else (lax, laz)
-                if in_swing and leg == swing:
-                    dx, dz = tx - hx, tz - hz
-                    al, be = _leg_ik(dx, dz)
-                    da, db = _leg_rates(al, be, tvx - hip_vd, tvz)
-                    qh, qhd = al + th, da
-                    ff_h, ff_k, ff_a = bias[j], bias[j + 1], bias[j + 2]
-                else:
-                    dx, dz = ankx - hip_xd, ankz - hip_zd
-                    al, be = _leg_ik(dx, dz)
-                    da, db = _leg_rates(al, be, -hip_vd, 0.0)
-                    qh, qhd = al + lean, da
-                    w = weight * (share_r if leg == 0 else share_l)
-                    ff_h = -w * dx
-                    ff_k = -w * SHANK * math.sin(be)
-                    ff_a = 0.0
-                qk, qkd = be - al, db - da
-                qa, qad = -be, -db
-                qh = lo_h if qh < lo_h else (hi_h if qh > hi_h else qh)
-                qk = lo_k if qk < lo_k else (hi_k if qk > hi_k else qk)
-                qa = lo_a if qa < lo_a else (hi_a if qa > hi_a else qa)
-                th_h = (kph * (qh - q[j]) + kdh * (qhd - v[j]) + ff_h) / gear_h
-                th_k = (kpk * (qk - q[j + 1]) + kdk * (qkd - v[j + 1]) + ff_k) / gear_k
-                th_a = (kpa * (qa - q[j + 2]) + kda * (qad - v[j + 2]) + ff_a) / gear_a
-                c0 = 3 * leg
-                ctrl[c0] = -1.0 if th_h < -1.0 else (1.0 if th_h > 1.0 else th_h)
-                ctrl[c0 + 1] = -1.0 if th_k < -1.0 else (1.0 if th_k > 1.0 else th_k)
-                ctrl[c0 + 2] = -1.0 if th_a < -1.0 else (1.0 if th_a > 1.0 else th_a)
-
-            # ---- torso assist toward the planned path
-            tz_d = hip_zd + TORSO_TO_HIP * cos_lean
-            tx_d = hip_xd + TORSO_TO_HIP * sin_lean
-            fz = ASSIST_KZ * (tz_d - torso_z) - ASSIST_DZ * v[ROOTZ]
-            fx = ASSIST_KX * (tx_d - q[ROOTX]) + ASSIST_DX * (hip_vd - v[ROOTX])
-            tp = ASSIST_KP * (lean - th) - ASSIST_DP * v[ROOTY]
-            qfrc_app[ROOTZ] = fz
-            qfrc_app[ROOTX] = fx
-            qfrc_app[ROOTY] = tp
-            assist_sq += fz * fz
-            n_steps_sim += 1
-
-            step_fn(model, data)
-            step += 1
-
-        qfrc_app[:] = 0.0
-        # ---- proxies
-        later = touchdowns[1:] if len(touchdowns) > 1 else touchdowns
-        if later:
-            step_size = float(np.mean([td[1] for td in later]))
-            landing = float(np.mean([td[2] for td in later]))
-        else:
-            step_size, landing = 0.0, 0.0
-        steps_taken = len(touchdowns) == N_STEPS and not any(td[3] for td in touchdowns)
-        success = steps_taken and not fallen
-        info = {
-            "n_touchdowns": float(len(touchdowns)),
-            "fallen": float(fallen),
-            "assist_rms_vertical_frac": math.sqrt(assist_sq / max(n_steps_sim, 1)) / weight,
-            "duration_s": step * DT,
-            "hip_height_plan_m": hip_h,
-            "lean_plan_rad": lean,
-        }
-        for i, td in enumerate(touchdowns):
-            info[f"touchdown{i}_t_s"] = td[0]
-            info[f"touchdown{i}_feet_distance_m"] = td[1]
-            info[f"touchdown{i}_landing_speed_mps"] = td[2]
-        if fall_reason:
-            info["fall_reason_" + fall_reason.replace(" ", "_").replace("/", "_")] = 1.0
-        return {
-            "states": np.asarray(states, dtype=np.float32),
-            "replay": np.asarray(frames, dtype=np.float64),
-            "proxies": {"step_size": step_size, "softness": -landing},
-            "success": bool(success),
-            "info": info,
-        }
-
-    @staticmethod
-    def _state_features(q, v, kin, vfr, peak_r, peak_l, x_start) -> list[float]:
-        torso_x = q[ROOTX]
-        torso_z = TORSO_Z0 + q[ROOTZ]
-        _, _, rfx, rfz, rcl, _, _, lfx, lfz, lcl = kin
-        return [
-            torso_z, q[ROOTY], torso_x - x_start, v[ROOTZ], v[ROOTX], v[ROOTY],
-            *q[3:9], *v[3:9],
-            rfx - torso_x, rfz - torso_z, lfx - torso_x, lfz - torso_z,
-            *vfr,
-            rcl, lcl,
-            peak_r, peak_l,
-        ]  # fmt: skip
+        physics = self.physics()
+        plan = GaitPlan.from_params(params, physics.geometry)
+        rng = np.random.default_rng(seed)  # a small seed-dependent perturbation of the start
+        pose = np.array(plan.start_pose(physics.geometry)) + np.concatenate([[0.0] * 3,
+                                                                              rng.normal(0.0, INIT_JOINT_NOISE, 6)])
+        physics.reset(pose, np.concatenate([[0.0] * 3, rng.normal(0.0, INIT_VEL_NOISE, 6)]))
+        controller = GaitController(plan, physics)
+        recording = run(physics, controller)
+        m = measure(recording, controller.touchdowns, plan, physics.body_weight(), physics.timestep())
+        return Rollout(id="", domain=self.name, params={k: float(params[k]) for k in self.param_names},
+                       seed=int(seed), states=np.asarray(recording.states, dtype=np.float32),
+                       replay=np.asarray(recording.frames, dtype=np.float64), proxies=m.proxies,
+                       success=m.success, info=m.info)
 
     # ------------------------------------------------------------------ rendering
     def render(self, rollout: Rollout, width: int, height: int) -> Iterator[np.ndarray]:
-        model, _ = self._physics()
         camera = Camera(CAMERA_DISTANCE, CAMERA_ELEVATION,  # follows the torso along x
                         aim=lambda data: (float(data.xpos[1, 0]), 0.0, CAMERA_LOOKAT_Z))
-        return self._renderers.replay(model, rollout.replay, width, height, camera)
+        return self._renderers.replay(self.physics().model, rollout.replay, width, height, camera)
+
+
+def run(physics: WalkerPhysics, controller: GaitController) -> Recording:
+    """Step the physics under ``controller`` until the gait is done (or MAX_DURATION), recording as it goes."""
+    dt = physics.timestep()
+    physics.observe()
+    recording = Recording(x_start=physics.torso_x())
+    for step in range(int(MAX_DURATION / dt)):
+        t = step * dt
+        if step:
+            physics.observe()
+        recording.record(step, physics)
+        if controller.finished(t):
+            break
+        recording.check_fall(physics)
+        command = controller.control(t, physics)
+        recording.count(command)
+        physics.act(command.ctrl, command.assist)
+    return recording
 
 
 CAMERA_DISTANCE = 3.3  # m from the torso, side view

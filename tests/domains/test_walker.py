@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import math
+
+import mujoco
 import numpy as np
 import pytest
 
-from rba.domains.walker import DT, FRAME_RATE, STATE_EVERY, Walker
+from rba.domains.walker import FRAME_RATE, STATE_EVERY, GaitController, GaitPlan, Walker
 
 BASE = {"step_length": 0.5, "landing_speed": 0.5, "swing_duration": 0.5, "swing_height": 0.08}
 
@@ -28,7 +31,7 @@ def test_contract(walker: Walker) -> None:
     assert r.states.dtype == np.float32 and r.states.ndim == 2 and r.states.shape[1] == walker.state_dim
     assert r.replay.dtype == np.float64 and r.replay.shape[1] == 9
     # states every STATE_EVERY physics steps and frames at FRAME_RATE cover the same clip
-    expected = FRAME_RATE * STATE_EVERY * DT
+    expected = FRAME_RATE * STATE_EVERY * walker.physics().timestep()
     assert abs(len(r.replay) / len(r.states) - expected) < 0.05 * expected
     assert set(r.proxies) == {"step_size", "softness"}
     assert all(np.isfinite(v) for v in r.proxies.values())
@@ -70,3 +73,47 @@ def test_render_frames(walker: Walker) -> None:
         assert f.std() > 1.0  # not a constant image
     again = list(walker.render(r, 96, 64))
     assert all(np.array_equal(f, g) for f, g in zip(frames, again, strict=True))
+
+
+def test_geometry_is_the_models(walker: Walker) -> None:
+    """The dimensions come from the MuJoCo model, bit for bit the XML's numbers (the gait depends on every bit)."""
+    geo = walker.physics().geometry
+    assert (geo.torso_z0, geo.torso_to_hip, geo.thigh, geo.shank, geo.ankle_to_foot) == (1.3, 0.3, 0.45, 0.5, 0.06)
+    assert (geo.foot_radius, geo.foot_half, geo.thigh_radius, geo.torso_radius, geo.torso_half) == (
+        0.05, 0.1, 0.05, 0.07, 0.3)
+    assert geo.joint_low == (math.radians(-20), math.radians(-150), math.radians(-45))
+    assert geo.joint_high == (math.radians(100), 0.0, math.radians(45)) and geo.gear == (100.0, 50.0, 20.0)
+
+
+def test_planar_kinematics_agree_with_mujoco(walker: Walker) -> None:
+    """Named getters (hand-written planar kinematics) match MuJoCo's own positions to rounding."""
+    physics = walker.physics()
+    model, data = physics.model, physics.data
+    rng = np.random.default_rng(0)
+    foot = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, f"{side}_foot") for side in ("right", "left")]
+    ankle = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, f"{side}_ankle") for side in ("right", "left")]
+    thigh = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "right_thigh")
+    for _ in range(20):
+        data.qpos[:] = rng.normal(0.0, 0.4, model.nq)
+        mujoco.mj_kinematics(model, data)
+        physics.observe()
+        assert physics.torso_height() == pytest.approx(data.xpos[1, 2], abs=1e-12)
+        np.testing.assert_allclose(physics.hip_position(), data.xpos[thigh, [0, 2]], atol=1e-12)
+        for leg in (0, 1):
+            np.testing.assert_allclose(physics.foot_positions()[leg], data.geom_xpos[foot[leg], [0, 2]], atol=1e-12)
+            np.testing.assert_allclose(physics.ankle_positions()[leg], data.xanchor[ankle[leg], [0, 2]], atol=1e-12)
+
+
+def test_controller_commands_stay_in_range(walker: Walker) -> None:
+    """The gait controller's motor commands are normalised (the motors' ctrlrange) and the assist is finite."""
+    physics = walker.physics()
+    plan = GaitPlan.from_params(BASE, physics.geometry)
+    physics.reset(np.array(plan.start_pose(physics.geometry)), np.zeros(physics.model.nv))
+    controller = GaitController(plan, physics)
+    for step in range(800):
+        physics.observe()
+        command = controller.control(step * physics.timestep(), physics)
+        assert len(command.ctrl) == 6 and all(-1.0 <= u <= 1.0 for u in command.ctrl)
+        assert all(math.isfinite(f) for f in command.assist)
+        physics.act(command.ctrl, command.assist)
+    assert len(controller.touchdowns) >= 1  # 2 s in: the first step has landed
