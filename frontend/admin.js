@@ -1,35 +1,14 @@
 // RBA Studio admin page: label clips (saved one by one), retrain in the background, switch the served model.
 // Everything it shows comes from /api/admin routes, which need the admin token.
 
-const $ = (id) => document.getElementById(id);
+import { $, api, el, pretty, toast } from "./common.js";
+
 const state = { token: sessionStorage.getItem("rba-admin-token") || "", clips: [], job: null, labels: 0 };
 
-async function api(path, options = {}) {
-  const headers = { "Content-Type": "application/json", Authorization: `Bearer ${state.token}` };
-  const res = await fetch(path, { ...options, headers: { ...headers, ...(options.headers || {}) } });
-  let body = null;
-  try { body = await res.json(); } catch { /* not JSON */ }
-  if (!res.ok) throw Object.assign(new Error(body?.detail || `${res.status} ${res.statusText}`), { status: res.status });
-  return body;
-}
+/** The shared call with the admin token the /api/admin routes need. */
+const adminApi = (path, options = {}) =>
+  api(path, { ...options, headers: { Authorization: `Bearer ${state.token}`, ...options.headers } });
 
-function toast(message) {
-  $("toast-text").textContent = message;
-  $("toast").hidden = false;
-  clearTimeout(toast.timer);
-  toast.timer = setTimeout(() => { $("toast").hidden = true; }, 6000);
-}
-
-const el = (tag, attrs = {}, ...children) => {
-  const node = document.createElement(tag);
-  for (const [k, v] of Object.entries(attrs)) {
-    if (k.startsWith("on")) node.addEventListener(k.slice(2), v);
-    else node.setAttribute(k, v);
-  }
-  node.append(...children);
-  return node;
-};
-const pretty = (name) => name.replace(/_/g, " ");
 const domain = () => $("domain").value;
 const attribute = () => $("attribute").value;
 const local = () => $("mode").value === "local";
@@ -39,7 +18,7 @@ async function unlock(event) {
   event?.preventDefault();
   state.token = $("token").value || state.token;
   try {
-    await api("/api/admin/jobs");
+    await adminApi("/api/admin/jobs");
   } catch (e) {
     toast(e.message);
     return;
@@ -47,13 +26,13 @@ async function unlock(event) {
   sessionStorage.setItem("rba-admin-token", state.token);
   $("login").hidden = true;
   $("admin").hidden = false;
-  const { domains } = await (await fetch("/api/domains")).json();
+  const { domains } = await api("/api/domains");
   $("domain").replaceChildren(...domains.map((d) => el("option", { value: d.name }, d.name)));
   await loadDomain();
 }
 
 async function loadDomain() {
-  const { attributes } = await api(`/api/admin/attributes?domain=${encodeURIComponent(domain())}`);
+  const { attributes } = await adminApi(`/api/admin/attributes?domain=${encodeURIComponent(domain())}`);
   const keep = attribute();
   $("attribute").replaceChildren(...attributes.map((a) =>
     el("option", { value: a.name, title: a.description }, `${pretty(a.name)}${a.added ? " (added)" : ""}`)));
@@ -65,7 +44,7 @@ async function loadDomain() {
 async function nextClips(skip = false) {
   const q = new URLSearchParams({ domain: domain(), size: "2", anchor: String(local()) });
   if (skip === true) q.set("seed", String(Math.floor(Math.random() * 1e9)));
-  const { clips } = await api(`/api/admin/pairs?${q}`);
+  const { clips } = await adminApi(`/api/admin/pairs?${q}`);
   state.clips = clips;
   const names = local() ? ["Anchor", "Candidate"] : ["Left", "Right"];
   $("pair").replaceChildren(...clips.map((c, i) => el("figure", {},
@@ -93,7 +72,7 @@ async function answer(side) {
     body = { domain: domain(), comparison: { attribute: attribute(), more, less } };
   }
   try {
-    await api("/api/admin/labels", { method: "POST", body: JSON.stringify(body) });
+    await adminApi("/api/admin/labels", { method: "POST", body: JSON.stringify(body) });
     state.labels += 1;
     $("label-count").textContent = `· ${state.labels} saved this visit`;
   } catch (e) {
@@ -106,7 +85,7 @@ async function answer(side) {
 async function addAttribute(event) {
   event.preventDefault();
   try {
-    await api("/api/admin/attributes", { method: "POST", body: JSON.stringify({
+    await adminApi("/api/admin/attributes", { method: "POST", body: JSON.stringify({
       domain: domain(), name: $("attr-name").value.trim(), description: $("attr-desc").value.trim() }) });
     const name = $("attr-name").value.trim();
     $("attribute-form").reset();
@@ -137,7 +116,7 @@ function showJob(job) {
 async function pollJob() {
   if (!state.job || !["queued", "running"].includes(state.job.state)) return;
   try {
-    showJob(await api(`/api/admin/jobs/${state.job.id}`));
+    showJob(await adminApi(`/api/admin/jobs/${state.job.id}`));
   } catch (e) {
     toast(e.message);
   }
@@ -146,7 +125,7 @@ async function pollJob() {
 }
 
 async function loadLatestJob() {
-  const jobs = await api(`/api/admin/jobs?domain=${encodeURIComponent(domain())}`);
+  const jobs = await adminApi(`/api/admin/jobs?domain=${encodeURIComponent(domain())}`);
   showJob(jobs[0] || null);
   pollJob();
 }
@@ -154,7 +133,7 @@ async function loadLatestJob() {
 async function train() {
   try {
     const body = { domain: domain(), preset: $("preset").value, rep: $("rep").value, method: $("train-method").value };
-    showJob(await api("/api/admin/train", { method: "POST", body: JSON.stringify(body) }));
+    showJob(await adminApi("/api/admin/train", { method: "POST", body: JSON.stringify(body) }));
     pollJob();
   } catch (e) {
     toast(e.message);
@@ -162,11 +141,11 @@ async function train() {
 }
 
 async function cancel() {
-  try { showJob(await api(`/api/admin/jobs/${state.job.id}/cancel`, { method: "POST" })); } catch (e) { toast(e.message); }
+  try { showJob(await adminApi(`/api/admin/jobs/${state.job.id}/cancel`, { method: "POST" })); } catch (e) { toast(e.message); }
 }
 
 async function loadVersions() {
-  const versions = await api(`/api/admin/models?domain=${encodeURIComponent(domain())}`);
+  const versions = await adminApi(`/api/admin/models?domain=${encodeURIComponent(domain())}`);
   $("versions").replaceChildren(...versions.map((v) => {
     const held = v.held_out?.argmax_within_epsilon?.normal;
     return el("li", {},
@@ -180,7 +159,7 @@ async function loadVersions() {
 async function activate(version) {
   const q = version === "builtin" ? `?domain=${encodeURIComponent(domain())}` : "";
   try {
-    await api(`/api/admin/models/${encodeURIComponent(version)}/activate${q}`, { method: "POST" });
+    await adminApi(`/api/admin/models/${encodeURIComponent(version)}/activate${q}`, { method: "POST" });
   } catch (e) {
     toast(e.message);
   }

@@ -1,7 +1,8 @@
 // RBA Studio page: start a session, watch its clip, answer "more / less <attribute>" or "this is it".
 // Plain ES module, no build step. Talks only to the REST API the scripted users use too.
 
-const $ = (id) => document.getElementById(id);
+import { $, api, el, pretty, toast } from "./common.js";
+
 const els = {
   domain: $("domain"), method: $("method"), setup: $("setup"), start: $("start"),
   video: $("video"), overlay: $("overlay"), overlayText: $("overlay-text"),
@@ -11,7 +12,6 @@ const els = {
   controlsTitle: $("controls-title"), controlsHint: $("controls-hint"), sessionMeta: $("session-meta"),
   done: $("done"), doneTitle: $("done-title"), doneText: $("done-text"), again: $("again"),
   history: $("history"), historyEmpty: $("history-empty"), historyCount: $("history-count"), keyList: $("key-list"),
-  toast: $("toast"), toastText: $("toast-text"), toastClose: $("toast-close"),
 };
 
 const state = {
@@ -22,51 +22,12 @@ const state = {
   shownUrl: null,
 };
 
-// ---------------------------------------------------------------- API
-async function api(path, options = {}) {
-  let res;
-  try {
-    res = await fetch(path, { headers: { "Content-Type": "application/json" }, ...options });
-  } catch {
-    throw Object.assign(new Error("The server cannot be reached. Is `rba serve` running?"), { status: 0 });
-  }
-  let body = null;
-  try { body = await res.json(); } catch { /* empty or not JSON */ }
-  if (!res.ok) {
-    const detail = body && typeof body.detail === "string" ? body.detail : `${res.status} ${res.statusText}`;
-    throw Object.assign(new Error(detail), { status: res.status });
-  }
-  return body;
-}
-
 // ---------------------------------------------------------------- small helpers
-const pretty = (name) => name.replace(/_/g, " ");
 const fmt = (v) => {
   if (v === undefined || v === null || Number.isNaN(v)) return "–";
   const a = Math.abs(v);
   return a >= 100 ? v.toFixed(0) : a >= 10 ? v.toFixed(1) : v.toFixed(2);
 };
-const el = (tag, attrs = {}, ...children) => {
-  const node = document.createElement(tag);
-  for (const [k, v] of Object.entries(attrs)) {
-    if (k === "class") node.className = v;
-    else if (k === "dataset") Object.assign(node.dataset, v);
-    else if (k.startsWith("on")) node.addEventListener(k.slice(2), v);
-    else if (v !== undefined && v !== null && v !== false) node.setAttribute(k, v === true ? "" : v);
-  }
-  for (const c of children.flat()) if (c !== null && c !== undefined) node.append(c);
-  return node;
-};
-
-let toastTimer = null;
-function toast(message, kind = "error") {
-  els.toastText.textContent = message;
-  els.toast.className = `toast ${kind === "info" ? "info" : ""}`;
-  els.toast.hidden = false;
-  clearTimeout(toastTimer);
-  toastTimer = setTimeout(() => { els.toast.hidden = true; }, kind === "info" ? 4000 : 9000);
-}
-els.toastClose.addEventListener("click", () => { els.toast.hidden = true; });
 
 function overlay(text, kind = "loading") {
   if (!text) { els.overlay.classList.add("hidden"); return; }

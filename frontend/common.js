@@ -1,0 +1,48 @@
+// What the studio page (app.js) and the admin page (admin.js) both need: the REST call, the DOM builder, the toast.
+// Plain ES module served from /static like the pages' own scripts; no build step.
+
+export const $ = (id) => document.getElementById(id);
+
+/** Attribute names as people read them: "step_size" -> "step size". */
+export const pretty = (name) => name.replace(/_/g, " ");
+
+/** JSON in and out; a failed call throws an Error whose message is the server's one-sentence `detail`. */
+export async function api(path, options = {}) {
+  let res;
+  try {
+    res = await fetch(path, { ...options, headers: { "Content-Type": "application/json", ...options.headers } });
+  } catch {
+    throw Object.assign(new Error("The server cannot be reached. Is `rba serve` running?"), { status: 0 });
+  }
+  let body = null;
+  try { body = await res.json(); } catch { /* empty or not JSON */ }
+  if (!res.ok) {
+    const detail = body && typeof body.detail === "string" ? body.detail : `${res.status} ${res.statusText}`;
+    throw Object.assign(new Error(detail), { status: res.status });
+  }
+  return body;
+}
+
+/** One element: `class`, `dataset`, `on<event>` handlers and attributes (null/undefined/false left out). */
+export const el = (tag, attrs = {}, ...children) => {
+  const node = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs)) {
+    if (k === "class") node.className = v;
+    else if (k === "dataset") Object.assign(node.dataset, v);
+    else if (k.startsWith("on")) node.addEventListener(k.slice(2), v);
+    else if (v !== undefined && v !== null && v !== false) node.setAttribute(k, v === true ? "" : v);
+  }
+  for (const c of children.flat()) if (c !== null && c !== undefined) node.append(c);
+  return node;
+};
+
+let toastTimer = null;
+/** Show `message` in the page's #toast; an "info" one is styled lighter and goes sooner than an error. */
+export function toast(message, kind = "error") {
+  $("toast-text").textContent = message;
+  $("toast").className = `toast ${kind === "info" ? "info" : ""}`;
+  $("toast").hidden = false;
+  clearTimeout(toastTimer);
+  toastTimer = setTimeout(() => { $("toast").hidden = true; }, kind === "info" ? 4000 : 9000);
+}
+$("toast-close")?.addEventListener("click", () => { $("toast").hidden = true; });
