@@ -1,4 +1,4 @@
-"""Model artifacts: ``<models_dir>/<domain>/<kind>-<rep>.pt`` (state_dict) + ``.json`` (card).
+"""Model artifacts: a state_dict (``.pt``) + a card (``.json``), where ``rba.store.ModelFiles`` says.
 
 The card says how to rebuild the module (architecture), what it was trained on (data
 hashes), and how well it did on held-out data. Weights load with ``weights_only=True``.
@@ -18,8 +18,8 @@ from rba.learn.global_reward import GlobalReward
 from rba.learn.local_reward import LocalReward
 from rba.learn.ranker import AttributeRanker
 from rba.learn.vae import FrameVAE
-from rba.paths import models_dir
 from rba.storage import load_json, load_torch, save_json, save_torch
+from rba.store import model_files
 
 
 class ModelNotFoundError(FileNotFoundError):
@@ -61,25 +61,21 @@ class Artifact:
     card: dict
 
 
-def model_path(domain: str, kind: str, rep: str, root: Path | None = None) -> Path:
-    return (root or models_dir()) / domain / f"{kind}-{rep}.pt"
-
-
 def save_model(model: nn.Module, card: dict, root: Path | None = None) -> Path:
     """Write weights then card (the card's presence marks a complete artifact)."""
     card = dict(card, created=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"))
-    path = model_path(card["domain"], card["kind"], card["representation"], root)
-    save_torch(path, model.state_dict())
-    save_json(path.with_suffix(".json"), card)
-    return path
+    files, key = model_files(root), (card["domain"], card["kind"], card["representation"])
+    save_torch(files.weights(*key), model.state_dict())
+    save_json(files.card(*key), card)
+    return files.weights(*key)
 
 
 def load_model(domain: str, kind: str, rep: str, root: Path | None = None) -> Artifact:
-    path = model_path(domain, kind, rep, root)
-    card_path = path.with_suffix(".json")
-    if not path.exists() or not card_path.exists():
+    files = model_files(root)
+    path = files.weights(domain, kind, rep)
+    if not files.complete(domain, kind, rep):
         raise ModelNotFoundError(f"no {kind} model ({rep}) for {domain!r} at {path}; run `rba train {domain}`")
-    card = load_json(card_path)
+    card = load_json(files.card(domain, kind, rep))
     model = BUILDERS[card["kind"]](card)
     model.load_state_dict(load_torch(path))
     return Artifact(model.eval(), card)

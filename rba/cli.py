@@ -123,27 +123,34 @@ def cmd_cache(args) -> int:
 
     from tqdm import tqdm
 
+    from rba.clips import ClipCache
     from rba.library import SkillLibrary
-    from server.clips import ClipCache
-    from server.settings import Settings
+    from rba.settings import LibrarySettings
+    from rba.store import Store
 
-    settings = Settings()
-    lib = SkillLibrary.load(args.domain, args.split)
-    cache = ClipCache(settings.clip_dir, args.width or settings.clip_width, args.height or settings.clip_height, 1)
+    settings = LibrarySettings()
+    store = Store.from_settings(settings)
+    lib = SkillLibrary.load(args.domain, args.split, store.data_dir)
+    cache = ClipCache(store.clips(), args.width or settings.clip_width, args.height or settings.clip_height, 1)
     start, made = time.perf_counter(), 0
     for rollout_id in tqdm(lib.ids, desc=f"{args.domain}/{args.split} clips", unit="clip"):
         key = cache.key(lib, rollout_id)
         if not cache.cached(key):
             cache.get(key, lib)
             made += 1
-    print(f"{len(lib)} clips of {args.domain}/{args.split} in {settings.clip_dir}: {made} rendered in "
+    print(f"{len(lib)} clips of {args.domain}/{args.split} in {store.cache_dir}: {made} rendered in "
           f"{time.perf_counter() - start:.0f} s, {len(lib) - made} were cached already")
     return 0
 
 
-def cmd_serve(args) -> int:
-    from server.main import run
+SERVER_ENTRY = "server.main:run"  # the web app, imported only by `rba serve`: the library never imports it
 
+
+def cmd_serve(args) -> int:
+    import importlib
+
+    module, name = SERVER_ENTRY.split(":")
+    run = getattr(importlib.import_module(module), name)
     run(host=args.host, port=args.port)
     return 0
 

@@ -1,8 +1,8 @@
 """SkillLibrary: many rollouts of a domain's skill, stored as ragged arrays (npz + JSON).
 
-Layout on disk: ``<data_dir>/<domain>/<split>.npz`` holds only numeric arrays (states and
-replay concatenated over rollouts with offsets), ``<split>.json`` the metadata. Loading
-never unpickles.
+On disk (where ``rba.store.LibraryFiles`` says): ``<split>.npz`` holds only numeric arrays
+(states and replay concatenated over rollouts with offsets), ``<split>.json`` the metadata.
+Loading never unpickles.
 """
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from rba.domains import Rollout, domain_target, get_domain, load_domain
-from rba.paths import data_dir
 from rba.storage import load_json, load_npz, save_json, save_npz
+from rba.store import library_files
 
 log = logging.getLogger(__name__)
 
@@ -130,23 +130,24 @@ class SkillLibrary:
     _ARRAYS = ("params", "seeds", "proxies", "success", "state_offsets", "states", "replay_offsets", "replay")
 
     def save(self, root: Path | None = None) -> Path:
-        folder = (root or data_dir()) / self.domain
-        save_npz(folder / f"{self.split}.npz", {k: getattr(self, k) for k in self._ARRAYS})
+        files = library_files(root)
+        save_npz(files.arrays(self.domain, self.split), {k: getattr(self, k) for k in self._ARRAYS})
         meta = dict(self.meta, format=FORMAT_VERSION, domain=self.domain, split=self.split, ids=self.ids,
                     param_names=list(self.param_names), attribute_names=list(self.attribute_names),
                     version=self.version)
         # JSON last: a library is complete only when its metadata names the arrays' hash.
-        save_json(folder / f"{self.split}.json", meta)
-        return folder
+        save_json(files.meta(self.domain, self.split), meta)
+        return files.folder(self.domain)
 
     @classmethod
     def load(cls, domain: str, split: str, root: Path | None = None) -> SkillLibrary:
         if split not in SPLITS:
             raise ValueError(f"unknown split {split!r}; valid: {', '.join(SPLITS)}")
-        folder = (root or data_dir()) / domain
-        npz, js = folder / f"{split}.npz", folder / f"{split}.json"
-        if not npz.exists() or not js.exists():
-            raise LibraryNotFoundError(f"no {split} library for {domain!r} under {folder}; run `rba build {domain}`")
+        files = library_files(root)
+        npz, js = files.arrays(domain, split), files.meta(domain, split)
+        if not files.complete(domain, split):
+            raise LibraryNotFoundError(f"no {split} library for {domain!r} under {files.folder(domain)}; "
+                                       f"run `rba build {domain}`")
         meta = load_json(js)
         arrays = load_npz(npz)
         lib = cls(domain=meta["domain"], split=meta["split"], ids=list(meta["ids"]),

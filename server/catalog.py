@@ -12,15 +12,15 @@ import time
 from pathlib import Path
 from typing import Any
 
-from rba.artifacts import model_path
 from rba.domains import Domain, domain_names, get_domain
 from rba.embed import REPRESENTATIONS
 from rba.interact import METHODS, load_context
 from rba.library import SkillLibrary
+from rba.locks import KeyedLocks
 from rba.storage import load_json
+from rba.store import ModelFiles, Store
 from server.admin_models import BUILTIN_VERSION
 from server.errors import invalid, not_found
-from server.locks import KeyedLocks
 from server.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -29,7 +29,7 @@ log = logging.getLogger(__name__)
 KNOWN_MODEL_KINDS: dict[str, tuple[str, ...]] = {"global": ("ranker", "global_reward")}
 
 
-def model_kinds(method: str, domain: str, rep: str, models_dir: Path) -> tuple[str, ...]:
+def model_kinds(method: str, domain: str, rep: str, models: ModelFiles) -> tuple[str, ...]:
     """The ``<kind>`` parts of the model files ``method`` needs for ``rep``."""
     ctx_cls = METHODS[method][1]
     kinds = getattr(ctx_cls, "MODEL_KINDS", None)
@@ -38,8 +38,7 @@ def model_kinds(method: str, domain: str, rep: str, models_dir: Path) -> tuple[s
     if kinds is not None:
         return tuple(kinds)
     # Unknown method: its models are named after it (local_reward-<rep>.pt, pbrl-<rep>.pt, ...).
-    found = sorted(p.stem.rsplit("-", 1)[0] for p in (models_dir / domain).glob(f"{method}*-{rep}.pt"))
-    return tuple(found) or (f"{method}_reward",)
+    return tuple(models.kinds(domain, method, rep)) or (f"{method}_reward",)
 
 
 def attribute_methods() -> tuple[str, ...]:
@@ -52,7 +51,7 @@ class Catalog:
     """Domains, availability, serve libraries and agent contexts of one server."""
 
     def __init__(self, settings: Settings) -> None:
-        self.settings = settings
+        self.store = Store.from_settings(settings)
         self._contexts: dict[tuple[str, str, str], Any] = {}
         self._libraries: dict[str, SkillLibrary] = {}
         self._locks = KeyedLocks()
@@ -75,42 +74,42 @@ class Catalog:
                           "directions: more, less")
 
     # -- model versions --------------------------------------------------------------------
+    def models(self, version: str = BUILTIN_VERSION) -> ModelFiles:
+        """A version's models: the shipped ones, or those a job published."""
+        return self.store.models(None if version == BUILTIN_VERSION else version)
+
     def models_root(self, version: str = BUILTIN_VERSION) -> Path:
         """Where a version's models are: the shipped ones, or models/versions/<version>/ (job-written)."""
-        if version == BUILTIN_VERSION:
-            return self.settings.models_dir
-        return self.settings.models_dir / "versions" / version
+        return self.models(version).root
 
     def card_attributes(self, domain: str, method: str, rep: str, version: str = BUILTIN_VERSION) -> list[dict]:
         """The attributes (name, description, unit) the models of ``version`` were trained for."""
-        root = self.models_root(version)
-        kind = model_kinds(method, domain, rep, root)[0]
-        card = load_json(model_path(domain, kind, rep, root).with_suffix(".json"))
+        models = self.models(version)
+        kind = model_kinds(method, domain, rep, models)[0]
+        card = load_json(models.card(domain, kind, rep))
         return list(card["attributes"])
 
     # -- availability ----------------------------------------------------------------------
     def has_library(self, domain: str) -> bool:
-        folder = self.settings.data_dir / domain
-        return (folder / "serve.npz").exists() and (folder / "serve.json").exists()
+        return self.store.libraries.complete(domain, "serve")
 
     def available(self, domain: str, version: str = BUILTIN_VERSION) -> list[tuple[str, str]]:
         """(method, rep) pairs whose serve library and model files (weights + card) all exist."""
         if not self.has_library(domain):
             return []
         pairs = []
-        models = self.models_root(version)
+        models = self.models(version)
         for method in attribute_methods():
             for rep in REPRESENTATIONS:
-                paths = [models / domain / f"{kind}-{rep}.pt" for kind in model_kinds(method, domain, rep, models)]
-                if all(p.exists() and p.with_suffix(".json").exists() for p in paths):
+                if all(models.complete(domain, kind, rep) for kind in model_kinds(method, domain, rep, models)):
                     pairs.append((method, rep))
         return pairs
 
     def missing_reason(self, domain: str) -> str | None:
         if not self.has_library(domain):
-            return f"no skill library under {self.settings.data_dir / domain}; run `rba build {domain}`"
+            return f"no skill library under {self.store.libraries.folder(domain)}; run `rba build {domain}`"
         if not self.available(domain):
-            return f"no trained models under {self.settings.models_dir / domain}; run `rba train {domain}`"
+            return f"no trained models under {self.store.models().folder(domain)}; run `rba train {domain}`"
         return None
 
     def check_available(self, domain: str, method: str, rep: str, version: str = BUILTIN_VERSION) -> None:
@@ -137,7 +136,7 @@ class Catalog:
             ctx = self._contexts.get(key)
             if ctx is None:
                 start = time.perf_counter()
-                ctx = load_context(domain, method, rep, self.settings.data_dir, self.models_root(version))
+                ctx = load_context(domain, method, rep, self.store.data_dir, self.models_root(version))
                 self._contexts[key] = ctx
                 log.info("loaded %s/%s/%s (model %s) in %.1f s", domain, method, rep, ctx.model_version,
                          time.perf_counter() - start)
@@ -153,6 +152,6 @@ class Catalog:
             if lib is None:
                 with self._guard:
                     loaded = [c for (d, *_), c in self._contexts.items() if d == domain]
-                lib = loaded[0].serve if loaded else SkillLibrary.load(domain, "serve", self.settings.data_dir)
+                lib = loaded[0].serve if loaded else SkillLibrary.load(domain, "serve", self.store.data_dir)
                 self._libraries[domain] = lib
         return lib

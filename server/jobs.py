@@ -13,27 +13,18 @@ import datetime as dt
 import logging
 import multiprocessing
 import os
-import shutil
 import threading
-from pathlib import Path
 
 from sqlalchemy.exc import SQLAlchemyError
 from sqlmodel import Session, select
 
+from rba.store import Store
 from server.admin_models import FINISHED, JobState, ModelVersion, TrainJob
 from server.models import utcnow
 from server.settings import Settings
 
 log = logging.getLogger(__name__)
 LOG_LINES = 40  # lines of the child's log kept in the job row
-
-
-def uploads_dir(settings: Settings, domain: str) -> Path:
-    return settings.data_dir / "uploads" / domain
-
-
-def versions_dir(settings: Settings) -> Path:
-    return settings.models_dir / "versions"
 
 
 def update_job(engine, job_id: str, **changes) -> None:
@@ -56,6 +47,7 @@ class JobRunner:
 
     def __init__(self, settings: Settings, engine) -> None:
         self.settings, self.engine = settings, engine
+        self.store = Store.from_settings(settings)
         self._procs: dict[str, multiprocessing.process.BaseProcess] = {}
         self._lock = threading.Lock()
         self._stopped = False
@@ -67,7 +59,7 @@ class JobRunner:
             ids = [j.id for j in stale]
         for job_id in ids:
             update_job(self.engine, job_id, state=JobState.failed.value, error="the server stopped while the job ran")
-            shutil.rmtree(versions_dir(self.settings) / f".tmp-{job_id}", ignore_errors=True)
+            self.store.discard(job_id)
 
     def start(self, job_id: str) -> None:
         ctx = multiprocessing.get_context("spawn")
@@ -92,7 +84,7 @@ class JobRunner:
                        error=f"the training process exited with code {proc.exitcode} before finishing")
         except SQLAlchemyError:
             log.exception("could not record the end of job %s", job_id)
-        shutil.rmtree(versions_dir(self.settings) / f".tmp-{job_id}", ignore_errors=True)
+        self.store.discard(job_id)
 
     def cancel(self, job_id: str) -> None:
         update_job(self.engine, job_id, state=JobState.cancelled.value, error="cancelled by an admin")
@@ -141,7 +133,8 @@ def run_job(job_id: str, settings_json: dict, registry: dict[str, str]) -> None:
     tail = _Tail()
     logging.basicConfig(level=logging.INFO, handlers=[tail])
     engine = make_engine(settings.db_url)
-    tmp = versions_dir(settings) / f".tmp-{job_id}"
+    store = Store.from_settings(settings)
+    tmp = store.staging(job_id)
     update_job(engine, job_id, state=JobState.running.value, stage="loading")
 
     def progress(stage: str, step: int, total: int, loss: float) -> None:
@@ -152,22 +145,22 @@ def run_job(job_id: str, settings_json: dict, registry: dict[str, str]) -> None:
         with Session(engine) as db:
             job = db.get(TrainJob, job_id)
             domain, method, rep, preset = job.domain, job.method, job.rep, job.preset
-            sources = job_sources(db, settings, domain, list(job.datasets), job.include_page_labels)
-        shutil.rmtree(tmp, ignore_errors=True)
+            sources = job_sources(db, store, domain, list(job.datasets), job.include_page_labels)
+        store.discard(job_id)
         if method == "local":
-            metrics = train_local(domain, rep, LocalTrainConfig.preset(preset), data_root=settings.data_dir,
+            metrics = train_local(domain, rep, LocalTrainConfig.preset(preset), data_root=store.data_dir,
                                   models_root=tmp, sources=sources, on_progress=progress)
         else:
             cfg = GlobalTrainConfig.preset(preset, domain=domain)
-            metrics = train_global(domain, rep, cfg, data_root=settings.data_dir, models_root=tmp, sources=sources,
+            metrics = train_global(domain, rep, cfg, data_root=store.data_dir, models_root=tmp, sources=sources,
                                    on_progress=progress)
         version = f"{domain}-{dt.datetime.now(dt.UTC):%Y%m%d-%H%M%S}-{job_id[:6]}"
         with Session(engine) as db:
             job = db.get(TrainJob, job_id)
             if job is None or job.state in FINISHED:  # cancelled meanwhile: publish nothing
-                shutil.rmtree(tmp, ignore_errors=True)
+                store.discard(job_id)
                 return
-            os.replace(tmp, versions_dir(settings) / version)
+            store.publish(job_id, version)
             from server.catalog import Catalog
 
             names = [a["name"] for a in Catalog(settings).card_attributes(domain, method, rep, version)]
@@ -181,6 +174,6 @@ def run_job(job_id: str, settings_json: dict, registry: dict[str, str]) -> None:
             db.commit()
     except Exception as e:
         logging.getLogger(__name__).exception("job %s failed", job_id)
-        shutil.rmtree(tmp, ignore_errors=True)
+        store.discard(job_id)
         update_job(engine, job_id, state=JobState.failed.value, error=f"{type(e).__name__}: {e}",
                    log_tail="\n".join(tail.lines))

@@ -24,10 +24,10 @@ from starlette.formparsers import MultiPartException, MultiPartParser
 from rba.labelsets import LabelSet, NewAttribute
 from rba.library import SkillLibrary
 from rba.storage import load_npz, save_npz, save_text
+from rba.store import Store
 from rba.training import LabelSource
 from server.admin_models import AttributeDef, Dataset, DatasetPublic, LabelCreate, LabelRecord
 from server.errors import invalid
-from server.jobs import uploads_dir
 from server.services import Services
 from server.settings import Settings
 from server.uploads import UploadLimits, check_labels, check_npz
@@ -53,7 +53,7 @@ def declared_attributes(db: Session, domain: str) -> dict[str, str]:
 def library_ids(svc: Services, domain: str) -> frozenset[str]:
     """Rollouts labels may refer to: ``train`` and ``serve`` (``test`` stays held out)."""
     return frozenset(rid for split in ("train", "serve")
-                     for rid in SkillLibrary.load(domain, split, svc.settings.data_dir).ids)
+                     for rid in SkillLibrary.load(domain, split, svc.store.data_dir).ids)
 
 
 def add_attribute(svc: Services, db: Session, domain: str, name: str, description: str) -> AttributeDef:
@@ -174,10 +174,10 @@ async def store_upload(svc: Services, db: Session, form: dict) -> tuple[DatasetP
     existing = db.get(Dataset, dataset_id)
     if existing is not None:
         return DatasetPublic(**existing.model_dump(), duplicate=True), False
-    folder = uploads_dir(svc.settings, domain.name)
+    uploads = svc.store.uploads(domain.name)
     if trajectories:
-        save_npz(folder / f"{dataset_id}.npz", trajectories)
-    save_text(folder / f"{dataset_id}.json", labels_json.decode())
+        save_npz(uploads.trajectories(dataset_id), trajectories)
+    save_text(uploads.labels(dataset_id), labels_json.decode())
     filename = (getattr(labels_file, "filename", None) or "labels.json")[:200]
     if npz_file is not None:
         filename = (npz_file.filename or "trajectories.npz")[:200]
@@ -211,14 +211,14 @@ def check_datasets(db: Session, domain: str, ids: list[str]) -> None:
             raise invalid(f"no dataset {i!r} for {domain}; uploaded: {', '.join(have) or 'none'}")
 
 
-def job_sources(db: Session, settings: Settings, domain: str, dataset_ids: list[str],
+def job_sources(db: Session, store: Store, domain: str, dataset_ids: list[str],
                 include_page_labels: bool) -> list[LabelSource]:
     """The label sources of a training job: each dataset (with its trajectories), then the page's labels."""
-    folder = uploads_dir(settings, domain)
+    uploads = store.uploads(domain)
     sources = []
     for i in dataset_ids:
-        labels = LabelSet.model_validate_json((folder / f"{i}.json").read_text(encoding="utf-8"))
-        npz = folder / f"{i}.npz"
+        labels = LabelSet.model_validate_json(uploads.labels(i).read_text(encoding="utf-8"))
+        npz = uploads.trajectories(i)
         sources.append(LabelSource(labels, load_npz(npz) if npz.exists() else {}))
     if include_page_labels:
         page = page_labels(db, domain)

@@ -34,7 +34,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.state.services = svc
         if settings.warm_start and svc.renderer is not None:
             svc.renderer.submit("warm-up", lambda: warm_up(svc))
-        log.info("RBA Studio: data %s, models %s, clips %s", settings.data_dir, settings.models_dir, settings.clip_dir)
+        store = svc.store
+        log.info("RBA Studio: data %s, models %s, clips %s", store.data_dir, store.models_dir, store.cache_dir)
         try:
             yield
         finally:

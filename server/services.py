@@ -8,12 +8,13 @@ from dataclasses import dataclass, field
 import anyio
 from sqlalchemy.engine import Engine
 
+from rba.clips import ClipCache
+from rba.locks import KeyedLocks
+from rba.store import Store
 from server.background import Background
 from server.catalog import Catalog
-from server.clips import ClipCache
 from server.db import make_engine
 from server.jobs import JobRunner
-from server.locks import KeyedLocks
 from server.settings import Settings
 from server.transitions import Transitions
 
@@ -42,15 +43,22 @@ class Services:
 
         torch.set_num_threads(settings.torch_threads)
         engine = make_engine(settings.db_url)
-        clips = ClipCache(settings.clip_dir, settings.clip_width, settings.clip_height, settings.render_concurrency)
+        catalog = Catalog(settings)
+        clips = ClipCache(catalog.store.clips(), settings.clip_width, settings.clip_height,
+                          settings.render_concurrency)
         busy = settings.prerender or settings.warm_start
         # Thinking keeps normal priority: it is what makes the next feedback request fast.
         thinker = Background(1, "rba-think") if busy else None
         renderer = Background(settings.prerender_workers, "rba-render", settings.background_nice) if busy else None
         jobs = JobRunner(settings, engine)
         jobs.recover()
-        return cls(settings, engine, Catalog(settings), clips, Transitions(), thinker, renderer,
+        return cls(settings, engine, catalog, clips, Transitions(), thinker, renderer,
                    anyio.CapacityLimiter(CLIP_WAITERS), jobs)
+
+    @property
+    def store(self) -> Store:
+        """Where the app's files live (the catalog's: one layout for the whole app)."""
+        return self.catalog.store
 
     def wait_idle(self, timeout: float) -> bool:
         """True once no background work is queued or running (tests and benchmarks use it)."""

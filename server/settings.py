@@ -1,31 +1,22 @@
-"""One settings class for the web app; every field comes from an ``RBA_``-prefixed env var."""
+"""The web app's settings: the library's (folders, clip size) plus the server's own, all ``RBA_`` env vars."""
 
 from __future__ import annotations
 
-from pathlib import Path
+from pydantic import Field
 
-from pydantic import Field, field_validator
-from pydantic_settings import BaseSettings, SettingsConfigDict
-
-from rba.paths import data_dir, models_dir
+from rba.settings import LibrarySettings
+from rba.store import Store
 
 
-class Settings(BaseSettings):
+class Settings(LibrarySettings):
     """What ``rba serve`` and the tests configure; defaults run the app from the repository."""
 
-    model_config = SettingsConfigDict(env_prefix="RBA_", extra="ignore")
-
-    data_dir: Path = Field(default_factory=data_dir, description="skill libraries <domain>/<split>.npz")
-    models_dir: Path = Field(default_factory=models_dir, description="trained models <domain>/<kind>-<rep>.pt")
     database_url: str | None = Field(
         default=None, description="SQLAlchemy URL; default: an SQLite file <data_dir>/rba.db. "
         "Postgres: postgresql+psycopg://user:password@host/db")
-    cache_dir: Path | None = Field(default=None, description="rendered clips; default <data_dir>/cache/clips")
     host: str = "127.0.0.1"
     port: int = Field(default=8000, ge=1, le=65535)
     admin_token: str | None = Field(default=None, description="bearer token of the admin routes; unset = no admin")
-    clip_width: int = Field(default=320, ge=16, le=1920)
-    clip_height: int = Field(default=240, ge=16, le=1080)
     prerender: bool = Field(default=True, description="render the clips each possible next feedback would show")
     prerender_workers: int = Field(default=2, ge=1, le=8, description="background render threads (a session's "
                                    "next clips render in parallel)")
@@ -43,15 +34,6 @@ class Settings(BaseSettings):
     warm_start: bool = Field(default=True, description="load models and render first clips after start-up")
     log_level: str = "info"
 
-    @field_validator("data_dir", "models_dir", "cache_dir")
-    @classmethod
-    def _absolute(cls, value: Path | None) -> Path | None:
-        return None if value is None else value.expanduser().resolve()
-
     @property
     def db_url(self) -> str:
-        return self.database_url or f"sqlite:///{self.data_dir / 'rba.db'}"
-
-    @property
-    def clip_dir(self) -> Path:
-        return self.cache_dir or self.data_dir / "cache" / "clips"
+        return self.database_url or f"sqlite:///{Store.from_settings(self).database_file}"

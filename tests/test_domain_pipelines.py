@@ -7,7 +7,7 @@ from rba.artifacts import load_model
 from rba.domains import domain_names, get_domain
 from rba.evaluate import evaluate
 from rba.library import SkillLibrary, build_all
-from rba.paths import REPO_ROOT
+from rba.settings import REPO_ROOT
 from rba.training import GlobalTrainConfig, train_global
 
 SHIPPED = [d for d in domain_names() if (REPO_ROOT / "models" / d / "ranker-onehot.pt").exists()]

@@ -19,7 +19,7 @@ from fastapi.testclient import TestClient
 
 from rba.interact.users import SimulatedUser
 from rba.library import SkillLibrary
-from rba.paths import REPO_ROOT
+from rba.settings import REPO_ROOT
 from server.main import create_app
 from server.settings import Settings
 

@@ -5,7 +5,7 @@ import importlib.util
 import pytest
 
 from rba.evaluate import EvalResult
-from rba.paths import REPO_ROOT
+from rba.settings import REPO_ROOT
 from rba.storage import save_json
 
 spec = importlib.util.spec_from_file_location("paper_tables", REPO_ROOT / "benchmarks" / "paper_tables.py")

@@ -6,11 +6,12 @@ import threading
 
 from fastapi.testclient import TestClient
 
+from rba.clips import ClipCache, ClipKey
 from rba.interact import AttributeFeedback
 from rba.library import SkillLibrary
+from rba.store import ClipStore
 from server import transitions
 from server.background import Background
-from server.clips import ClipCache, ClipKey
 from server.main import create_app
 from server.sessions import candidate_order
 from tests.server.conftest import more
@@ -19,7 +20,7 @@ from tests.server.conftest import more
 def test_concurrent_requests_for_one_clip_render_it_once(toy_roots, tmp_path):
     data, _, _ = toy_roots
     lib = SkillLibrary.load("toy", "serve", data)
-    cache = ClipCache(tmp_path / "clips", 64, 48, concurrency=2)
+    cache = ClipCache(ClipStore(tmp_path / "clips"), 64, 48, concurrency=2)
     key = cache.key(lib, "serve-00007")
     barrier = threading.Barrier(6)
     paths = []
@@ -43,7 +44,7 @@ def test_concurrent_requests_for_one_clip_render_it_once(toy_roots, tmp_path):
 def test_clip_keys_only_accept_library_ids(toy_roots, tmp_path):
     data, _, _ = toy_roots
     lib = SkillLibrary.load("toy", "serve", data)
-    cache = ClipCache(tmp_path / "clips", 64, 48)
+    cache = ClipCache(ClipStore(tmp_path / "clips"), 64, 48)
     try:
         cache.key(lib, "../serve-00001")
     except KeyError as exc:
@@ -107,7 +108,7 @@ def test_candidates_start_with_the_last_answer():
 
 
 def test_background_renders_give_way_to_requested_ones(tmp_path):
-    cache = ClipCache(tmp_path, 64, 48)
+    cache = ClipCache(ClipStore(tmp_path), 64, 48)
     key = ClipKey("toy", "abc123", "serve-00001", 64, 48)
     frames, out = cache._yielding(key, iter(range(3))), []
     assert next(frames) == 0  # nothing requested is rendering: frames flow

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import httpx
 
+from rba.store import Store
 from server.settings import Settings
 
 REPO = Path(__file__).resolve().parents[2]
@@ -30,7 +31,7 @@ def test_settings_come_from_rba_env_vars(monkeypatch, tmp_path):
     s = Settings()
     assert (s.port, s.admin_token, s.prerender) == (8123, "s3cret", False)
     assert s.db_url == f"sqlite:///{tmp_path / 'd' / 'rba.db'}"
-    assert s.clip_dir == tmp_path / "d" / "cache" / "clips"
+    assert Store.from_settings(s).cache_dir == tmp_path / "d" / "cache" / "clips"
     monkeypatch.setenv("RBA_DATABASE_URL", "postgresql+psycopg://u:p@127.0.0.1/rba")
     assert Settings().db_url == "postgresql+psycopg://u:p@127.0.0.1/rba"
 

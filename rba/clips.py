@@ -1,16 +1,15 @@
-"""The clip cache: MP4s rendered off-screen on first request and kept on disk.
+"""The clip cache: MP4s rendered off-screen on first request and kept in the store.
 
-A clip's key is (domain, library version, rollout id, size). File names are built from
-validated parts and a hash of the key, never from user text. Each key has a lock, so two
-requests for the same uncached clip render it once; a semaphore bounds how many requested
-clips render at the same time, and background renders give way to them.
+A clip's key is (domain, library version, rollout id, size); the store (``rba.store.ClipStore``)
+names its file. Each key has a lock, so two requests for the same uncached clip render it once;
+a semaphore bounds how many requested clips render at the same time, and background renders
+give way to them.
 """
 
 from __future__ import annotations
 
 import hashlib
 import logging
-import re
 import threading
 import time
 from collections import Counter
@@ -23,13 +22,12 @@ import numpy as np
 
 from rba.domains import get_domain
 from rba.library import SkillLibrary
-from rba.video import write_mp4
-from server.locks import KeyedLocks
+from rba.locks import KeyedLocks
+from rba.store import ClipStore
+from rba.video import encode_mp4
 
 log = logging.getLogger(__name__)
 
-_SAFE = re.compile(r"^[a-z0-9_]{1,64}$")
-_HEX = re.compile(r"^[0-9a-f]{1,64}$")
 STALE_TMP_SECONDS = 600
 PAUSE_CHECK_SECONDS = 0.5  # a paused background render re-checks this often (and on every change)
 
@@ -53,14 +51,14 @@ class ClipKey:
 
 
 class ClipCache:
-    """Rendered clips under ``root/<domain>/<digest>.mp4``; ``get`` renders when missing.
+    """Rendered clips in a ``ClipStore``; ``get`` renders when missing.
 
     Renders a person is waiting for come first: a background (speculative) render pauses
     between frames while any requested render runs, unless someone is waiting for its clip.
     """
 
-    def __init__(self, root: Path, width: int, height: int, concurrency: int = 2) -> None:
-        self.root = root
+    def __init__(self, store: ClipStore, width: int, height: int, concurrency: int = 2) -> None:
+        self.store = store
         self.width, self.height = width, height
         self._locks = KeyedLocks()
         self._slots = threading.BoundedSemaphore(concurrency)
@@ -69,8 +67,7 @@ class ClipCache:
         self._wanted: Counter[ClipKey] = Counter()  # clips requests are waiting for
         self.renders = 0  # clips rendered by this process (tests and benchmarks read it)
         self.render_seconds = 0.0
-        root.mkdir(parents=True, exist_ok=True)
-        self._remove_stale_temporaries()
+        store.sweep(STALE_TMP_SECONDS)  # renders cut short by a crash leave temporaries; old ones are garbage
 
     def key(self, library: SkillLibrary, rollout_id: str) -> ClipKey:
         """The key of a rollout that is in ``library`` (KeyError otherwise)."""
@@ -78,40 +75,38 @@ class ClipCache:
         return ClipKey(library.domain, library.version, rollout_id, self.width, self.height)
 
     def path(self, key: ClipKey) -> Path:
-        domain = key.domain if _SAFE.match(key.domain) else hashlib.sha256(key.domain.encode()).hexdigest()[:16]
-        version = key.version if _HEX.match(key.version) else hashlib.sha256(key.version.encode()).hexdigest()[:12]
-        return self.root / domain / f"{version}-{key.digest}-{key.width}x{key.height}.mp4"
+        return self.store.path(key)
 
     def cached(self, key: ClipKey) -> bool:
-        return self.path(key).exists()
+        return self.store.exists(key)
 
     def get(self, key: ClipKey, library: SkillLibrary, background: bool = False) -> Path:
         """The clip's file, rendering it first if needed (once per key, however many ask)."""
-        path = self.path(key)
-        if path.exists():
-            return path
+        if self.store.exists(key):
+            return self.store.path(key)
         if not background:
             self._want(key, 1)
         try:
             with self._locks(key):
-                if path.exists():  # rendered while we waited for the lock
-                    return path
+                if self.store.exists(key):  # rendered while we waited for the lock
+                    return self.store.path(key)
                 if background:
-                    self._render(key, library, path, pausable=True)
+                    self._render(key, library, pausable=True)
                 else:
                     with self._slots, self._running_urgent():
-                        self._render(key, library, path, pausable=False)
+                        self._render(key, library, pausable=False)
         finally:
             if not background:
                 self._want(key, -1)
-        return path
+        return self.store.path(key)
 
-    def _render(self, key: ClipKey, library: SkillLibrary, path: Path, pausable: bool) -> None:
+    def _render(self, key: ClipKey, library: SkillLibrary, pausable: bool) -> None:
         start = time.perf_counter()
         domain = get_domain(key.domain)
         rollout = library.rollout(library.index_of(key.rollout_id))
         frames = domain.render(rollout, key.width, key.height)
-        count = write_mp4(self._yielding(key, frames) if pausable else frames, path, domain.frame_rate)
+        frames = self._yielding(key, frames) if pausable else frames
+        count = self.store.write(key, lambda tmp: encode_mp4(frames, tmp, domain.frame_rate))
         seconds = time.perf_counter() - start
         with self._cond:
             self.renders += 1
@@ -144,13 +139,3 @@ class ClipCache:
             with self._cond:
                 self._urgent -= 1
                 self._cond.notify_all()
-
-    def _remove_stale_temporaries(self) -> None:
-        """Renders cut short by a crash leave ``.<name>.*.tmp`` files; old ones are garbage."""
-        cutoff = time.time() - STALE_TMP_SECONDS
-        for tmp in self.root.glob("*/.*.tmp"):
-            try:
-                if tmp.stat().st_mtime < cutoff:
-                    tmp.unlink()
-            except OSError:
-                pass

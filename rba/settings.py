@@ -1,0 +1,32 @@
+"""Where the library's files live and how big clips are: one settings source, ``RBA_``-prefixed env vars.
+
+The server's settings extend this class with its own fields (host, port, database, ...), so the
+library and the app always agree on the folders. Defaults are the repository's ``data/`` and
+``models/``, never the working directory.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pydantic import Field, field_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+class LibrarySettings(BaseSettings):
+    """What ``rba`` commands and the app share: data, models, clip cache and clip size."""
+
+    model_config = SettingsConfigDict(env_prefix="RBA_", extra="ignore")
+
+    data_dir: Path = Field(default=REPO_ROOT / "data", description="skill libraries <domain>/<split>.npz")
+    models_dir: Path = Field(default=REPO_ROOT / "models", description="trained models <domain>/<kind>-<rep>.pt")
+    cache_dir: Path | None = Field(default=None, description="rendered clips; default <data_dir>/cache/clips")
+    clip_width: int = Field(default=320, ge=16, le=1920)
+    clip_height: int = Field(default=240, ge=16, le=1080)
+
+    @field_validator("data_dir", "models_dir", "cache_dir")
+    @classmethod
+    def _absolute(cls, value: Path | None) -> Path | None:
+        return None if value is None else value.expanduser().resolve()

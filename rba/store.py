@@ -1,0 +1,193 @@
+"""Where every file lives: skill libraries, models, model versions, uploads and the clip cache.
+
+``Store.from_settings()`` is the one place that turns settings into paths; callers ask it for a
+library's, a model's or a clip's file by name and never join paths themselves. The clip cache is
+addressed by key only (exists / open / write atomically), so it can move to a shared volume or
+an object store without its callers changing.
+
+Layout (all absolute)::
+
+    <data>/<domain>/<split>.{npz,json}           skill libraries
+    <data>/uploads/<domain>/<dataset>.{npz,json} uploaded datasets
+    <data>/rba.db                                the app's default SQLite database
+    <models>/<domain>/<kind>-<rep>.{pt,json}     shipped models (weights + card)
+    <models>/versions/<version>/<domain>/...     models a retraining job published
+    <models>/versions/.tmp-<job>/                what a running job writes (renamed when it succeeds)
+    <cache>/<domain>/<version>-<digest>-<w>x<h>.mp4  rendered clips (default <data>/cache/clips)
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+import shutil
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, BinaryIO, TypeVar
+
+from rba.settings import LibrarySettings
+from rba.storage import write_atomic
+
+if TYPE_CHECKING:
+    from rba.clips import ClipKey
+
+T = TypeVar("T")
+_SAFE = re.compile(r"^[a-z0-9_]{1,64}$")
+_HEX = re.compile(r"^[0-9a-f]{1,64}$")
+TEMP_GLOB = "*/.*.tmp"  # what ``write_atomic`` leaves behind when a process dies mid-write
+
+
+@dataclass(frozen=True)
+class LibraryFiles:
+    """Skill libraries under one root: ``<root>/<domain>/<split>.npz`` (arrays) + ``.json`` (metadata)."""
+
+    root: Path
+
+    def folder(self, domain: str) -> Path:
+        return self.root / domain
+
+    def arrays(self, domain: str, split: str) -> Path:
+        return self.folder(domain) / f"{split}.npz"
+
+    def meta(self, domain: str, split: str) -> Path:
+        return self.folder(domain) / f"{split}.json"
+
+    def complete(self, domain: str, split: str) -> bool:
+        """Both files exist (the metadata is written last, so this means a whole library)."""
+        return self.arrays(domain, split).exists() and self.meta(domain, split).exists()
+
+
+@dataclass(frozen=True)
+class ModelFiles:
+    """Models under one root: ``<root>/<domain>/<kind>-<rep>.pt`` (weights) + ``.json`` (card)."""
+
+    root: Path
+
+    def folder(self, domain: str) -> Path:
+        return self.root / domain
+
+    def weights(self, domain: str, kind: str, rep: str) -> Path:
+        return self.folder(domain) / f"{kind}-{rep}.pt"
+
+    def card(self, domain: str, kind: str, rep: str) -> Path:
+        return self.weights(domain, kind, rep).with_suffix(".json")
+
+    def complete(self, domain: str, kind: str, rep: str) -> bool:
+        """Weights and card exist (the card is written last, so this means a whole artifact)."""
+        return self.weights(domain, kind, rep).exists() and self.card(domain, kind, rep).exists()
+
+    def kinds(self, domain: str, prefix: str, rep: str) -> list[str]:
+        """The ``<kind>`` of every weights file for ``rep`` whose kind starts with ``prefix``, sorted."""
+        return sorted(p.stem.rsplit("-", 1)[0] for p in self.folder(domain).glob(f"{prefix}*-{rep}.pt"))
+
+
+@dataclass(frozen=True)
+class UploadFiles:
+    """One domain's uploaded datasets: ``<dataset>.npz`` (trajectories, optional) + ``<dataset>.json`` (labels)."""
+
+    folder: Path
+
+    def trajectories(self, dataset_id: str) -> Path:
+        return self.folder / f"{dataset_id}.npz"
+
+    def labels(self, dataset_id: str) -> Path:
+        return self.folder / f"{dataset_id}.json"
+
+
+class ClipStore:
+    """Rendered clips by key; file names come from validated parts and the key's hash, never from user text."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = root
+        root.mkdir(parents=True, exist_ok=True)
+
+    def path(self, key: ClipKey) -> Path:
+        """The clip's local file (served as is); it may not exist yet."""
+        domain = key.domain if _SAFE.match(key.domain) else hashlib.sha256(key.domain.encode()).hexdigest()[:16]
+        version = key.version if _HEX.match(key.version) else hashlib.sha256(key.version.encode()).hexdigest()[:12]
+        return self.root / domain / f"{version}-{key.digest}-{key.width}x{key.height}.mp4"
+
+    def exists(self, key: ClipKey) -> bool:
+        return self.path(key).exists()
+
+    def open(self, key: ClipKey) -> BinaryIO:
+        return self.path(key).open("rb")
+
+    def write(self, key: ClipKey, fill: Callable[[Path], T]) -> T:
+        """``fill(tmp)`` writes the clip to a temporary file that then replaces the key's: readers never see half."""
+        result: list[T] = []
+        write_atomic(self.path(key), lambda tmp: result.append(fill(Path(tmp))))
+        return result[0]
+
+    def sweep(self, older_than: float) -> int:
+        """Remove temporaries a crash left (older than ``older_than`` seconds); returns how many."""
+        cutoff, removed = time.time() - older_than, 0
+        for tmp in self.root.glob(TEMP_GLOB):
+            try:
+                if tmp.stat().st_mtime < cutoff:
+                    tmp.unlink()
+                    removed += 1
+            except OSError:
+                pass
+        return removed
+
+
+@dataclass(frozen=True)
+class Store:
+    """The file layout of one installation, built from settings (``RBA_DATA_DIR``, ``RBA_MODELS_DIR``, ...)."""
+
+    data_dir: Path
+    models_dir: Path
+    cache_dir: Path
+
+    @classmethod
+    def from_settings(cls, settings: LibrarySettings | None = None) -> Store:
+        """The store of ``settings``; without them, of the environment as it is now."""
+        s = settings or LibrarySettings()
+        return cls(s.data_dir, s.models_dir, s.cache_dir or s.data_dir / "cache" / "clips")
+
+    @property
+    def libraries(self) -> LibraryFiles:
+        return LibraryFiles(self.data_dir)
+
+    def models(self, version: str | None = None) -> ModelFiles:
+        """The shipped models (``version=None``) or those a job published as ``version``."""
+        return ModelFiles(self.models_dir if version is None else self.versions_dir / version)
+
+    @property
+    def versions_dir(self) -> Path:
+        return self.models_dir / "versions"
+
+    def staging(self, job_id: str) -> Path:
+        """Where a running job writes its models; only ``publish`` makes them a version."""
+        return self.versions_dir / f".tmp-{job_id}"
+
+    def publish(self, job_id: str, version: str) -> None:
+        os.replace(self.staging(job_id), self.versions_dir / version)
+
+    def discard(self, job_id: str) -> None:
+        shutil.rmtree(self.staging(job_id), ignore_errors=True)
+
+    def uploads(self, domain: str) -> UploadFiles:
+        return UploadFiles(self.data_dir / "uploads" / domain)
+
+    @property
+    def database_file(self) -> Path:
+        return self.data_dir / "rba.db"
+
+    def clips(self) -> ClipStore:
+        """The clip cache (creates its folder)."""
+        return ClipStore(self.cache_dir)
+
+
+def library_files(root: Path | None = None) -> LibraryFiles:
+    """Libraries under ``root``, else under the configured data folder (the load functions' ``data_root``)."""
+    return LibraryFiles(root) if root is not None else Store.from_settings().libraries
+
+
+def model_files(root: Path | None = None) -> ModelFiles:
+    """Models under ``root``, else the configured shipped ones (the load functions' ``models_root``)."""
+    return ModelFiles(root) if root is not None else Store.from_settings().models()
