@@ -15,8 +15,9 @@ from typing import Any
 from rba.artifacts import model_path
 from rba.domains import Domain, domain_names, get_domain
 from rba.embed import REPRESENTATIONS
-from rba.interact import METHODS, load_context
+from rba.interact import load_context
 from rba.library import SkillLibrary
+from rba.methods import get_method, methods
 from rba.storage import load_json
 from server.admin_models import BUILTIN_VERSION
 from server.errors import invalid, not_found
@@ -25,27 +26,9 @@ from server.settings import Settings
 
 log = logging.getLogger(__name__)
 
-# Model kinds each method needs, for methods whose context class does not say (``MODEL_KINDS``).
-KNOWN_MODEL_KINDS: dict[str, tuple[str, ...]] = {"global": ("ranker", "global_reward")}
-
-
-def model_kinds(method: str, domain: str, rep: str, models_dir: Path) -> tuple[str, ...]:
-    """The ``<kind>`` parts of the model files ``method`` needs for ``rep``."""
-    ctx_cls = METHODS[method][1]
-    kinds = getattr(ctx_cls, "MODEL_KINDS", None)
-    if kinds is None:
-        kinds = KNOWN_MODEL_KINDS.get(method)
-    if kinds is not None:
-        return tuple(kinds)
-    # Unknown method: its models are named after it (local_reward-<rep>.pt, pbrl-<rep>.pt, ...).
-    found = sorted(p.stem.rsplit("-", 1)[0] for p in (models_dir / domain).glob(f"{method}*-{rep}.pt"))
-    return tuple(found) or (f"{method}_reward",)
-
-
 def attribute_methods() -> tuple[str, ...]:
     """Methods whose agents take more/less feedback (PbRL asks A/B questions: not served here)."""
-    return tuple(m for m, (agent_cls, _) in METHODS.items()
-                 if getattr(agent_cls, "feedback_kind", "attribute") == "attribute")
+    return tuple(m.name for m in methods() if m.feedback_kind == "attribute")
 
 
 class Catalog:
@@ -83,9 +66,8 @@ class Catalog:
 
     def card_attributes(self, domain: str, method: str, rep: str, version: str = BUILTIN_VERSION) -> list[dict]:
         """The attributes (name, description, unit) the models of ``version`` were trained for."""
-        root = self.models_root(version)
-        kind = model_kinds(method, domain, rep, root)[0]
-        card = load_json(model_path(domain, kind, rep, root).with_suffix(".json"))
+        kind = get_method(method).model_kinds[0]
+        card = load_json(model_path(domain, kind, rep, self.models_root(version)).with_suffix(".json"))
         return list(card["attributes"])
 
     # -- availability ----------------------------------------------------------------------
@@ -99,11 +81,11 @@ class Catalog:
             return []
         pairs = []
         models = self.models_root(version)
-        for method in attribute_methods():
-            for rep in REPRESENTATIONS:
-                paths = [models / domain / f"{kind}-{rep}.pt" for kind in model_kinds(method, domain, rep, models)]
+        for method in map(get_method, attribute_methods()):
+            for rep in method.run_reps:
+                paths = [model_path(domain, kind, rep, models) for kind in method.model_kinds]
                 if all(p.exists() and p.with_suffix(".json").exists() for p in paths):
-                    pairs.append((method, rep))
+                    pairs.append((method.name, rep))
         return pairs
 
     def missing_reason(self, domain: str) -> str | None:
