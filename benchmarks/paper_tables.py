@@ -1,8 +1,8 @@
 """The paper's Table 1 (normal precision) and Table 2 (high precision) for every domain and method.
 
-For each registered domain with a library and trained models: RBA-Global, RBA-Global-L,
-RBA-Local, RBA-Local-L and PbRL, 20 held-out targets each (DESIGN §5), beside the paper's
-numbers. Writes ``benchmarks/results/paper_tables.md`` (and ``.json``).
+For each registered domain with a library and trained models: every registered method with each
+representation it runs with (RBA-Global, RBA-Global-L, RBA-Local, RBA-Local-L, PbRL), 20 held-out
+targets each (DESIGN §5), beside the paper's numbers. Writes ``benchmarks/results/paper_tables.md`` (and ``.json``).
 
     python benchmarks/paper_tables.py                         # every domain, both precisions
     python benchmarks/paper_tables.py --domains lane_change --precisions normal --targets 5
@@ -24,13 +24,16 @@ from rba.domains import domain_names
 from rba.evaluate import EvalResult, evaluate
 from rba.interact import load_context
 from rba.library import LibraryNotFoundError
+from rba.methods import methods
 from rba.storage import load_json, save_json, save_text
 
 log = logging.getLogger("paper_tables")
 RESULTS = Path(__file__).resolve().parent / "results"
-METHODS = [("global", "onehot", "RBA-Global"), ("global", "language", "RBA-Global-L"),
-           ("local", "onehot", "RBA-Local"), ("local", "language", "RBA-Local-L"), ("pbrl", "onehot", "PbRL")]
-# The paper's Tables 1 and 2: (SR, AF, std of AF); AF None where the paper has N/A.
+# The rows: every registered method with each representation it runs with, as (method, rep, label).
+METHODS = [(m.name, rep, m.label_for(rep)) for m in methods() for rep in m.run_reps]
+LABELS = [label for _, _, label in METHODS]  # the tables' row order
+# The paper's Tables 1 and 2: (SR, AF, std of AF) per row of PAPER_LABELS; AF None where the paper has N/A.
+PAPER_LABELS = ("RBA-Global", "RBA-Global-L", "RBA-Local", "RBA-Local-L", "PbRL")
 PAPER = {
     "normal": {
         "lane_change": [(0.95, 3.95, 2.43), (1.0, 3.05, 2.06), (0.7, 7.07, 3.49), (0.9, 5.78, 4.04), (1.0, 162.3, 184)],
@@ -49,7 +52,6 @@ PAPER = {
     },
 }
 
-LABELS = [label for _, _, label in METHODS]  # the tables' row order
 PAPER_ROW = {"lane_change_image": "lane_change"}  # the paper's lane change observes images
 
 
@@ -108,8 +110,9 @@ def markdown(rows, domains: list[str], precisions: list[str], targets: int, seed
             if r.precision != precision:
                 continue
             paper = PAPER[precision].get(PAPER_ROW.get(domain, domain))
+            paper_cell = _cell(*paper[PAPER_LABELS.index(label)]) if paper and label in PAPER_LABELS else "–"
             lines.append(f"| {domain} | {label} | {_cell(r.success_rate, r.avg_feedback, r.std_feedback)} | "
-                         f"{_cell(*paper[LABELS.index(label)]) if paper else '–'} |")
+                         f"{paper_cell} |")
         lines.append("")
     methods = " ".join(sorted({label for _, label, _ in rows}, key=LABELS.index))
     command = (f"python benchmarks/paper_tables.py --domains {' '.join(domains)} --precisions {' '.join(precisions)} "

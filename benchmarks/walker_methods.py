@@ -16,6 +16,7 @@ import logging
 import platform
 import sys
 import tempfile
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
@@ -23,6 +24,7 @@ from rba.artifacts import ModelNotFoundError, load_model
 from rba.evaluate import EvalResult, evaluate
 from rba.interact import load_context
 from rba.learn.pbrl import PbRLConfig
+from rba.methods import get_method, method_names, methods
 from rba.storage import save_json, save_text
 from rba.training import LocalTrainConfig, train_local
 
@@ -37,8 +39,7 @@ PAPER = {
     ("local", "language"): (0.90, 5.16, 3.08),
     ("pbrl", "onehot"): (1.0, 84.6, 79.87),
 }
-LABELS = {("global", "onehot"): "RBA-Global", ("global", "language"): "RBA-Global-L",
-          ("local", "onehot"): "RBA-Local", ("local", "language"): "RBA-Local-L", ("pbrl", "onehot"): "PbRL"}
+LABELS = {(m.name, rep): m.label_for(rep) for m in methods() for rep in m.run_reps}
 
 
 def _af(r: EvalResult) -> str:
@@ -52,28 +53,36 @@ def _paper(method: str, rep: str, noise: float) -> tuple[str, str]:
     return f"{sr:.2f}", f"{af:.2f} ({sd:.2f})"
 
 
+def _local_card(rep: str) -> str:
+    card = load_model("walker", "local_reward", rep).card
+    h = card["held_out"]
+    return (f"local_reward-{rep}: target above negative {h['target_vs_negative']:.3f}, above anchor "
+            f"{h['target_vs_anchor']:.3f} ({h['pairs']} test pairs); argmax over serve is a useful edit "
+            f"{h['argmax_over_serve']['useful_edit_rate']:.2f} of the time; trained in "
+            f"{card['training']['seconds']:.0f} s")
+
+
+def _global_card(rep: str) -> str:
+    card = load_model("walker", "global_reward", rep).card
+    return f"global_reward-{rep}: argmax within ε of a test target {card['held_out']['argmax_within_epsilon']:.2f}"
+
+
+def _pbrl_config(_rep: str) -> str:
+    cfg = PbRLConfig()
+    return (f"pbrl (online, no pretrained model): ensemble of {cfg.members} MLPs of width {cfg.hidden}, "
+            f"state stride {cfg.state_stride}, {cfg.steps_per_label} warm-started steps per label, pairs by "
+            f"{cfg.query} among the {cfg.candidates} best")
+
+
+NOTES: dict[str, Callable[[str], str]] = {"local": _local_card, "global": _global_card, "pbrl": _pbrl_config}
+
+
 def _held_out(method: str, rep: str) -> str:
-    """One line from the model card: what the model measured on held-out data."""
+    """One line from the model card: what the model measured on held-out data ("" for other methods)."""
     try:
-        if method == "local":
-            card = load_model("walker", "local_reward", rep).card
-            h = card["held_out"]
-            return (f"local_reward-{rep}: target above negative {h['target_vs_negative']:.3f}, above anchor "
-                    f"{h['target_vs_anchor']:.3f} ({h['pairs']} test pairs); argmax over serve is a useful edit "
-                    f"{h['argmax_over_serve']['useful_edit_rate']:.2f} of the time; trained in "
-                    f"{card['training']['seconds']:.0f} s")
-        if method == "global":
-            card = load_model("walker", "global_reward", rep).card
-            return (f"global_reward-{rep}: argmax within ε of a test target "
-                    f"{card['held_out']['argmax_within_epsilon']:.2f}")
+        return NOTES[method](rep) if method in NOTES else ""
     except FileNotFoundError:
         return ""  # reported as "not measured"
-    if method == "pbrl":
-        cfg = PbRLConfig()
-        return (f"pbrl (online, no pretrained model): ensemble of {cfg.members} MLPs of width {cfg.hidden}, "
-                f"state stride {cfg.state_stride}, {cfg.steps_per_label} warm-started steps per label, pairs by "
-                f"{cfg.query} among the {cfg.candidates} best")
-    return ""
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -81,9 +90,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--targets", type=int, default=20)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--noise", type=float, nargs="*", default=[0.1, 0.2], help="extra noise levels")
-    p.add_argument("--noise-methods", nargs="*", default=["global", "local"],
-                   help="methods that also get the noisy-user rows")
-    p.add_argument("--methods", nargs="*", default=["global", "local", "pbrl"])
+    p.add_argument("--noise-methods", nargs="*", default=[m.name for m in methods() if m.feedback_kind == "attribute"],
+                   help="methods that also get the noisy-user rows (default: the attribute-feedback ones)")
+    p.add_argument("--methods", nargs="*", default=list(method_names()), choices=method_names())
     p.add_argument("--widths", type=int, nargs="*", default=[],
                    help="also train RBA-Local with these MLP widths (in a temporary folder) and evaluate them")
     p.add_argument("--note", action="append", default=[], help="an extra line for the report's notes")
@@ -91,7 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
 
-    runs = [(m, r) for m in args.methods for r in (("onehot",) if m == "pbrl" else ("onehot", "language"))]
+    runs = [(m, r) for m in args.methods for r in get_method(m).run_reps]
     rows: list[tuple[str, EvalResult]] = []
     missing = []
     for method, rep in runs:
@@ -134,7 +143,7 @@ def main(argv: list[str] | None = None) -> int:
     ]
     for label, r in rows:
         psr, paf = _paper(r.method, r.rep, r.noise)
-        rep = "–" if r.method == "pbrl" else r.rep
+        rep = r.rep if get_method(r.method).reps else "–"
         lines.append(f"| {label} | {rep} | {r.noise:g} | {r.success_rate:.2f} | {_af(r)} | "
                      f"{psr} | {paf} | {r.seconds:.0f} |")
     notes = [n for n in (_held_out(m, r) for m, r in runs) if n] + width_notes + missing + args.note

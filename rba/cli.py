@@ -61,21 +61,16 @@ def cmd_build(args) -> int:
     return 0
 
 
-TRAIN_METHODS = ("global", "local", "all")
-
-
 def cmd_train(args) -> int:
-    from rba.training import GlobalTrainConfig, LocalTrainConfig, train_global, train_local
+    from rba.methods import get_method, trainable
 
-    reps = ("onehot", "language") if args.rep == "all" else (args.rep,)
-    methods = ("global", "local") if args.method == "all" else (args.method,)
-    for method in methods:
-        for rep in reps:
-            if method == "global":
-                metrics = train_global(args.domain, rep, GlobalTrainConfig.preset(args.preset, args.seed, args.domain))
-            else:
-                metrics = train_local(args.domain, rep, LocalTrainConfig.preset(args.preset, args.seed))
-            print(json.dumps({"domain": args.domain, "method": method, "rep": rep, **metrics}, indent=2))
+    chosen = trainable() if args.method == "all" else (get_method(args.method),)
+    for method in chosen:
+        if args.preset not in method.presets:
+            raise ValueError(f"{method.name} has no preset {args.preset!r}; valid: {', '.join(method.presets)}")
+        for rep in method.run_reps if args.rep == "all" else (args.rep,):
+            metrics = method.trainer(args.domain, rep, args.preset, args.seed)
+            print(json.dumps({"domain": args.domain, "method": method.name, "rep": rep, **metrics}, indent=2))
     return 0
 
 
@@ -84,10 +79,9 @@ def cmd_eval(args) -> int:
     from rba.storage import save_json
 
     if args.all_methods:
-        from rba.embed import REPRESENTATIONS
-        from rba.interact import METHODS
+        from rba.methods import methods
 
-        runs = [(m, r) for m in METHODS for r in (("onehot",) if m == "pbrl" else REPRESENTATIONS)]
+        runs = [(m.name, r) for m in methods() for r in m.run_reps]
         results = [evaluate(args.domain, m, r, args.targets, args.seed, args.precision, args.noise) for m, r in runs]
         print(format_table(results))
         if args.json:
@@ -157,7 +151,7 @@ def cmd_serve(args) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     from rba.embed import REPRESENTATIONS
-    from rba.interact import METHODS
+    from rba.methods import method_names, train_presets, trainable
 
     p = argparse.ArgumentParser(prog="rba", description="RBA Studio: tune agent behaviour by relative attributes.")
     p.add_argument("-v", "--verbose", action="store_true", help="log progress at INFO level")
@@ -173,11 +167,13 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--workers", type=_positive, default=2, help="simulation processes")
     b.set_defaults(func=cmd_build)
 
-    t = sub.add_parser("train", help="train RBA-Global (ζσ, rθ) and/or RBA-Local (rθ) and write model cards")
+    t = sub.add_parser("train", help=f"train the models of {' and/or '.join(m.label for m in trainable())} "
+                                     "and write model cards")
     t.add_argument("domain", type=_domain)
-    t.add_argument("--method", choices=TRAIN_METHODS, default="all", help="which models to train")
+    t.add_argument("--method", choices=(*(m.name for m in trainable()), "all"), default="all",
+                   help="which models to train")
     t.add_argument("--rep", choices=(*REPRESENTATIONS, "all"), default="all")
-    t.add_argument("--preset", choices=("default", "quick", "tiny"), default="default",
+    t.add_argument("--preset", choices=train_presets(), default="default",
                    help="'quick': a shorter rθ; 'tiny': the CI smoke preset")
     t.add_argument("--seed", type=int, default=0)
     t.set_defaults(func=cmd_train)
@@ -191,7 +187,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     e = sub.add_parser("eval", help="run the paper's protocol with simulated users")
     e.add_argument("--domain", type=_domain, required=True)
-    e.add_argument("--method", choices=tuple(METHODS), default="global")
+    e.add_argument("--method", choices=method_names(), default="global")
     e.add_argument("--rep", choices=REPRESENTATIONS, default="onehot")
     e.add_argument("--targets", type=_positive, default=20)
     e.add_argument("--seed", type=int, default=0)

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
 from rba.domains import get_domain
-from rba.interact import SATISFIED, load_context, new_agent
+from rba.interact import SATISFIED, Agent, FeedbackKind, Preference, load_context, new_agent
 from rba.interact.users import PreferenceTeacher, SimulatedUser
 from rba.library import SkillLibrary
 
@@ -58,7 +59,7 @@ def _record_shown(trial: Trial, serve: SkillLibrary, rollout_id: str) -> int:
     return i
 
 
-def run_trial(agent, user: SimulatedUser, serve: SkillLibrary, max_feedback: int = MAX_FEEDBACK) -> Trial:
+def run_trial(agent: Agent, user: SimulatedUser, serve: SkillLibrary, max_feedback: int = MAX_FEEDBACK) -> Trial:
     """Show, listen, update until the user is satisfied or the feedback budget is spent."""
     trial = _new_trial(serve, user.target)
     rid = agent.first_query()
@@ -76,12 +77,12 @@ def run_trial(agent, user: SimulatedUser, serve: SkillLibrary, max_feedback: int
 
 def run_preference_trial(agent, teacher: PreferenceTeacher, serve: SkillLibrary,
                          max_feedback: int = MAX_FEEDBACK) -> Trial:
-    """PbRL's loop: show the argmax; if it is not the target, ask one A/B question and update.
+    """The preference loop (PbRL): show the argmax; if it is not the target, ask one A/B question and update.
+
+    ``agent`` takes ``Preference`` feedback and says what to ask with ``query_pair()``.
 
     ``feedback_count`` counts binary labels; success is judged on the shown rollout.
     """
-    from rba.interact.pbrl_agent import Preference
-
     trial = _new_trial(serve, teacher.target)
     rid = agent.first_query()
     while True:
@@ -97,6 +98,28 @@ def run_preference_trial(agent, teacher: PreferenceTeacher, serve: SkillLibrary,
         rid = agent.update(Preference(a if label == 1.0 else b if label == 0.0 else None))
 
 
+@dataclass(frozen=True)
+class TrialLoop:
+    """How a trial runs for one kind of feedback: who answers, and the show/answer/update loop."""
+
+    user: type[SimulatedUser]
+    run: Callable[..., Trial]  # (agent, user, serve, max_feedback) -> Trial
+
+
+TRIAL_LOOPS: dict[FeedbackKind, TrialLoop] = {
+    "attribute": TrialLoop(SimulatedUser, run_trial),
+    "preference": TrialLoop(PreferenceTeacher, run_preference_trial),
+}
+
+
+def simulate(agent: Agent, target: np.ndarray, epsilon: np.ndarray, serve: SkillLibrary, noise: float = 0.0,
+             seed: int = 0, max_feedback: int = MAX_FEEDBACK) -> Trial:
+    """One trial of ``agent`` chasing ``target``, with the simulated user its feedback kind calls for."""
+    loop = TRIAL_LOOPS[agent.feedback_kind]
+    user = loop.user(target, epsilon, serve.attribute_names, serve.proxies, noise, seed=seed)
+    return loop.run(agent, user, serve, max_feedback)
+
+
 def evaluate(domain_name: str, method: str, rep: str = "onehot", targets: int = 20, seed: int = 0,
              precision: str = "normal", noise: float = 0.0, data_root=None, models_root=None,
              context=None) -> EvalResult:
@@ -108,17 +131,8 @@ def evaluate(domain_name: str, method: str, rep: str = "onehot", targets: int = 
     rng = np.random.default_rng(seed)
     chosen = rng.choice(len(test), size=min(targets, len(test)), replace=False)
     start = time.perf_counter()
-    trials = []
-    for n, t in enumerate(chosen):
-        agent = new_agent(method, context)
-        if getattr(agent, "feedback_kind", "attribute") == "preference":
-            teacher = PreferenceTeacher(test.proxies[t], eps, serve.attribute_names, serve.proxies, noise,
-                                        seed=seed * 1000 + n)
-            trials.append(run_preference_trial(agent, teacher, serve))
-            continue
-        user = SimulatedUser(test.proxies[t], eps, serve.attribute_names, serve.proxies, noise,
-                             seed=seed * 1000 + n)
-        trials.append(run_trial(agent, user, serve))
+    trials = [simulate(new_agent(method, context), test.proxies[t], eps, serve, noise, seed * 1000 + n)
+              for n, t in enumerate(chosen)]
     fb = np.array([t.feedback_count for t in trials if t.success], dtype=float)
     return EvalResult(domain_name, method, rep, precision, noise, seed,
                       success_rate=float(np.mean([t.success for t in trials])),

@@ -5,13 +5,17 @@ from __future__ import annotations
 import datetime as dt
 import enum
 import uuid
+from collections.abc import Callable
 from typing import Any, Literal
 
 from pydantic import BaseModel, field_validator
+from pydantic import Field as BodyField  # sqlmodel's Field is for tables
+from pydantic_core import PydanticCustomError
 from sqlalchemy import JSON, Column, DateTime, Text, UniqueConstraint
 from sqlmodel import Field, SQLModel
 
 from rba.labelsets import Comparison, LocalChange, NewAttribute, Ordering
+from rba.methods import train_presets, trainable
 from server.models import as_utc, utcnow
 
 BUILTIN_VERSION = "builtin"  # the models shipped under models/<domain>/
@@ -175,15 +179,41 @@ class DatasetPublic(BaseModel):
     _utc = field_validator("created_at")(as_utc)
 
 
+def _one_of(valid: tuple[str, ...]) -> str:
+    """Valid values worded as pydantic words a ``Literal``'s: 'a', 'b' or 'c'."""
+    quoted = [repr(v) for v in valid]
+    return quoted[-1] if len(quoted) == 1 else f"{', '.join(quoted[:-1])} or {quoted[-1]}"
+
+
+def _registry_choice(valid: Callable[[], tuple[str, ...]]) -> Callable[[Any], str]:
+    """A validator accepting what ``valid()`` lists now (methods may be registered at run time).
+
+    It fails like a ``Literal`` field (same error type and text), so the API's 422 stays as it was.
+    """
+    def check(value: Any) -> str:
+        if value not in valid():
+            raise PydanticCustomError("literal_error", "Input should be {expected}", {"expected": _one_of(valid())})
+        return value
+
+    return check
+
+
+def _trainable_names() -> tuple[str, ...]:
+    return tuple(m.name for m in trainable())
+
+
 class TrainCreate(BaseModel):
-    """Body of POST /api/admin/train."""
+    """Body of POST /api/admin/train; ``method`` and ``preset`` are checked against the method registry."""
 
     domain: str
     datasets: list[str] = []
-    method: Literal["global", "local"] = "global"
+    method: str = BodyField("global", json_schema_extra=lambda s: s.update(enum=list(_trainable_names())))
     rep: Literal["onehot", "language"] = "onehot"
-    preset: Literal["default", "quick", "tiny"] = "default"
+    preset: str = BodyField("default", json_schema_extra=lambda s: s.update(enum=list(train_presets())))
     include_page_labels: bool = True
+
+    _method = field_validator("method", mode="before")(_registry_choice(_trainable_names))
+    _preset = field_validator("preset", mode="before")(_registry_choice(train_presets))
 
 
 class JobPublic(BaseModel):

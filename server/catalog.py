@@ -14,9 +14,10 @@ from typing import Any
 
 from rba.domains import Domain, domain_names, get_domain
 from rba.embed import REPRESENTATIONS
-from rba.interact import METHODS, load_context
+from rba.interact import load_context
 from rba.library import SkillLibrary
 from rba.locks import KeyedLocks
+from rba.methods import get_method, methods
 from rba.storage import load_json
 from rba.store import ModelFiles, Store
 from server.admin_models import BUILTIN_VERSION
@@ -25,26 +26,9 @@ from server.settings import Settings
 
 log = logging.getLogger(__name__)
 
-# Model kinds each method needs, for methods whose context class does not say (``MODEL_KINDS``).
-KNOWN_MODEL_KINDS: dict[str, tuple[str, ...]] = {"global": ("ranker", "global_reward")}
-
-
-def model_kinds(method: str, domain: str, rep: str, models: ModelFiles) -> tuple[str, ...]:
-    """The ``<kind>`` parts of the model files ``method`` needs for ``rep``."""
-    ctx_cls = METHODS[method][1]
-    kinds = getattr(ctx_cls, "MODEL_KINDS", None)
-    if kinds is None:
-        kinds = KNOWN_MODEL_KINDS.get(method)
-    if kinds is not None:
-        return tuple(kinds)
-    # Unknown method: its models are named after it (local_reward-<rep>.pt, pbrl-<rep>.pt, ...).
-    return tuple(models.kinds(domain, method, rep)) or (f"{method}_reward",)
-
-
 def attribute_methods() -> tuple[str, ...]:
     """Methods whose agents take more/less feedback (PbRL asks A/B questions: not served here)."""
-    return tuple(m for m, (agent_cls, _) in METHODS.items()
-                 if getattr(agent_cls, "feedback_kind", "attribute") == "attribute")
+    return tuple(m.name for m in methods() if m.feedback_kind == "attribute")
 
 
 class Catalog:
@@ -85,7 +69,7 @@ class Catalog:
     def card_attributes(self, domain: str, method: str, rep: str, version: str = BUILTIN_VERSION) -> list[dict]:
         """The attributes (name, description, unit) the models of ``version`` were trained for."""
         models = self.models(version)
-        kind = model_kinds(method, domain, rep, models)[0]
+        kind = get_method(method).model_kinds[0]
         card = load_json(models.card(domain, kind, rep))
         return list(card["attributes"])
 
@@ -99,10 +83,10 @@ class Catalog:
             return []
         pairs = []
         models = self.models(version)
-        for method in attribute_methods():
-            for rep in REPRESENTATIONS:
-                if all(models.complete(domain, kind, rep) for kind in model_kinds(method, domain, rep, models)):
-                    pairs.append((method, rep))
+        for method in map(get_method, attribute_methods()):
+            for rep in method.run_reps:
+                if all(models.complete(domain, kind, rep) for kind in method.model_kinds):
+                    pairs.append((method.name, rep))
         return pairs
 
     def missing_reason(self, domain: str) -> str | None:

@@ -64,9 +64,12 @@ class JobRunner:
     def start(self, job_id: str) -> None:
         ctx = multiprocessing.get_context("spawn")
         from rba.domains import domain_names, domain_target
+        from rba.methods import method_names, method_target
 
         registry = {name: domain_target(name) for name in domain_names()}  # plugins registered at run time too
-        proc = ctx.Process(target=run_job, args=(job_id, self.settings.model_dump(mode="json"), registry),
+        method_registry = {name: method_target(name) for name in method_names()}
+        proc = ctx.Process(target=run_job, args=(job_id, self.settings.model_dump(mode="json"), registry,
+                                                 method_registry),
                            name=f"rba-train-{job_id[:8]}", daemon=True)
         proc.start()
         with self._lock:
@@ -118,14 +121,16 @@ class _Tail(logging.Handler):
         self.lines.append(self.format(record))
 
 
-def run_job(job_id: str, settings_json: dict, registry: dict[str, str]) -> None:
+def run_job(job_id: str, settings_json: dict, registry: dict[str, str], method_registry: dict[str, str]) -> None:
     """The child process: train from the job's label sources, then publish the version."""
     os.environ.setdefault("MUJOCO_GL", "egl")
+    from rba import methods
     from rba.domains import register
-    from rba.training import GlobalTrainConfig, LocalTrainConfig, train_global, train_local
 
     for name, target in registry.items():
         register(name, target)
+    for name, target in method_registry.items():
+        methods.register(name, target)
     from server.db import make_engine
     from server.labelling import job_sources
 
@@ -147,13 +152,8 @@ def run_job(job_id: str, settings_json: dict, registry: dict[str, str]) -> None:
             domain, method, rep, preset = job.domain, job.method, job.rep, job.preset
             sources = job_sources(db, store, domain, list(job.datasets), job.include_page_labels)
         store.discard(job_id)
-        if method == "local":
-            metrics = train_local(domain, rep, LocalTrainConfig.preset(preset), data_root=store.data_dir,
-                                  models_root=tmp, sources=sources, on_progress=progress)
-        else:
-            cfg = GlobalTrainConfig.preset(preset, domain=domain)
-            metrics = train_global(domain, rep, cfg, data_root=store.data_dir, models_root=tmp, sources=sources,
-                                   on_progress=progress)
+        metrics = methods.get_method(method).trainer(domain, rep, preset, data_root=store.data_dir,
+                                                     models_root=tmp, sources=sources, on_progress=progress)
         version = f"{domain}-{dt.datetime.now(dt.UTC):%Y%m%d-%H%M%S}-{job_id[:6]}"
         with Session(engine) as db:
             job = db.get(TrainJob, job_id)

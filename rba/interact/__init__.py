@@ -1,36 +1,45 @@
-"""Agents (one per method) and simulated users. ``METHODS`` maps a method name to its agent."""
+"""Agents (one per method, each beside its ``Method`` record) and simulated users.
+
+The functions here go through the method registry (``rba.methods``), so they work for every
+registered method, plugins included.
+"""
 
 from __future__ import annotations
 
-from rba.interact.base import SATISFIED, Agent, AttributeFeedback, Feedback, validate_feedback
-from rba.interact.global_agent import GlobalAgent, GlobalContext
-from rba.interact.local_agent import LocalAgent, LocalContext
-from rba.interact.pbrl_agent import PbRLAgent, PbRLContext
+from pathlib import Path
+from typing import Any
 
-METHODS: dict[str, tuple[type[Agent], type]] = {
-    "global": (GlobalAgent, GlobalContext),
-    "local": (LocalAgent, LocalContext),
-    "pbrl": (PbRLAgent, PbRLContext),
-}
+from rba.interact.base import (
+    SATISFIED,
+    Agent,
+    AttributeFeedback,
+    Feedback,
+    FeedbackKind,
+    Preference,
+    validate_feedback,
+)
+from rba.methods import get_method
 
-__all__ = ["METHODS", "SATISFIED", "Agent", "AttributeFeedback", "Feedback", "check_method", "load_context",
-           "new_agent", "validate_feedback"]
+__all__ = ["SATISFIED", "Agent", "AttributeFeedback", "Feedback", "FeedbackKind", "Preference", "check_method",
+           "load_context", "new_agent", "restore_agent", "validate_feedback"]
 
 
 def check_method(method: str) -> str:
-    if method not in METHODS:
-        raise ValueError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
+    """``method`` if it is registered; ``UnknownMethodError`` (a ValueError) naming the valid ones otherwise."""
+    get_method(method)
     return method
 
 
-def load_context(domain: str, method: str, rep: str, data_root=None, models_root=None):
+def load_context(domain: str, method: str, rep: str, data_root: Path | None = None,
+                 models_root: Path | None = None) -> Any:
     """Load what every agent of (domain, method, rep) shares: models and the serve library."""
-    return METHODS[check_method(method)][1].load(domain, rep, data_root, models_root)
+    return get_method(method).load_context(domain, rep, data_root, models_root)
 
 
-def new_agent(method: str, context) -> Agent:
-    return METHODS[check_method(method)][0](context)
+def new_agent(method: str, context: Any) -> Agent:
+    return get_method(method).agent(context)
 
 
-def restore_agent(state: dict, context) -> Agent:
-    return METHODS[check_method(state["method"])][0].from_state(state, context)
+def restore_agent(state: dict, context: Any) -> Agent:
+    """The agent whose ``state_dict()`` was ``state`` (its ``"method"`` names the record)."""
+    return get_method(state["method"]).agent.from_state(state, context)

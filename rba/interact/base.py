@@ -1,6 +1,7 @@
 """The Agent contract (DESIGN §3) and the feedback records that drive it.
 
-An agent turns feedback into the next rollout to show. It never reads proxies. Its whole
+An agent turns feedback into the next rollout to show. Each agent takes one kind of feedback
+(its ``feedback_kind``): more/less about attributes, or the answer to an A/B question. It never reads proxies. Its whole
 state is a JSON-able dict, so a web session survives a server restart; the heavy,
 shareable parts (models, the serve library) live in a separate *context* object.
 """
@@ -26,7 +27,15 @@ class AttributeFeedback:
             raise ValueError(f"direction must be +1 (more) or -1 (less), got {self.direction!r}")
 
 
-Feedback = list[AttributeFeedback] | Literal["satisfied"]
+@dataclass(frozen=True)
+class Preference:
+    """The answer to an A/B query: the id of the preferred rollout, or None for "equally good"."""
+
+    preferred: str | None
+
+
+FeedbackKind = Literal["attribute", "preference"]
+Feedback = list[AttributeFeedback] | Preference | Literal["satisfied"]
 
 
 class FeedbackSource(Protocol):
@@ -39,6 +48,7 @@ class Agent(ABC):
     """A small state machine over rollouts of the ``serve`` library (ids are library ids)."""
 
     method: ClassVar[str]
+    feedback_kind: ClassVar[FeedbackKind]
 
     @abstractmethod
     def first_query(self) -> str:
@@ -48,7 +58,7 @@ class Agent(ABC):
         """Shared preamble of ``update``: order of calls and feedback validity checked once, here."""
         if getattr(self, "shown", None) is None:
             raise RuntimeError("update() before first_query()")
-        validate_feedback(feedback, attribute_names)
+        validate_feedback(feedback, self.feedback_kind, attribute_names)
         return feedback == SATISFIED
 
     @abstractmethod
@@ -65,10 +75,21 @@ class Agent(ABC):
         """Rebuild an agent from ``state_dict()`` output and a loaded context."""
 
 
-def validate_feedback(feedback: Feedback, attribute_names: tuple[str, ...]) -> Feedback:
-    """Check attribute names and that no attribute is asked both ways; raise ValueError if not."""
+def validate_feedback(feedback: Feedback, kind: FeedbackKind, attribute_names: tuple[str, ...]) -> Feedback:
+    """Check that one round's feedback is of ``kind`` and well formed; raise ValueError if not.
+
+    Attribute feedback: known attribute names, none asked both ways. Whether a preference names a
+    rollout of the pending pair only the agent knows (its state).
+    """
     if feedback == SATISFIED:
         return feedback
+    if kind == "preference":
+        if not isinstance(feedback, Preference):
+            raise ValueError("this agent takes A/B answers: Preference(preferred=<rollout id> | None) or 'satisfied'")
+        return feedback
+    if isinstance(feedback, str | Preference):
+        raise ValueError(f"this agent takes attribute feedback: a list of (attribute, more|less) or 'satisfied'; "
+                         f"attributes: {', '.join(attribute_names)}")
     if not feedback:
         raise ValueError(f"feedback is empty; give at least one (attribute, more|less) or 'satisfied'; "
                          f"attributes: {', '.join(attribute_names)}")

@@ -18,14 +18,18 @@ until it does. Rollouts that already received non-satisfied feedback are not sho
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from rba.artifacts import load_model
+from rba.embed import REPRESENTATIONS
 from rba.interact.base import Agent, Feedback
 from rba.learn.common import Ragged
 from rba.learn.global_reward import LibraryScorer
 from rba.library import SkillLibrary
+from rba.methods import Method
+from rba.training import PRESETS, GlobalTrainConfig, LabelSource, Progress, train_global
 
 MAX_PUSHES = 8  # doublings of the push step before giving up on a move
 GRID = 401  # belief grid points per attribute
@@ -87,6 +91,7 @@ class GlobalContext:
 
 class GlobalAgent(Agent):
     method = "global"
+    feedback_kind = "attribute"
 
     def __init__(self, ctx: GlobalContext, target=None, answers: list | None = None, shown: int | None = None,
                  rejected: list[int] | None = None, error_rate: float = ERROR_RATE) -> None:
@@ -155,3 +160,15 @@ class GlobalAgent(Agent):
     def from_state(cls, state: dict, context: GlobalContext) -> GlobalAgent:
         return cls(context, state["target"], state["answers"], state["shown"], state["rejected"],
                    state["error_rate"])
+
+
+def train(domain: str, rep: str, preset: str, seed: int = 0, data_root: Path | None = None,
+          models_root: Path | None = None, sources: list[LabelSource] | None = None,
+          on_progress: Progress | None = None) -> dict:
+    """Fit ζσ then rθ at ``preset`` (the domain may set its own ζσ steps)."""
+    return train_global(domain, rep, GlobalTrainConfig.preset(preset, seed, domain), data_root=data_root,
+                        models_root=models_root, sources=sources, on_progress=on_progress)
+
+
+METHOD = Method(agent=GlobalAgent, label="RBA-Global", load_context=GlobalContext.load,
+                model_kinds=("ranker", "global_reward"), trainer=train, presets=PRESETS, reps=REPRESENTATIONS)

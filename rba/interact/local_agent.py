@@ -25,15 +25,19 @@ answers placed by dead reckoning gains < 3 %. Walker numbers for p = 0, 0.1, 0.2
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import torch
 
 from rba.artifacts import load_model
+from rba.embed import REPRESENTATIONS
 from rba.interact.base import Agent, Feedback
 from rba.learn.common import Ragged
 from rba.learn.local_reward import LocalLibraryScorer
 from rba.library import SkillLibrary
+from rba.methods import Method
+from rba.training import PRESETS, LabelSource, LocalTrainConfig, Progress, train_local
 
 
 @dataclass
@@ -81,6 +85,7 @@ def medoid(points: torch.Tensor, chunk: int = 1024) -> int:
 
 class LocalAgent(Agent):
     method = "local"
+    feedback_kind = "attribute"
 
     def __init__(self, ctx: LocalContext, shown: int | None = None, seen: list[int] | None = None) -> None:
         self.ctx = ctx
@@ -107,3 +112,15 @@ class LocalAgent(Agent):
     @classmethod
     def from_state(cls, state: dict, context: LocalContext) -> LocalAgent:
         return cls(context, state["shown"], state["seen"])
+
+
+def train(domain: str, rep: str, preset: str, seed: int = 0, data_root: Path | None = None,
+          models_root: Path | None = None, sources: list[LabelSource] | None = None,
+          on_progress: Progress | None = None) -> dict:
+    """Fit the local rθ at ``preset``."""
+    return train_local(domain, rep, LocalTrainConfig.preset(preset, seed), data_root=data_root,
+                       models_root=models_root, sources=sources, on_progress=on_progress)
+
+
+METHOD = Method(agent=LocalAgent, label="RBA-Local", load_context=LocalContext.load, model_kinds=("local_reward",),
+                trainer=train, presets=PRESETS, reps=REPRESENTATIONS)

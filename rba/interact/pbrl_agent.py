@@ -20,17 +20,11 @@ import numpy as np
 import torch
 
 from rba.embed import check_rep
-from rba.interact.base import SATISFIED, Agent
+from rba.interact.base import Agent, Feedback
 from rba.learn.common import Normalizer, Ragged
 from rba.learn.pbrl import PbRLConfig, RewardEnsemble, choose_pair, fit_preferences, returns, torch_threads
 from rba.library import SkillLibrary
-
-
-@dataclass(frozen=True)
-class Preference:
-    """The answer to an A/B query: the id of the preferred rollout, or None for "equally good"."""
-
-    preferred: str | None
+from rba.methods import Method
 
 
 @dataclass
@@ -84,7 +78,7 @@ def stride_states(states: np.ndarray, offsets: np.ndarray, stride: int) -> tuple
 
 class PbRLAgent(Agent):
     method = "pbrl"
-    feedback_kind = "preference"  # evaluation asks A/B questions instead of attribute feedback
+    feedback_kind = "preference"  # A/B questions instead of attribute feedback
 
     def __init__(self, ctx: PbRLContext, weights: str | None = None, labels: list[list[float]] | None = None,
                  shown: int | None = None, pending: list[int] | None = None) -> None:
@@ -123,14 +117,10 @@ class PbRLAgent(Agent):
         a, b = self.pending
         return self.ctx.serve.ids[a], self.ctx.serve.ids[b]
 
-    def update(self, feedback) -> str:
+    def update(self, feedback: Feedback) -> str:
         """Take the answer to the pending A/B question (``Preference``), retrain, show the new argmax."""
-        if self.shown is None:
-            raise RuntimeError("update() before first_query()")
-        if feedback == SATISFIED:
+        if self._is_satisfied(feedback, self.ctx.attribute_names):
             return self.ctx.serve.ids[self.shown]
-        if not isinstance(feedback, Preference):
-            raise ValueError("PbRL takes A/B answers: Preference(preferred=<rollout id> | None) or 'satisfied'")
         if self.pending is None:
             raise ValueError("no A/B question is pending; call query_pair() first")
         a, b = self.pending
@@ -158,3 +148,9 @@ class PbRLAgent(Agent):
     @classmethod
     def from_state(cls, state: dict, context: PbRLContext) -> PbRLAgent:
         return cls(context, state["weights"], state["labels"], state["shown"], state["pending"])
+
+
+# PbRL learns its reward online, from the A/B answers: no model files, nothing to train beforehand,
+# no attribute representation.
+METHOD = Method(agent=PbRLAgent, label="PbRL", load_context=PbRLContext.load, model_kinds=(), trainer=None,
+                presets=(), reps=())

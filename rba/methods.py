@@ -1,0 +1,126 @@
+"""The method registry: the one place that names every method (RBA-Global, RBA-Local, PbRL, ...).
+
+A method is one frozen ``Method`` record, defined in the method's own module beside its agent:
+the agent class, how to load its shared context, the model files it needs, how to train them.
+The CLI, the evaluation, the server's catalog, jobs and API validation all iterate this registry.
+Records are imported lazily (listing names starts no torch). Adding a method = one module + one
+line in ``_BUILTIN``.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from dataclasses import dataclass
+from functools import cache
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol
+
+if TYPE_CHECKING:
+    from rba.interact.base import Agent, FeedbackKind
+    from rba.training import LabelSource, Progress
+
+__all__ = ["Method", "Trainer", "UnknownMethodError", "get_method", "method_names", "method_target", "methods",
+           "register", "train_presets", "trainable"]
+
+# name -> "module:Object" (a ``Method`` record)
+_BUILTIN: dict[str, str] = {
+    "global": "rba.interact.global_agent:METHOD",
+    "local": "rba.interact.local_agent:METHOD",
+    "pbrl": "rba.interact.pbrl_agent:METHOD",
+}
+_EXTRA: dict[str, str] = {}
+_REP_SUFFIX = {"onehot": "", "language": "-L"}  # the paper's row labels: RBA-Global-L is the language rep
+
+
+class Trainer(Protocol):
+    """Fits and saves a method's model files at a named preset; returns the held-out metrics."""
+
+    def __call__(self, domain: str, rep: str, preset: str, seed: int = 0, data_root: Path | None = None,
+                 models_root: Path | None = None, sources: list[LabelSource] | None = None,
+                 on_progress: Progress | None = None) -> dict: ...
+
+
+@dataclass(frozen=True)
+class Method:
+    """Everything the rest of the code base needs to know about one method.
+
+    ``name`` and ``feedback_kind`` are the agent class's own (its ``state_dict`` carries the name,
+    its ``update`` checks the kind), so they are read from it rather than said twice.
+    """
+
+    agent: type[Agent]
+    label: str  # display name, e.g. "RBA-Global"
+    load_context: Callable[..., Any]  # (domain, rep, data_root=None, models_root=None) -> shared context
+    model_kinds: tuple[str, ...]  # the ``<kind>-<rep>.pt`` files it needs; () when it learns online
+    trainer: Trainer | None  # None when there is nothing to train beforehand
+    presets: tuple[str, ...]  # valid ``preset`` names of ``trainer``
+    reps: tuple[str, ...]  # attribute representations it learns with; () when it has none
+
+    @property
+    def name(self) -> str:
+        return self.agent.method
+
+    @property
+    def feedback_kind(self) -> FeedbackKind:
+        return self.agent.feedback_kind
+
+    @property
+    def run_reps(self) -> tuple[str, ...]:
+        """The representations to run it with: its own, or once as "onehot" (ignored) when it has none."""
+        return self.reps or ("onehot",)
+
+    def label_for(self, rep: str) -> str:
+        """The paper's row label of this method with ``rep``: "RBA-Global", "RBA-Global-L", "PbRL"."""
+        return self.label + (_REP_SUFFIX[rep] if self.reps else "")
+
+
+class UnknownMethodError(ValueError):
+    """A method name the registry does not know (a bad value: the message names the valid ones)."""
+
+
+def register(name: str, target: str) -> None:
+    """Register a method at run time (plugins, tests) by the import path ``"module:Object"`` of its record.
+
+    A path, not an object, so that training processes can import it too.
+    """
+    _EXTRA[name] = target
+    get_method.cache_clear()
+
+
+def method_names() -> tuple[str, ...]:
+    return tuple(_BUILTIN) + tuple(n for n in _EXTRA if n not in _BUILTIN)
+
+
+def method_target(name: str) -> str:
+    """The ``"module:Object"`` import path of method ``name``'s record."""
+    if name in _EXTRA:
+        return _EXTRA[name]
+    if name not in _BUILTIN:
+        raise UnknownMethodError(f"unknown method {name!r}; valid: {', '.join(method_names())}")
+    return _BUILTIN[name]
+
+
+@cache
+def get_method(name: str) -> Method:
+    """The record of method ``name``; ``UnknownMethodError`` naming the valid ones otherwise."""
+    module_name, obj = method_target(name).split(":")
+    record = getattr(importlib.import_module(module_name), obj)
+    if not isinstance(record, Method) or record.name != name:
+        raise TypeError(f"{method_target(name)} is not the Method record of {name!r}")
+    return record
+
+
+def methods() -> tuple[Method, ...]:
+    """Every registered method's record, built-in ones first."""
+    return tuple(get_method(n) for n in method_names())
+
+
+def trainable() -> tuple[Method, ...]:
+    """The methods that have models to train beforehand (a ``trainer``)."""
+    return tuple(m for m in methods() if m.trainer is not None)
+
+
+def train_presets() -> tuple[str, ...]:
+    """Every preset name some trainable method knows, in first-seen order."""
+    return tuple(dict.fromkeys(p for m in trainable() for p in m.presets))
