@@ -11,7 +11,7 @@ from pydantic import BaseModel, field_validator
 from sqlalchemy import JSON, Column, DateTime, Text, UniqueConstraint
 from sqlmodel import Field, SQLModel
 
-from rba.labelsets import Comparison, LocalChange, NewAttribute, Ordering
+from rba.labels import Comparison, LocalChange, NewAttribute, Ordering
 from server.models import as_utc, utcnow
 
 BUILTIN_VERSION = "builtin"  # the models shipped under models/<domain>/
