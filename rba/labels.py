@@ -1,26 +1,118 @@
-"""Labels made from proxies: local-change pairs for RBA-Local (paper §4.3), and their validation.
+"""Every label an agent designer gives, and the stand-ins proxies give for them.
 
-A local-change pair (τ_c, τ_t, α, h) says "τ_t is τ_c with a little more (h = +1) or less
-(h = −1) of α, everything else kept". Proxies stand in for the agent designer who would pick
-such pairs by hand. "A little" is expressed in units of each attribute's ε, the user's
-resolution: the user only asks for a change when the shown behaviour is more than ε from
-the target, so
+* ``AttributeLabels``: for one attribute, which trajectory shows more of it than which
+  (RBA-Global's ζσ learns from these). ``proxy_labels`` orders ``max_labelled`` train clips by
+  proxy, the stand-in for an agent designer's labels.
+* ``LocalPairs``: local-change pairs (τ_c, τ_t, α, h) for RBA-Local (paper §4.3): "τ_t is τ_c with
+  a little more (h = +1) or less (h = −1) of α, everything else kept". "A little" is expressed in
+  units of each attribute's ε, the user's resolution: the user only asks for a change when the
+  shown behaviour is more than ε from the target, so a change well below ε is not a *viable* one
+  (the user would not see it), and a change of at most 2ε can never overshoot a target that is
+  more than ε away; hence the default band [0.5 ε, 1.5 ε] for the asked attribute, while every
+  other attribute may move by at most 0.5 ε (so an attribute the user is already happy with
+  stays within ε).
+* ``LabelSet``: labels by reference to clips (orderings, comparisons, local changes), as admins
+  give them. A clip reference is a library rollout id of the domain (``train-00012``,
+  ``serve-00086``) or the name of a trajectory in the ``.npz`` uploaded with the labels. The JSON
+  form is what ``POST /api/admin/datasets`` accepts and what the admin page saves::
 
-* a change well below ε is not a *viable* one (the user would not see it), and
-* a change of at most 2ε can never overshoot a target that is more than ε away,
+    {"new_attributes": [{"name": "speed", "description": "How fast the walker moves forward."}],
+     "orderings":   [{"attribute": "speed", "clips": ["serve-00003", "walk_a", "serve-00120"]}],
+     "comparisons": [{"attribute": "step_size", "more": "walk_b", "less": "serve-00007"}],
+     "local_changes": [{"attribute": "softness", "anchor": "serve-00001", "changed": "serve-00044",
+                        "direction": "more"}]}
 
-hence the default band [0.5 ε, 1.5 ε] for the asked attribute, while every other attribute
-may move by at most 0.5 ε (so an attribute the user is already happy with stays within ε).
+  An ordering lists clips from least to most of the attribute. A local change says ``changed``
+  is ``anchor`` with a little more (or less) of the attribute and otherwise the same.
 """
 
 from __future__ import annotations
 
 import logging
+import re
+from collections.abc import Iterable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+if TYPE_CHECKING:
+    from rba.library import SkillLibrary
 
 log = logging.getLogger(__name__)
+
+ATTRIBUTE_NAME = re.compile(r"^[a-z][a-z0-9_]{0,31}$")
+MAX_LABELS = 100_000  # label records per set
+
+
+# --- pairwise labels (RBA-Global's ζσ) ---
+
+
+def labelled_subset(lib: SkillLibrary, max_labelled: int, seed: int) -> np.ndarray:
+    """Indices of the train clips an agent designer would label (a seeded random subset)."""
+    rng = np.random.default_rng(seed)
+    n = min(max_labelled, len(lib))
+    return np.sort(rng.choice(len(lib), size=n, replace=False))
+
+
+@dataclass
+class AttributeLabels:
+    """One attribute's labels: which labelled trajectory shows more of it than which."""
+
+    clips: np.ndarray  # int64[m]: the labelled trajectories (indices into the training data)
+    more: np.ndarray  # bool[m, m]: more[i, j] = clips[i] shows more of the attribute than clips[j]
+
+    def __post_init__(self) -> None:
+        m = len(self.clips)
+        if self.more.shape != (m, m):
+            raise ValueError(f"more must be [{m}, {m}], got {list(self.more.shape)}")
+        if (self.more & self.more.T).any():
+            raise ValueError("contradictory labels: some pair is labelled both ways")
+
+    @classmethod
+    def from_values(cls, clips: np.ndarray, values: np.ndarray) -> AttributeLabels:
+        """A total order by ``values`` (ties stay unlabelled): how proxies label clips."""
+        values = np.asarray(values, dtype=np.float64)
+        return cls(np.asarray(clips, dtype=np.int64), values[:, None] > values[None, :])
+
+    @classmethod
+    def from_pairs(cls, pairs: list[tuple[int, int]]) -> AttributeLabels:
+        """From (more, less) trajectory pairs; orderings become the pairs they imply."""
+        clips = np.unique(np.asarray(pairs, dtype=np.int64).reshape(-1))
+        pos = {int(c): i for i, c in enumerate(clips)}
+        more = np.zeros((len(clips), len(clips)), dtype=bool)
+        for hi, lo in pairs:
+            more[pos[int(hi)], pos[int(lo)]] = True
+        return cls(clips, more)
+
+    @property
+    def num_pairs(self) -> int:
+        return int(self.more.sum())
+
+    def pairs(self) -> np.ndarray:
+        """int64[P, 2]: every labelled (more, less) pair of trajectories."""
+        hi, lo = np.nonzero(self.more)
+        return np.stack([self.clips[hi], self.clips[lo]], 1)
+
+
+def proxy_labels(lib: SkillLibrary, max_labelled: int, seed: int) -> list[AttributeLabels]:
+    """Every attribute's ordering, by proxy, of the same ``max_labelled`` clips of ``lib``."""
+    idx = labelled_subset(lib, max_labelled, seed)
+    return [AttributeLabels.from_values(idx, lib.proxies[idx, a]) for a in range(lib.proxies.shape[1])]
+
+
+def merge_pairs(pair_lists: Iterable[Iterable[tuple[int, int]]]) -> AttributeLabels:
+    """One attribute's labels from several sources; a later source overrides an earlier one on the same pair."""
+    decided: dict[tuple[int, int], bool] = {}
+    for pairs in pair_lists:
+        for hi, lo in pairs:
+            key = (min(hi, lo), max(hi, lo))
+            decided[key] = hi < lo  # True: the smaller index has more
+    return AttributeLabels.from_pairs([(a, b) if first else (b, a) for (a, b), first in decided.items()])
+
+
+# --- local-change pairs (RBA-Local) ---
 
 
 @dataclass
@@ -50,6 +142,12 @@ class LocalPairs:
     attr: np.ndarray  # int64[M], attribute column
     direction: np.ndarray  # int64[M], +1 (more) or -1 (less)
 
+    @classmethod
+    def from_rows(cls, rows: Iterable[tuple[int, int, int, int]]) -> LocalPairs:
+        """From (anchor, target, attr, direction) rows (none: no pairs)."""
+        arr = np.array(list(rows), dtype=np.int64).reshape(-1, 4)
+        return cls(arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3])
+
     def __len__(self) -> int:
         return len(self.anchor)
 
@@ -67,11 +165,6 @@ class LocalPairs:
                 for c, t, a, h in zip(self.anchor, self.target, self.attr, self.direction, strict=True)]
 
 
-def _empty() -> LocalPairs:
-    z = np.zeros(0, dtype=np.int64)
-    return LocalPairs(z, z.copy(), z.copy(), z.copy())
-
-
 def local_pairs(proxies: np.ndarray, epsilons: np.ndarray, attribute_names: tuple[str, ...],
                 cfg: LocalLabelConfig, max_pairs: int | None = None) -> LocalPairs:
     """Draw up to ``max_pairs`` (default ``cfg.max_pairs``) local-change pairs among the rows of ``proxies``.
@@ -87,16 +180,31 @@ def local_pairs(proxies: np.ndarray, epsilons: np.ndarray, attribute_names: tupl
         raise ValueError(f"proxies have {k} columns but {len(eps)} epsilons and {len(attribute_names)} names")
     limit = cfg.max_pairs if max_pairs is None else max_pairs
     rng = np.random.default_rng(cfg.seed)
-    # d[c, t, a]: change of attribute a from anchor c to target t, in ε
-    d = (proxies[None, :, :] - proxies[:, None, :]) / eps
-    combos = [(a, h) for a in range(k) for h in (1, -1)]
+    rows = _draw_pairs(_viable_changes(proxies, eps, attribute_names, cfg), n, limit, rng)
+    if not rows:
+        log.warning("no local-change pairs found among %d rollouts; is the band too narrow?", n)
+    return LocalPairs.from_rows(rows)
+
+
+def _viable_changes(proxies: np.ndarray, eps: np.ndarray, attribute_names: tuple[str, ...],
+                    cfg: LocalLabelConfig) -> dict[tuple[int, int], np.ndarray]:
+    """(attr, direction) -> bool[anchor, target]: target is a change of anchor within the band."""
+    k = proxies.shape[1]
+    d = (proxies[None, :, :] - proxies[:, None, :]) / eps  # d[c, t, a]: change of a from c to t, in ε
     valid = {}
-    for a, h in combos:
+    for a, h in [(a, h) for a in range(k) for h in (1, -1)]:
         lo, hi = cfg.band(attribute_names[a])
         others = np.delete(np.abs(d), a, axis=2)
         ok = (h * d[:, :, a] >= lo) & (h * d[:, :, a] <= hi) & np.all(others <= cfg.keep, axis=2)
         np.fill_diagonal(ok, False)
         valid[(a, h)] = ok
+    return valid
+
+
+def _draw_pairs(valid: dict[tuple[int, int], np.ndarray], n: int, limit: int,
+                rng: np.random.Generator) -> list[tuple[int, int, int, int]]:
+    """Passes over the anchors in random order, rotating the asked (attr, direction), until ``limit``."""
+    combos = list(valid)
     used: set[tuple[int, int, int]] = set()
     rows: list[tuple[int, int, int, int]] = []
     turn = 0
@@ -118,11 +226,7 @@ def local_pairs(proxies: np.ndarray, epsilons: np.ndarray, attribute_names: tupl
                     break
         if not added:
             break
-    if not rows:
-        log.warning("no local-change pairs found among %d rollouts; is the band too narrow?", n)
-        return _empty()
-    arr = np.array(rows, dtype=np.int64)
-    return LocalPairs(arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3])
+    return rows
 
 
 def pair_counts(pairs: LocalPairs, attribute_names: tuple[str, ...]) -> dict[str, int]:
@@ -161,5 +265,124 @@ def validate_local_records(records: list[dict], ids: list[str] | dict[str, int],
             raise ValueError(f"label {n}: direction must be +1 (more) or -1 (less), got {rec['direction']!r}")
         rows.append((index[rec["anchor"]], index[rec["target"]], attribute_names.index(rec["attribute"]),
                      rec["direction"]))
-    arr = np.array(rows, dtype=np.int64)
-    return LocalPairs(arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3])
+    return LocalPairs.from_rows(rows)
+
+
+# --- label sets by clip reference (what admins give) ---
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+ClipRef = Field(min_length=1, max_length=128)
+
+
+class NewAttribute(_Strict):
+    name: str = Field(description="lower-case identifier, e.g. speed")
+    description: str = Field(description="one sentence (3-300 characters): what more of it looks like")
+
+    @field_validator("name")
+    @classmethod
+    def _name(cls, v: str) -> str:
+        if not ATTRIBUTE_NAME.match(v):
+            raise ValueError(f"attribute name {v!r} must match {ATTRIBUTE_NAME.pattern} (lower case, digits, _)")
+        return v
+
+    @field_validator("description")
+    @classmethod
+    def _description(cls, v: str) -> str:
+        v = v.strip()
+        if not 3 <= len(v) <= 300:
+            raise ValueError("a description is one sentence of 3-300 characters")
+        return v
+
+
+class Ordering(_Strict):
+    attribute: str = Field(max_length=32)
+    clips: list[str] = Field(min_length=2, max_length=1000, description="least to most of the attribute")
+
+    @field_validator("clips")
+    @classmethod
+    def _distinct(cls, v: list[str]) -> list[str]:
+        if len(set(v)) != len(v):
+            raise ValueError("an ordering lists each clip once")
+        if any(not 0 < len(c) <= 128 for c in v):
+            raise ValueError("clip references are 1-128 characters")
+        return v
+
+
+class Comparison(_Strict):
+    attribute: str = Field(max_length=32)
+    more: str = ClipRef
+    less: str = ClipRef
+
+
+class LocalChange(_Strict):
+    attribute: str = Field(max_length=32)
+    anchor: str = ClipRef
+    changed: str = ClipRef
+    direction: Literal["more", "less"]
+
+
+class LabelSet(_Strict):
+    """One batch of labels; ``problems`` checks it against what the domain and the upload hold."""
+
+    new_attributes: list[NewAttribute] = Field(default_factory=list, max_length=16)
+    orderings: list[Ordering] = Field(default_factory=list, max_length=MAX_LABELS)
+    comparisons: list[Comparison] = Field(default_factory=list, max_length=MAX_LABELS)
+    local_changes: list[LocalChange] = Field(default_factory=list, max_length=MAX_LABELS)
+
+    @classmethod
+    def parse(cls, obj: object) -> tuple[LabelSet | None, list[str]]:
+        """The label set, or None and one readable line per problem."""
+        try:
+            return cls.model_validate(obj), []
+        except ValidationError as e:
+            return None, [f"labels.{'.'.join(map(str, err['loc'])) or 'root'}: "
+                          f"{str(err['msg']).removeprefix('Value error, ')}" for err in e.errors()]
+
+    def references(self) -> set[str]:
+        refs = {c for o in self.orderings for c in o.clips}
+        refs |= {c for p in self.comparisons for c in (p.more, p.less)}
+        refs |= {c for p in self.local_changes for c in (p.anchor, p.changed)}
+        return refs
+
+    def attributes_used(self) -> set[str]:
+        return {x.attribute for group in (self.orderings, self.comparisons, self.local_changes) for x in group}
+
+    def size(self) -> int:
+        return len(self.orderings) + len(self.comparisons) + len(self.local_changes)
+
+    def problems(self, known_attributes: Iterable[str], known_clips: set[str] | frozenset[str],
+                 builtin_attributes: Iterable[str]) -> list[str]:
+        """What is wrong given the attributes that exist and the clips that can be referred to."""
+        out = []
+        builtin = set(builtin_attributes)
+        for a in self.new_attributes:
+            if a.name in builtin:
+                out.append(f"new attribute {a.name!r} is already an attribute of the domain")
+        valid = set(known_attributes) | builtin | {a.name for a in self.new_attributes}
+        for name in sorted(self.attributes_used() - valid):
+            out.append(f"unknown attribute {name!r}; valid: {', '.join(sorted(valid))} "
+                       "(declare a new one under new_attributes)")
+        missing = sorted(self.references() - set(known_clips))
+        if missing:
+            shown = ", ".join(repr(m) for m in missing[:10]) + (f" and {len(missing) - 10} more" if len(missing) > 10
+                                                                 else "")
+            out.append(f"{len(missing)} clip reference(s) match no uploaded trajectory and no library rollout: {shown}")
+        out += [f"comparison {i}: 'more' and 'less' are the same clip" for i, p in enumerate(self.comparisons)
+                if p.more == p.less]
+        out += [f"local change {i}: anchor and changed are the same clip" for i, p in enumerate(self.local_changes)
+                if p.anchor == p.changed]
+        if self.size() == 0 and not self.new_attributes:
+            out.append("no labels: give orderings, comparisons or local_changes")
+        return out
+
+    def pairs(self, attribute: str) -> list[tuple[str, str]]:
+        """Every (more, less) pair of clip references these labels state for ``attribute``."""
+        out = [(p.more, p.less) for p in self.comparisons if p.attribute == attribute]
+        for o in self.orderings:
+            if o.attribute == attribute:
+                out += [(o.clips[j], o.clips[i]) for i in range(len(o.clips)) for j in range(i + 1, len(o.clips))]
+        return out

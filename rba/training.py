@@ -1,23 +1,37 @@
-"""`rba train`: fit RBA-Global (ζσ, rθ) or RBA-Local (rθ) models, measure them on `test`, save with cards."""
+"""`rba train`: fit RBA-Global (ζσ, rθ) or RBA-Local (rθ) models, measure them on `test`, save with cards.
+
+Also the learned state encoder a domain's states come from (lane_change_image's frame VAE),
+which `rba build` trains before it simulates, when it is missing.
+"""
 
 from __future__ import annotations
 
 import hashlib
 import logging
 import time
-from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from collections.abc import Callable, Iterable
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 import torch
 
-from rba.artifacts import save_model
-from rba.domains import get_domain
+from rba.artifacts import ModelNotFoundError, load_model, save_model
+from rba.domains import Domain, get_domain
 from rba.embed import attribute_embeddings, check_rep
-from rba.labels import LocalLabelConfig, LocalPairs, local_pairs, pair_counts
-from rba.labelsets import LabelSet, merge_pairs
-from rba.learn.common import Ragged
+from rba.labels import (
+    AttributeLabels,
+    LabelSet,
+    LocalLabelConfig,
+    LocalPairs,
+    NewAttribute,
+    local_pairs,
+    merge_pairs,
+    pair_counts,
+    proxy_labels,
+)
+from rba.learn.common import Progress, Ragged
 from rba.learn.global_reward import GlobalRewardConfig, LibraryScorer, train_global_reward
 from rba.learn.local_reward import (
     LocalLibraryScorer,
@@ -26,13 +40,39 @@ from rba.learn.local_reward import (
     pair_metrics,
     train_local_reward,
 )
-from rba.learn.ranker import AttributeLabels, RankerConfig, proxy_labels, ranking_metrics, train_ranker
+from rba.learn.ranker import AttributeRanker, RankerConfig, ranking_metrics, train_ranker
+from rba.learn.vae import SIZE, STACK, VAEConfig, train_vae
 from rba.library import SkillLibrary
 
 log = logging.getLogger(__name__)
 
+StageProgress = Callable[[str, int, int, float], None]  # (stage, step, total steps, loss)
+T = TypeVar("T")
 
-PRESETS = ("default", "quick", "tiny")  # 'quick': full ζσ, a shorter rθ; 'tiny': seconds-long smoke runs
+
+@dataclass(frozen=True)
+class Preset:
+    """One named training size: every trainer's config (the seed is set when the preset is used)."""
+
+    ranker: RankerConfig = field(default_factory=RankerConfig)
+    global_reward: GlobalRewardConfig = field(default_factory=GlobalRewardConfig)
+    local_reward: LocalRewardConfig = field(default_factory=LocalRewardConfig)
+    domain_ranker_steps: bool = False  # ζσ takes the domain's steps (``Domain.ranker_steps``) if it sets them
+
+
+_SHORT_LOCAL = LocalRewardConfig(steps=150, hidden=64, lstm_hidden=32)
+_PRESETS = {
+    "default": Preset(domain_ranker_steps=True),
+    "quick": Preset(global_reward=GlobalRewardConfig(steps=300, hidden=128), local_reward=_SHORT_LOCAL),  # full ζσ
+    "tiny": Preset(RankerConfig(steps=200, hidden=64), GlobalRewardConfig(steps=120, hidden=64), _SHORT_LOCAL),  # CI
+}
+PRESETS = tuple(_PRESETS)  # 'quick': full ζσ, a shorter rθ; 'tiny': seconds-long smoke runs
+
+
+def get_preset(name: str) -> Preset:
+    if name not in _PRESETS:
+        raise ValueError(f"unknown preset {name!r}; valid: {', '.join(PRESETS)}")
+    return _PRESETS[name]
 
 
 @dataclass
@@ -42,14 +82,24 @@ class GlobalTrainConfig:
 
     @classmethod
     def preset(cls, name: str, seed: int = 0, domain: str | None = None) -> GlobalTrainConfig:
-        """``tiny`` (CI), ``quick`` or ``default``; ``default`` takes ``domain``'s ζσ steps if it sets them."""
-        if name == "tiny":
-            return cls(RankerConfig(steps=200, hidden=64, seed=seed),
-                       GlobalRewardConfig(steps=120, hidden=64, seed=seed))
-        if name == "quick":
-            return cls(RankerConfig(seed=seed), GlobalRewardConfig(steps=300, hidden=128, seed=seed))
-        steps = get_domain(domain).ranker_steps if domain else None
-        return cls(RankerConfig(seed=seed, **({"steps": steps} if steps else {})), GlobalRewardConfig(seed=seed))
+        """A preset of ``PRESETS``; ``default`` takes ``domain``'s ζσ steps if it sets them."""
+        p = get_preset(name)
+        steps = get_domain(domain).ranker_steps if domain and p.domain_ranker_steps else None
+        return cls(replace(p.ranker, seed=seed, **({"steps": steps} if steps else {})),
+                   replace(p.global_reward, seed=seed))
+
+
+@dataclass
+class LocalTrainConfig:
+    """RBA-Local training: which pairs get labelled, and how rθ is fitted."""
+
+    labels: LocalLabelConfig = field(default_factory=LocalLabelConfig)
+    reward: LocalRewardConfig = field(default_factory=LocalRewardConfig)
+
+    @classmethod
+    def preset(cls, name: str, seed: int = 0) -> LocalTrainConfig:
+        """A preset of ``PRESETS`` (``quick`` and ``tiny`` share a short rθ)."""
+        return cls(LocalLabelConfig(seed=seed), replace(get_preset(name).local_reward, seed=seed))
 
 
 def weights_sha(model: torch.nn.Module) -> str:
@@ -67,10 +117,7 @@ def argmax_match_rate(scorer: LibraryScorer, serve: SkillLibrary, target_zeta: n
     return float(np.mean(hits))
 
 
-Progress = Callable[[str, int, int, float], None]  # (stage, step, total steps, loss)
-
-
-def _progress(name: str, on_progress: Progress | None = None):
+def _progress(name: str, on_progress: StageProgress | None = None) -> Progress:
     def report(step: int, total: int, loss: float) -> None:
         log.info("%s step %d/%d loss %.4f", name, step, total, loss)
         if on_progress is not None:
@@ -78,15 +125,43 @@ def _progress(name: str, on_progress: Progress | None = None):
     return report
 
 
-def _training_inputs(domain_name: str, rep: str, data_root: Path | None, extra_attributes=()):
-    """What every trainer starts from: the domain, its three splits, e_α for each attribute, card entries."""
-    check_rep(rep)
-    domain = get_domain(domain_name)
-    libs = tuple(SkillLibrary.load(domain_name, s, data_root) for s in ("train", "serve", "test"))
-    attrs = [{"name": a.name, "description": a.description, "unit": a.unit} for a in domain.attributes]
-    attrs += [{"name": a.name, "description": a.description, "unit": ""} for a in extra_attributes]
-    embed = attribute_embeddings([a["description"] for a in attrs], rep)
-    return domain, libs, embed, attrs
+def _timed(fn: Callable[..., T], *args, **kwargs) -> tuple[T, float]:
+    """``fn(*args, **kwargs)`` and the seconds it took, rounded for a model card."""
+    t0 = time.perf_counter()
+    out = fn(*args, **kwargs)
+    return out, round(time.perf_counter() - t0, 1)
+
+
+@dataclass
+class _Inputs:
+    """What every trainer starts from: the domain, its three splits, e_α for each attribute."""
+
+    name: str
+    domain: Domain
+    train: SkillLibrary
+    serve: SkillLibrary
+    test: SkillLibrary
+    embed: np.ndarray  # float32[k, E]
+    attrs: list[dict]  # model card entries {name, description, unit}: the domain's, then declared ones
+
+    @classmethod
+    def load(cls, domain_name: str, rep: str, data_root: Path | None,
+             extra_attributes: Iterable[NewAttribute] = ()) -> _Inputs:
+        check_rep(rep)
+        domain = get_domain(domain_name)
+        libs = (SkillLibrary.load(domain_name, s, data_root) for s in ("train", "serve", "test"))
+        attrs = [{"name": a.name, "description": a.description, "unit": a.unit} for a in domain.attributes]
+        attrs += [{"name": a.name, "description": a.description, "unit": ""} for a in extra_attributes]
+        return cls(domain_name, domain, *libs, attribute_embeddings([a["description"] for a in attrs], rep), attrs)
+
+    @property
+    def names(self) -> list[str]:
+        return [a["name"] for a in self.attrs]
+
+    def card(self, rep: str) -> dict:
+        """The card entries every model trained on these inputs shares."""
+        return {"domain": self.name, "representation": rep, "attributes": self.attrs,
+                "data": {"train": self.train.version, "serve": self.serve.version, "test": self.test.version}}
 
 
 @dataclass
@@ -103,10 +178,11 @@ class _Pool:
     def __init__(self, train: SkillLibrary, serve: SkillLibrary, sources: list[LabelSource]) -> None:
         self.library_index = {rid: i for i, rid in enumerate(train.ids)}
         self.library_index |= {rid: len(train) + i for i, rid in enumerate(serve.ids)}
+        self.library_rows = len(train) + len(serve)
         arrays = [train.states, serve.states]
         offsets = [train.state_offsets[:-1], serve.state_offsets[:-1] + len(train.states)]
         self.uploaded: list[dict[str, int]] = []
-        n, rows = len(train) + len(serve), len(train.states) + len(serve.states)
+        n, rows = self.library_rows, len(train.states) + len(serve.states)
         for src in sources:
             names = {}
             for name, traj in src.trajectories.items():
@@ -126,23 +202,20 @@ class _Pool:
 
     def local_pairs(self, sources: list[LabelSource], attribute_names: list[str]) -> LocalPairs:
         """The sources' local changes as RBA-Local pairs over the pool's rows."""
-        rows = [(self.index(i, c.anchor), self.index(i, c.changed), attribute_names.index(c.attribute),
-                 1 if c.direction == "more" else -1)
-                for i, src in enumerate(sources) for c in src.labels.local_changes]
-        cols = np.array(rows, dtype=np.int64).reshape(-1, 4)
-        return LocalPairs(cols[:, 0], cols[:, 1], cols[:, 2], cols[:, 3])
+        return LocalPairs.from_rows((self.index(i, c.anchor), self.index(i, c.changed),
+                                     attribute_names.index(c.attribute), 1 if c.direction == "more" else -1)
+                                    for i, src in enumerate(sources) for c in src.labels.local_changes)
 
 
-def _declared(sources: list[LabelSource], labelled: Callable[[LabelSet, str], bool]) -> dict:
+def _declared(sources: list[LabelSource], labelled: Callable[[LabelSet, str], bool]) -> dict[str, NewAttribute]:
     """New attributes the sources declare and label in the way this trainer learns from."""
     declared = {a.name: a for src in sources for a in src.labels.new_attributes}
     return {n: a for n, a in declared.items() if any(labelled(src.labels, n) for src in sources)}
 
 
-def _split_pairs(labels, seed: int, held_out: float = 0.2):
+def _split_pairs(labels: AttributeLabels, seed: int, held_out: float = 0.2) -> tuple[AttributeLabels, np.ndarray]:
     """(train labels, held-out (more, less) pairs): a seeded share of the pairs is kept for measuring."""
-    hi, lo = np.nonzero(labels.more)
-    pairs = np.stack([labels.clips[hi], labels.clips[lo]], 1)
+    pairs = labels.pairs()
     rng = np.random.default_rng(seed)
     test = rng.random(len(pairs)) < held_out
     if test.sum() < 5 or (~test).sum() == 0:
@@ -150,9 +223,42 @@ def _split_pairs(labels, seed: int, held_out: float = 0.2):
     return AttributeLabels.from_pairs([tuple(p) for p in pairs[~test]]), pairs[test]
 
 
+def _global_labels(inputs: _Inputs, pool: _Pool, sources: list[LabelSource], cfg: RankerConfig
+                   ) -> tuple[list[AttributeLabels], dict[str, np.ndarray]]:
+    """Each attribute's ζσ labels, and the held-out pairs of the attributes the sources declare new.
+
+    The domain's attributes: their proxy labels, overridden by what the sources say of the same pairs.
+    New attributes: the sources' labels alone, minus a held-out share.
+    """
+    builtin = proxy_labels(inputs.train, cfg.max_labelled, cfg.seed)
+    labels, held_out = [], {}
+    for a, name in enumerate(inputs.names):
+        given = pool.pairs(sources, name)
+        if a < len(builtin):
+            labels.append(merge_pairs([builtin[a].pairs(), *given]))
+        else:
+            fit, held_out[name] = _split_pairs(merge_pairs(given), cfg.seed)
+            labels.append(fit)
+    return labels, held_out
+
+
+def _ranker_metrics(ranker: AttributeRanker, inputs: _Inputs, pool: _Pool, held_out: dict[str, np.ndarray]
+                    ) -> tuple[dict, np.ndarray, np.ndarray]:
+    """(metrics, ζσ of test, ζσ of the pool): ranking quality on test by proxy, and on held-out pairs."""
+    test_zeta = ranker.score_library(inputs.test)
+    k = len(inputs.domain.attributes)
+    metrics = ranking_metrics(test_zeta[:, :k], inputs.test.proxies, inputs.domain.attribute_names)
+    pool_zeta = ranker.score(pool.data)
+    for name, pairs in held_out.items():
+        a = inputs.names.index(name)
+        acc = float(np.mean(pool_zeta[pairs[:, 0], a] > pool_zeta[pairs[:, 1], a])) if len(pairs) else None
+        metrics[name] = {"held_out_pair_accuracy": acc, "held_out_pairs": len(pairs)}
+    return metrics, test_zeta, pool_zeta
+
+
 def train_global(domain_name: str, rep: str, cfg: GlobalTrainConfig | None = None,
                  data_root: Path | None = None, models_root: Path | None = None,
-                 sources: list[LabelSource] | None = None, on_progress: Progress | None = None) -> dict:
+                 sources: list[LabelSource] | None = None, on_progress: StageProgress | None = None) -> dict:
     """Train, evaluate and save ``ranker-<rep>`` and ``global_reward-<rep>``; return the metrics.
 
     The domain's attributes are labelled by proxy (``max_labelled`` train clips), plus what
@@ -162,87 +268,59 @@ def train_global(domain_name: str, rep: str, cfg: GlobalTrainConfig | None = Non
     cfg = cfg or GlobalTrainConfig.preset("default", domain=domain_name)
     sources = sources or []
     declared = _declared(sources, lambda labels, name: bool(labels.pairs(name)))
-    domain, (train, serve, test), embed, attrs = _training_inputs(domain_name, rep, data_root, declared.values())
-    pool = _Pool(train, serve, sources)
-    builtin = proxy_labels(train, cfg.ranker.max_labelled, cfg.ranker.seed)
-    labels, held_out_pairs = [], {}
-    for a, spec in enumerate(attrs):
-        given = pool.pairs(sources, spec["name"])
-        if a < len(builtin):
-            base = builtin[a]
-            hi, lo = np.nonzero(base.more)
-            labels.append(merge_pairs([list(zip(base.clips[hi], base.clips[lo], strict=True)), *given]))
-        else:
-            merged = merge_pairs(given)
-            fit, held_out_pairs[spec["name"]] = _split_pairs(merged, cfg.ranker.seed)
-            labels.append(fit)
-
-    t0 = time.perf_counter()
-    ranker, rstats = train_ranker(pool.data, labels, embed, cfg.ranker,
-                                  progress=_progress(f"ranker[{rep}]", on_progress))
-    ranker_seconds = time.perf_counter() - t0
-    test_zeta = ranker.score_library(test)
-    k = len(domain.attributes)
-    rmetrics = ranking_metrics(test_zeta[:, :k], test.proxies, domain.attribute_names)
-    pool_zeta = ranker.score(pool.data)
-    for name, pairs in held_out_pairs.items():
-        a = next(i for i, spec in enumerate(attrs) if spec["name"] == name)
-        acc = float(np.mean(pool_zeta[pairs[:, 0], a] > pool_zeta[pairs[:, 1], a])) if len(pairs) else None
-        rmetrics[name] = {"held_out_pair_accuracy": acc, "held_out_pairs": len(pairs)}
+    inputs = _Inputs.load(domain_name, rep, data_root, declared.values())
+    pool = _Pool(inputs.train, inputs.serve, sources)
+    labels, held_out = _global_labels(inputs, pool, sources, cfg.ranker)
+    (ranker, rstats), ranker_seconds = _timed(train_ranker, pool.data, labels, inputs.embed, cfg.ranker,
+                                              progress=_progress(f"ranker[{rep}]", on_progress))
+    rmetrics, test_zeta, pool_zeta = _ranker_metrics(ranker, inputs, pool, held_out)
     log.info("ranker[%s] held out: %s", rep, rmetrics)
-    train_zeta = pool_zeta[: len(train)]
-    common = {"domain": domain_name, "representation": rep, "attributes": attrs,
-              "data": {"train": train.version, "serve": serve.version, "test": test.version}}
+    common = inputs.card(rep)
     if sources:
-        common["labels"] = {"sources": len(sources), "uploaded_trajectories": len(pool.data) - len(train) - len(serve),
+        common["labels"] = {"sources": len(sources), "uploaded_trajectories": len(pool.data) - pool.library_rows,
                             "new_attributes": sorted(declared)}
+    arch = {"state_dim": inputs.domain.state_dim, "num_attributes": len(inputs.attrs)}
     save_model(ranker, {**common, "kind": "ranker", "weights_sha": weights_sha(ranker),
-                        "architecture": {"state_dim": domain.state_dim, "num_attributes": len(attrs),
-                                         "embed_dim": int(embed.shape[1]), "hidden": cfg.ranker.hidden,
+                        "architecture": {**arch, "embed_dim": int(inputs.embed.shape[1]), "hidden": cfg.ranker.hidden,
                                          "layers": cfg.ranker.layers, "clip": cfg.ranker.clip},
-                        "training": {**rstats, "seconds": round(ranker_seconds, 1)},
-                        "held_out": {"split": "test", "rollouts": len(test), **rmetrics}}, models_root)
-
+                        "training": {**rstats, "seconds": ranker_seconds},
+                        "held_out": {"split": "test", "rollouts": len(inputs.test), **rmetrics}}, models_root)
     # rθ learns from ζσ labels only: every pooled trajectory (train, serve, uploaded), no proxies.
-    t0 = time.perf_counter()
-    reward, gstats = train_global_reward(pool.data, pool_zeta, cfg.reward,
-                                         progress=_progress(f"global_reward[{rep}]", on_progress))
-    reward_seconds = time.perf_counter() - t0
-    scorer = LibraryScorer(reward, Ragged.from_numpy(serve.states, serve.state_offsets))
-    match = {p: argmax_match_rate(scorer, serve, test_zeta, test.proxies, domain.epsilons(p))
+    (reward, gstats), reward_seconds = _timed(train_global_reward, pool.data, pool_zeta, cfg.reward,
+                                              progress=_progress(f"global_reward[{rep}]", on_progress))
+    scorer = LibraryScorer(reward, Ragged.from_numpy(inputs.serve.states, inputs.serve.state_offsets))
+    match = {p: argmax_match_rate(scorer, inputs.serve, test_zeta, inputs.test.proxies, inputs.domain.epsilons(p))
              for p in ("normal", "high")}
     log.info("global_reward[%s] argmax within ε on test: %s", rep, match)
-    bounds = np.stack([train_zeta.min(0), train_zeta.max(0)])
+    train_zeta = pool_zeta[: len(inputs.train)]
     save_model(reward, {**common, "kind": "global_reward", "weights_sha": weights_sha(reward),
-                        "architecture": {"state_dim": domain.state_dim, "num_attributes": len(attrs),
-                                         "hidden": cfg.reward.hidden, "layers": cfg.reward.layers},
-                        "zeta_bounds": bounds.tolist(),
-                        "training": {**gstats, "seconds": round(reward_seconds, 1),
-                                     "labels": "zeta of train+serve (no proxies)"},
-                        "held_out": {"split": "test", "rollouts": len(test),
+                        "architecture": {**arch, "hidden": cfg.reward.hidden, "layers": cfg.reward.layers},
+                        "zeta_bounds": np.stack([train_zeta.min(0), train_zeta.max(0)]).tolist(),
+                        "training": {**gstats, "seconds": reward_seconds, "labels": "zeta of train+serve (no proxies)"},
+                        "held_out": {"split": "test", "rollouts": len(inputs.test),
                                      "argmax_within_epsilon": match["normal"],
                                      "argmax_within_high_precision_epsilon": match["high"]}}, models_root)
     return {"ranker": rmetrics, "argmax_within_epsilon": match,
-            "seconds": {"ranker": round(ranker_seconds, 1), "global_reward": round(reward_seconds, 1)}}
+            "seconds": {"ranker": ranker_seconds, "global_reward": reward_seconds}}
 
 
-@dataclass
-class LocalTrainConfig:
-    """RBA-Local training: which pairs get labelled, and how rθ is fitted."""
-
-    labels: LocalLabelConfig = field(default_factory=LocalLabelConfig)
-    reward: LocalRewardConfig = field(default_factory=LocalRewardConfig)
-
-    @classmethod
-    def preset(cls, name: str, seed: int = 0) -> LocalTrainConfig:
-        if name in ("tiny", "quick"):
-            return cls(LocalLabelConfig(seed=seed), LocalRewardConfig(steps=150, hidden=64, lstm_hidden=32, seed=seed))
-        return cls(LocalLabelConfig(seed=seed), LocalRewardConfig(seed=seed))
+def _local_metrics(model, inputs: _Inputs, cfg: LocalTrainConfig, near_copy_radius: float) -> tuple[dict, dict]:
+    """(ranking of test pairs among test rollouts, what the agent would do: argmax over serve per test edit)."""
+    eps = inputs.domain.epsilons()
+    test = inputs.test
+    test_pairs = local_pairs(test.proxies, eps, inputs.domain.attribute_names, cfg.labels, max_pairs=len(test))
+    test_scorer = LocalLibraryScorer(model, Ragged.from_numpy(test.states, test.state_offsets))
+    ranking = pair_metrics(test_scorer, test_pairs)
+    serve_scorer = LocalLibraryScorer(model, Ragged.from_numpy(inputs.serve.states, inputs.serve.state_offsets))
+    anchors = torch.as_tensor(test_pairs.anchor)
+    edits = edit_metrics(serve_scorer, test_scorer.phi[anchors], test.proxies[test_pairs.anchor],
+                         inputs.serve.proxies, test_pairs, eps, near_copy_radius)
+    return ranking, edits
 
 
 def train_local(domain_name: str, rep: str, cfg: LocalTrainConfig | None = None,
                 data_root: Path | None = None, models_root: Path | None = None,
-                sources: list[LabelSource] | None = None, on_progress: Progress | None = None) -> dict:
+                sources: list[LabelSource] | None = None, on_progress: StageProgress | None = None) -> dict:
     """Train, evaluate and save ``local_reward-<rep>``; return the metrics.
 
     Pairs come from the proxies of ``train`` plus the local changes ``sources`` label (then
@@ -253,38 +331,69 @@ def train_local(domain_name: str, rep: str, cfg: LocalTrainConfig | None = None,
     cfg = cfg or LocalTrainConfig()
     sources = sources or []
     declared = _declared(sources, lambda labels, name: any(c.attribute == name for c in labels.local_changes))
-    domain, (train, serve, test), embed, attrs = _training_inputs(domain_name, rep, data_root, declared.values())
-    names = [a["name"] for a in attrs]
-    eps = domain.epsilons()
-    pairs = local_pairs(train.proxies, eps, domain.attribute_names, cfg.labels)  # rows of train = first pool rows
-    data = Ragged.from_numpy(train.states, train.state_offsets)
+    inputs = _Inputs.load(domain_name, rep, data_root, declared.values())
+    train = inputs.train
+    pairs = local_pairs(train.proxies, inputs.domain.epsilons(), inputs.domain.attribute_names, cfg.labels)
+    data = Ragged.from_numpy(train.states, train.state_offsets)  # rows of train = the first pool rows
     if sources:
-        pool = _Pool(train, serve, sources)
-        pairs, data = pairs.concat(pool.local_pairs(sources, names)), pool.data
-    log.info("local pairs: %s", pair_counts(pairs, names))
-    t0 = time.perf_counter()
-    model, stats = train_local_reward(data, pairs, embed, cfg.reward,
-                                      progress=_progress(f"local_reward[{rep}]", on_progress))
-    seconds = time.perf_counter() - t0
-    test_pairs = local_pairs(test.proxies, eps, domain.attribute_names, cfg.labels, max_pairs=len(test))
-    test_scorer = LocalLibraryScorer(model, Ragged.from_numpy(test.states, test.state_offsets))
-    ranking = pair_metrics(test_scorer, test_pairs)
-    serve_scorer = LocalLibraryScorer(model, Ragged.from_numpy(serve.states, serve.state_offsets))
-    anchors = torch.as_tensor(test_pairs.anchor)
-    edits = edit_metrics(serve_scorer, test_scorer.phi[anchors], test.proxies[test_pairs.anchor], serve.proxies,
-                         test_pairs, eps, stats["near_copy_radius"])
+        pool = _Pool(train, inputs.serve, sources)
+        pairs, data = pairs.concat(pool.local_pairs(sources, inputs.names)), pool.data
+    log.info("local pairs: %s", pair_counts(pairs, inputs.names))
+    (model, stats), seconds = _timed(train_local_reward, data, pairs, inputs.embed, cfg.reward,
+                                     progress=_progress(f"local_reward[{rep}]", on_progress))
+    ranking, edits = _local_metrics(model, inputs, cfg, stats["near_copy_radius"])
     log.info("local_reward[%s] on test: %s; argmax over serve: %s", rep, ranking, edits)
-    save_model(model, {"domain": domain_name, "representation": rep, "attributes": attrs, "kind": "local_reward",
-                       "data": {"train": train.version, "serve": serve.version, "test": test.version},
-                       "weights_sha": weights_sha(model),
-                       "architecture": {"state_dim": domain.state_dim, "num_attributes": len(attrs),
-                                        "embed_dim": int(embed.shape[1]), "hidden": cfg.reward.hidden,
-                                        "layers": cfg.reward.layers, "lstm_hidden": cfg.reward.lstm_hidden,
-                                        "lstm_layers": cfg.reward.lstm_layers,
-                                        "anchor_stride": cfg.reward.anchor_stride},
+    r = cfg.reward
+    save_model(model, {**inputs.card(rep), "kind": "local_reward", "weights_sha": weights_sha(model),
+                       "architecture": {"state_dim": inputs.domain.state_dim, "num_attributes": len(inputs.attrs),
+                                        "embed_dim": int(inputs.embed.shape[1]), "hidden": r.hidden,
+                                        "layers": r.layers, "lstm_hidden": r.lstm_hidden,
+                                        "lstm_layers": r.lstm_layers, "anchor_stride": r.anchor_stride},
                        "near_copy_radius": stats["near_copy_radius"],
-                       "labels": {**asdict(cfg.labels), "pairs": pair_counts(pairs, names)},
-                       "training": {**stats, "seconds": round(seconds, 1)},
-                       "held_out": {"split": "test", "rollouts": len(test), **ranking, "argmax_over_serve": edits}},
-               models_root)
-    return {"local_reward": ranking, "argmax_over_serve": edits, "seconds": {"local_reward": round(seconds, 1)}}
+                       "labels": {**asdict(cfg.labels), "pairs": pair_counts(pairs, inputs.names)},
+                       "training": {**stats, "seconds": seconds},
+                       "held_out": {"split": "test", "rollouts": len(inputs.test), **ranking,
+                                    "argmax_over_serve": edits}}, models_root)
+    return {"local_reward": ranking, "argmax_over_serve": edits, "seconds": {"local_reward": seconds}}
+
+
+VAE_ROLLOUTS = 300  # kinematic lane-change rollouts whose frames train the frame VAE
+
+
+def train_frame_vae(seed: int = 0, models_root: Path | None = None) -> dict:
+    """Train and save lane_change_image's frame VAE on frames of kinematic lane-change rollouts; its stats."""
+    from rba.domains.lane_change_image import LATENT, VIEW
+
+    domain = get_domain("lane_change_image")
+    rng = np.random.default_rng(10_000 + seed)
+    kinematic = [domain.kinematic_rollout(domain.sample_params(rng), seed=i) for i in range(VAE_ROLLOUTS)]
+    frames = np.concatenate([domain.frames(r) for r in kinematic])
+    log.info("training the frame VAE on %d stacked frames", len(frames))
+    model, stats = train_vae(frames, VAEConfig(latent=LATENT, seed=seed), progress=_progress("vae[frames]"))
+    save_model(model, {"domain": domain.name, "kind": "vae", "representation": "frames",
+                       "architecture": {"latent": LATENT, "size": SIZE, "stack": STACK, **VIEW},
+                       "training": stats}, models_root)
+    return stats
+
+
+@dataclass(frozen=True)
+class StateEncoder:
+    """A learned model a domain's states come from: the artifact its rollouts load, and how to train it."""
+
+    kind: str
+    representation: str
+    train: Callable[[int, Path | None], dict]
+
+
+STATE_ENCODERS: dict[str, StateEncoder] = {"lane_change_image": StateEncoder("vae", "frames", train_frame_vae)}
+
+
+def prepare_states(domain_name: str, seed: int = 0, models_root: Path | None = None) -> None:
+    """Train the state encoder ``domain_name``'s rollouts need unless it is saved (most domains need none)."""
+    encoder = STATE_ENCODERS.get(domain_name)
+    if encoder is None:
+        return
+    try:
+        load_model(domain_name, encoder.kind, encoder.representation, models_root)
+    except ModelNotFoundError:
+        encoder.train(seed, models_root)

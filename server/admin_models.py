@@ -14,7 +14,7 @@ from pydantic_core import PydanticCustomError
 from sqlalchemy import JSON, Column, DateTime, Text, UniqueConstraint
 from sqlmodel import Field, SQLModel
 
-from rba.labelsets import Comparison, LocalChange, NewAttribute, Ordering
+from rba.labels import Comparison, LocalChange, NewAttribute, Ordering
 from rba.methods import train_presets, trainable
 from server.models import as_utc, utcnow
 

@@ -21,7 +21,7 @@ from sqlmodel import Session, select
 from starlette.datastructures import UploadFile
 from starlette.formparsers import MultiPartException, MultiPartParser
 
-from rba.labelsets import LabelSet, NewAttribute
+from rba.labels import LabelSet, NewAttribute
 from rba.library import SkillLibrary
 from rba.storage import load_npz, save_npz, save_text
 from rba.store import Store

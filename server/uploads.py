@@ -1,7 +1,7 @@
 """Checking uploaded datasets before anything is stored: every problem found, in words.
 
 An upload is an ``.npz`` of trajectories (one float array T x state_dim per trajectory) and a
-JSON label set (``rba.labelsets``). The ``.npz`` is opened as a zip and every array's header is
+JSON label set (``rba.labels``). The ``.npz`` is opened as a zip and every array's header is
 read before any array is: object arrays, wrong shapes and zip bombs are refused without
 allocating what they claim. Arrays are then loaded with ``allow_pickle=False``.
 """
@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rba.labelsets import LabelSet
+from rba.labels import LabelSet
 
 TRAJECTORY_NAME = re.compile(r"^[A-Za-z0-9_.:-]{1,128}$")
 

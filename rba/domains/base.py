@@ -64,9 +64,6 @@ class Domain(ABC):
     def render(self, rollout: Rollout, width: int, height: int) -> Iterator[np.ndarray]:
         """Yield HxWx3 uint8 frames off-screen, deterministically, from ``rollout.replay``."""
 
-    def prepare(self, seed: int = 0) -> None:  # noqa: B027 (optional hook: most domains need nothing)
-        """Make what ``rollout`` needs before a library is built (e.g. a learned state encoder)."""
-
     @property
     def attribute_names(self) -> tuple[str, ...]:
         return tuple(a.name for a in self.attributes)

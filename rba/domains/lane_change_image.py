@@ -5,27 +5,26 @@ differ: at each 5 Hz state time the scene is rendered as a 64x64 grayscale frame
 across, the ego car 70 % of the way across so that a follower up to 35 m behind is in view when
 the change starts); that frame and the two from the previous state times, stacked as channels,
 go through a small convolutional VAE (``rba.learn.vae``) and the latent mean is the state.
-``prepare`` trains the VAE once on frames of ``train``-like rollouts and saves it as
-``models/lane_change_image/vae-frames.pt`` (with its card); ``rollout`` needs it.
+The domain only loads that VAE (``models/lane_change_image/vae-frames.pt`` and its card);
+``rba.training.train_frame_vae`` makes it, which ``rba build lane_change --states image`` does
+when it is missing.
 """
 
 from __future__ import annotations
 
-import logging
 import threading
 
 import numpy as np
 
 from rba.domains.base import Rollout
 from rba.domains.lane_change import DECIDE_EVERY, LaneChange
-from rba.learn.vae import SIZE, STACK, VAEConfig
+from rba.learn.vae import SIZE, STACK
 
-log = logging.getLogger(__name__)
 IMAGE_VIEW = 60.0  # m of road across a 64-pixel frame (≈ 1 px/m; a lane is 4 px)
 EGO_AT = 0.7  # ego 42 m from the left edge: the follower (≤ 35 m behind, centre to centre) stays in view
 VIEW = {"view_m": IMAGE_VIEW, "ego_at": EGO_AT}  # what the VAE's card records of the frames it was trained on
 LATENT = 16
-VAE_ROLLOUTS = 300  # rollouts whose frames train the VAE
+MAKE_VAE = "`rba build lane_change --states image` (it trains the VAE when missing)"
 
 
 class LaneChangeImage(LaneChange):
@@ -51,41 +50,26 @@ class LaneChangeImage(LaneChange):
     def _vae(self):
         with self._vae_lock:
             if self._vae_model is None:
-                from rba.artifacts import load_model
+                from rba.artifacts import ModelNotFoundError, load_model, model_path
 
-                vae = load_model(self.name, "vae", "frames")
+                try:
+                    vae = load_model(self.name, "vae", "frames")
+                except ModelNotFoundError as e:
+                    raise ModelNotFoundError(f"no frame VAE for {self.name} at {model_path(self.name, 'vae', 'frames')}"
+                                             f" (and its .json card): make it with {MAKE_VAE}") from e
                 seen = {k: vae.card["architecture"].get(k) for k in VIEW}
                 if seen != VIEW:
                     raise ValueError(f"the frame VAE was trained on another view ({seen}; this code renders {VIEW}): "
-                                     f"delete models/{self.name}/vae-frames.* and run "
-                                     f"`rba build lane_change --states image`")
+                                     f"delete models/{self.name}/vae-frames.* and run {MAKE_VAE}")
                 self._vae_model = vae.model
             return self._vae_model
 
+    def kinematic_rollout(self, params: dict[str, float], seed: int) -> Rollout:
+        """The rollout with ``lane_change``'s kinematic states (what the frames are rendered from)."""
+        return super().rollout(params, seed)
+
     def rollout(self, params: dict[str, float], seed: int) -> Rollout:
-        r = super().rollout(params, seed)
+        r = self.kinematic_rollout(params, seed)
         r.domain = self.name
         r.states = self._vae().embed(self.frames(r)).astype(np.float32)
         return r
-
-    def prepare(self, seed: int = 0) -> None:
-        """Train and save the VAE unless it exists (frames of kinematic lane-change rollouts)."""
-        from rba.artifacts import ModelNotFoundError, load_model, save_model
-        from rba.learn.vae import train_vae
-
-        try:
-            load_model(self.name, "vae", "frames")
-            return
-        except ModelNotFoundError:
-            pass
-        rng = np.random.default_rng(10_000 + seed)
-        kinematic = [LaneChange.rollout(self, self.sample_params(rng), seed=i) for i in range(VAE_ROLLOUTS)]
-        frames = np.concatenate([self.frames(r) for r in kinematic])
-        log.info("training the frame VAE on %d stacked frames", len(frames))
-        cfg = VAEConfig(latent=LATENT, seed=seed)
-        model, stats = train_vae(frames, cfg, progress=lambda s, n, loss: log.info("vae step %d/%d loss %.1f",
-                                                                                   s, n, loss))
-        save_model(model, {"domain": self.name, "kind": "vae", "representation": "frames",
-                           "architecture": {"latent": LATENT, "size": SIZE, "stack": STACK, **VIEW},
-                           "training": stats})
-        self._vae_model = None

@@ -21,8 +21,8 @@ import torch
 
 from rba.embed import check_rep
 from rba.interact.base import Agent, Feedback
-from rba.learn.common import Normalizer, Ragged
-from rba.learn.pbrl import PbRLConfig, RewardEnsemble, choose_pair, fit_preferences, returns, torch_threads
+from rba.learn.common import Normalizer, Ragged, torch_threads
+from rba.learn.pbrl import PbRLConfig, RewardEnsemble, choose_pair, fit_preferences, returns
 from rba.library import SkillLibrary
 from rba.methods import Method
 

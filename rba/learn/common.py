@@ -1,8 +1,10 @@
-"""Pieces shared by every model: MLPs, ragged trajectory batches, the Bradley-Terry loss."""
+"""Pieces shared by every model: MLPs, ragged trajectory batches, the Bradley-Terry loss, the step loop."""
 
 from __future__ import annotations
 
 import random
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -83,9 +85,59 @@ def segment_sum(values: torch.Tensor, seg: torch.Tensor, n: int) -> torch.Tensor
     return out.index_add_(-1, seg, values)
 
 
-def bradley_terry_loss(return_a: torch.Tensor, return_b: torch.Tensor, pref_a: torch.Tensor) -> torch.Tensor:
-    """Cross-entropy of P[a ≻ b] = σ(R_a − R_b) against soft labels in {1, 0, 0.5}."""
-    return F.binary_cross_entropy_with_logits(return_a - return_b, pref_a)
+def bradley_terry_loss(return_a: torch.Tensor, return_b: torch.Tensor, pref_a: torch.Tensor | None = None,
+                       weight: torch.Tensor | None = None, mask: torch.Tensor | None = None) -> torch.Tensor:
+    """Mean cross-entropy of P[a ≻ b] = σ(R_a − R_b) against labels ``pref_a`` (1 = a, 0 = b, 0.5 = tie).
+
+    ``return_a − return_b`` may broadcast (every pair of a batch); ``mask`` then picks the labelled
+    pairs, and ``weight`` weighs each picked pair. Without ``pref_a`` every pair prefers a: the loss
+    is then written softplus(R_b − R_a), masked after, as RBA-Local was trained (equal in value to
+    the cross-entropy form, not in float bits, and the shipped models' training is kept bit for bit).
+    """
+    margin = return_a - return_b
+    if pref_a is None:
+        if weight is not None:
+            raise ValueError("weight needs pref_a")
+        loss = F.softplus(-margin)
+        return (loss if mask is None else loss[mask]).mean()
+    return F.binary_cross_entropy_with_logits(margin if mask is None else margin[mask], pref_a, weight=weight)
+
+
+@contextmanager
+def torch_threads(n: int) -> Iterator[None]:
+    """Run a block with ``n`` torch threads: small updates are fastest on one (no sync cost)."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
+Progress = Callable[[int, int, float], None]  # (step done, total steps, loss)
+
+
+class StepLoop:
+    """The tail every training loop shares: one optimiser (and schedule) step per loss, progress reports.
+
+    ``loss`` is the last step's loss value (nan before the first), which trainers report as final.
+    """
+
+    def __init__(self, opt: torch.optim.Optimizer, steps: int, progress: Progress | None = None,
+                 sched: torch.optim.lr_scheduler.LRScheduler | None = None, report_every: int = 50) -> None:
+        self.opt, self.steps, self.progress, self.sched, self.report_every = opt, steps, progress, sched, report_every
+        self.loss = float("nan")
+
+    def step(self, step: int, loss: torch.Tensor) -> None:
+        """Back-propagate ``loss`` of step ``step`` (0-based), step the optimiser, report every so often."""
+        self.opt.zero_grad()
+        loss.backward()
+        self.opt.step()
+        if self.sched is not None:
+            self.sched.step()
+        self.loss = loss.item()
+        if self.progress and (step % self.report_every == 0 or step == self.steps - 1):
+            self.progress(step + 1, self.steps, self.loss)
 
 
 def check_shape(x: torch.Tensor, *shape: int | None, name: str = "input") -> None:

@@ -12,17 +12,23 @@ the agent only ever uses the top of rθ's ranking, so that is where its accuracy
 
 from __future__ import annotations
 
-import logging
 from dataclasses import asdict, dataclass
 
 import numpy as np
 import torch
 from torch import nn
-from torch.nn import functional as F
 
-from rba.learn.common import Normalizer, Ragged, check_shape, mlp, seed_everything, segment_sum
-
-log = logging.getLogger(__name__)
+from rba.learn.common import (
+    Normalizer,
+    Progress,
+    Ragged,
+    StepLoop,
+    bradley_terry_loss,
+    check_shape,
+    mlp,
+    seed_everything,
+    segment_sum,
+)
 
 
 @dataclass
@@ -129,7 +135,7 @@ def focus_weights(nearer: torch.Tensor, focus: float | None) -> torch.Tensor | N
 
 
 def train_global_reward(data: Ragged, zeta: np.ndarray, cfg: GlobalRewardConfig,
-                        progress=None) -> tuple[GlobalReward, dict]:
+                        progress: Progress | None = None) -> tuple[GlobalReward, dict]:
     """Fit rθ on trajectories ``data`` whose ζσ scores are ``zeta`` (float[N, k]).
 
     Each step takes a batch of trajectories and a batch of targets and uses every
@@ -142,31 +148,36 @@ def train_global_reward(data: Ragged, zeta: np.ndarray, cfg: GlobalRewardConfig,
     model.norm.fit(data.states.numpy())
     model.zeta_norm.fit(zeta)
     v_all = model.zeta_norm(torch.as_tensor(zeta, dtype=torch.float32))
-    lo, hi = v_all.min(0).values, v_all.max(0).values
+    box = v_all.min(0).values, v_all.max(0).values
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(cfg.steps, 1))
-    m, b = min(cfg.batch_trajectories, n), cfg.batch_targets
-    loss_val = float("nan")
+    loop = StepLoop(opt, cfg.steps, progress, torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(cfg.steps, 1)))
+    m = min(cfg.batch_trajectories, n)
     for step in range(cfg.steps):
         idx = torch.randperm(n, generator=gen)[:m]
-        # targets near some of the batch's own trajectories (close calls) or anywhere in the ζ box
-        vt = v_all[idx[:b]] + cfg.target_noise * torch.randn(b, k, generator=gen)
-        uniform = torch.rand(b, generator=gen) < cfg.uniform_targets
-        vt[uniform] = lo + (hi - lo) * torch.rand(int(uniform.sum()), k, generator=gen)
+        vt = _targets(v_all[idx[:cfg.batch_targets]], box, cfg, gen)
         states, seg = data.select(idx)
         returns = segment_sum(model.rewards(model.state_features(states), vt), seg, m)  # [B, M]
-        dist = torch.cdist(vt, v_all[idx])  # [B, M]
-        gap = dist[:, None, :] - dist[:, :, None]  # gap[b, i, j] = d_j − d_i > 0: i is closer
-        mask = torch.triu(gap.abs() > cfg.slack, diagonal=1)
-        logits = (returns[:, :, None] - returns[:, None, :])[mask]
-        weight = focus_weights(torch.minimum(dist[:, :, None], dist[:, None, :])[mask], cfg.focus)
-        loss = F.binary_cross_entropy_with_logits(logits, (gap[mask] > 0).float(), weight=weight)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        sched.step()
-        loss_val = loss.item()
-        if progress and (step % 50 == 0 or step == cfg.steps - 1):
-            progress(step + 1, cfg.steps, loss_val)
+        loop.step(step, _triplet_loss(returns, torch.cdist(vt, v_all[idx]), cfg))
     model.eval()
-    return model, {"trajectories": n, "final_loss": round(loss_val, 5), "config": asdict(cfg)}
+    return model, {"trajectories": n, "final_loss": round(loop.loss, 5), "config": asdict(cfg)}
+
+
+def _targets(near: torch.Tensor, box: tuple[torch.Tensor, torch.Tensor], cfg: GlobalRewardConfig,
+             gen: torch.Generator) -> torch.Tensor:
+    """A step's targets: near some of the batch's own trajectories (close calls) or anywhere in the ζ box."""
+    (b, k), (lo, hi) = near.shape, box
+    vt = near + cfg.target_noise * torch.randn(b, k, generator=gen)
+    uniform = torch.rand(b, generator=gen) < cfg.uniform_targets
+    vt[uniform] = lo + (hi - lo) * torch.rand(int(uniform.sum()), k, generator=gen)
+    return vt
+
+
+def _triplet_loss(returns: torch.Tensor, dist: torch.Tensor, cfg: GlobalRewardConfig) -> torch.Tensor:
+    """Bradley-Terry over every (target b, trajectories i < j) whose distances to b differ by more than ξ.
+
+    ``returns`` and ``dist`` are [B, M]: each trajectory's return and distance under each target.
+    """
+    gap = dist[:, None, :] - dist[:, :, None]  # gap[b, i, j] = d_j − d_i > 0: i is closer
+    mask = torch.triu(gap.abs() > cfg.slack, diagonal=1)
+    weight = focus_weights(torch.minimum(dist[:, :, None], dist[:, None, :])[mask], cfg.focus)
+    return bradley_terry_loss(returns[:, :, None], returns[:, None, :], (gap[mask] > 0).float(), weight, mask)

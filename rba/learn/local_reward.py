@@ -9,20 +9,26 @@ itself (the "no change" failure mode). Each labelled pair is also used backwards
 
 from __future__ import annotations
 
-import logging
 from dataclasses import asdict, dataclass
 
 import numpy as np
 import torch
 from torch import nn
-from torch.nn import functional as F
 from torch.nn.utils.rnn import pack_padded_sequence
 
 from rba.labels import LocalPairs
-from rba.learn.common import Normalizer, Ragged, check_shape, mlp, seed_everything, segment_sum
-from rba.learn.pbrl import torch_threads
-
-log = logging.getLogger(__name__)
+from rba.learn.common import (
+    Normalizer,
+    Progress,
+    Ragged,
+    StepLoop,
+    bradley_terry_loss,
+    check_shape,
+    mlp,
+    seed_everything,
+    segment_sum,
+    torch_threads,
+)
 
 
 @dataclass
@@ -162,7 +168,7 @@ def training_pool(pairs: LocalPairs, reverse: bool) -> LocalPairs:
 
 
 def train_local_reward(data: Ragged, pairs: LocalPairs, attr_embed: np.ndarray, cfg: LocalRewardConfig,
-                       progress=None) -> tuple[LocalReward, dict]:
+                       progress: Progress | None = None) -> tuple[LocalReward, dict]:
     """Fit rθ on labelled pairs of ``data`` rows, with negatives drawn from all of ``data``."""
     if len(pairs) == 0:
         raise ValueError("no local-change pairs to train on; widen the change band or label more clips")
@@ -171,45 +177,46 @@ def train_local_reward(data: Ragged, pairs: LocalPairs, attr_embed: np.ndarray, 
 
 
 def _train(data: Ragged, pairs: LocalPairs, attr_embed: np.ndarray, cfg: LocalRewardConfig,
-           progress) -> tuple[LocalReward, dict]:
+           progress: Progress | None) -> tuple[LocalReward, dict]:
     gen = seed_everything(cfg.seed)
     pool = training_pool(pairs, cfg.reverse_pairs)
-    anchor, target = torch.as_tensor(pool.anchor), torch.as_tensor(pool.target)
-    attr, direction = torch.as_tensor(pool.attr), torch.as_tensor(pool.direction)
     model = LocalReward(data.states.shape[1], torch.as_tensor(attr_embed), cfg.hidden, cfg.layers,
                         cfg.lstm_hidden, cfg.lstm_layers, cfg.anchor_stride)
     model.norm.fit(data.states.numpy())
-    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    n, b = len(data), cfg.batch_pairs
-    loss_val = float("nan")
+    loop = StepLoop(torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay), cfg.steps,
+                    progress)
+    labelled = tuple(torch.as_tensor(x) for x in (pool.anchor, pool.target, pool.attr, pool.direction))
     model.train()
     for step in range(cfg.steps):
-        rows = torch.randint(len(pool), (b,), generator=gen)
-        c, t = anchor[rows], target[rows]
-        cols = [t.unsqueeze(1), torch.randint(n, (b, cfg.negatives), generator=gen)]
-        if cfg.anchor_negative:
-            cols.append(c.unsqueeze(1))
-        traj = torch.cat(cols, 1)  # [b, C]: the target first, then negatives
-        width = traj.shape[1]
-        valid = traj[:, 1:] != t.unsqueeze(1)
-        cond = model.condition(model.encode(data, c), attr[rows], direction[rows])
-        states, seg = data.select(traj.reshape(-1))
-        returns = segment_sum(model(states, cond, seg // width), seg, b * width).view(b, width)
-        margin = returns[:, :1] - returns[:, 1:]
-        loss = F.softplus(-margin)[valid].mean()  # Bradley-Terry: −log σ(R_t − R_n)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        loss_val = loss.item()
-        if progress and (step % 50 == 0 or step == cfg.steps - 1):
-            progress(step + 1, cfg.steps, loss_val)
+        loop.step(step, _batch_loss(model, data, labelled, cfg, gen))
     model.eval()
     with torch.no_grad():
         phi = model.encode_all(data)
         pair_dist = (phi[torch.as_tensor(pairs.anchor)] - phi[torch.as_tensor(pairs.target)]).norm(dim=1)
     near_copy = float(cfg.near_copy * pair_dist.median())
-    return model, {"labelled_pairs": len(pairs), "training_pairs": len(pool), "final_loss": round(loss_val, 5),
+    return model, {"labelled_pairs": len(pairs), "training_pairs": len(pool), "final_loss": round(loop.loss, 5),
                    "near_copy_radius": near_copy, "config": asdict(cfg)}
+
+
+def _batch_loss(model: LocalReward, data: Ragged, labelled: tuple[torch.Tensor, ...], cfg: LocalRewardConfig,
+                gen: torch.Generator) -> torch.Tensor:
+    """Bradley-Terry of a batch of pairs: each labelled target must out-score its pair's negatives.
+
+    ``labelled`` is the training pool as tensors (anchor, target, attr, direction).
+    """
+    anchor, target, attr, direction = labelled
+    b = cfg.batch_pairs
+    rows = torch.randint(len(anchor), (b,), generator=gen)
+    c, t = anchor[rows], target[rows]
+    cols = [t.unsqueeze(1), torch.randint(len(data), (b, cfg.negatives), generator=gen)]
+    if cfg.anchor_negative:
+        cols.append(c.unsqueeze(1))
+    traj = torch.cat(cols, 1)  # [b, C]: the target first, then negatives
+    width = traj.shape[1]
+    cond = model.condition(model.encode(data, c), attr[rows], direction[rows])
+    states, seg = data.select(traj.reshape(-1))
+    returns = segment_sum(model(states, cond, seg // width), seg, b * width).view(b, width)
+    return bradley_terry_loss(returns[:, :1], returns[:, 1:], mask=traj[:, 1:] != t.unsqueeze(1))
 
 
 def pair_metrics(scorer: LocalLibraryScorer, pairs: LocalPairs) -> dict[str, float]:

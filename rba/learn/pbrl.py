@@ -10,8 +10,6 @@ from __future__ import annotations
 import base64
 import itertools
 import math
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,18 +17,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from rba.learn.common import Ragged, check_shape, segment_sum
-
-
-@contextmanager
-def torch_threads(n: int) -> Iterator[None]:
-    """Run a block with ``n`` torch threads: small online updates are fastest on one (no sync cost)."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(n)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
+from rba.learn.common import Ragged, StepLoop, bradley_terry_loss, check_shape, segment_sum, torch_threads
 
 
 @dataclass
@@ -134,23 +121,18 @@ def _fit(model: RewardEnsemble, data: Ragged, labels: np.ndarray, cfg: PbRLConfi
     used, inverse = torch.unique(torch.cat([a_idx, b_idx]), return_inverse=True)
     sub_states, sub_seg = data.select(used)
     ia, ib = inverse[: len(a_idx)], inverse[len(a_idx):]
-    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    loop = StepLoop(torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay),
+                    cfg.steps_per_label)
     m, n_lab = model.members, len(labels)
-    loss_val = float("nan")
-    for _ in range(cfg.steps_per_label):
+    for step in range(cfg.steps_per_label):
         ret = segment_sum(model(sub_states), sub_seg, len(used))  # [M, U]
         if n_lab <= cfg.batch_pairs:
             rows = torch.arange(n_lab).expand(m, -1)
         else:
             rows = torch.randint(n_lab, (m, cfg.batch_pairs), generator=generator)
         member = torch.arange(m).unsqueeze(1).expand_as(rows)
-        logits = ret[member, ia[rows]] - ret[member, ib[rows]]
-        loss = F.binary_cross_entropy_with_logits(logits, pref[rows])
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        loss_val = loss.item()
-    return loss_val
+        loop.step(step, bradley_terry_loss(ret[member, ia[rows]], ret[member, ib[rows]], pref[rows]))
+    return loop.loss
 
 
 def choose_pair(ret: np.ndarray, cfg: PbRLConfig, asked: set[tuple[int, int]], rng: np.random.Generator

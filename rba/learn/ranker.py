@@ -7,24 +7,31 @@ once and never recovers. The last layer also starts small, so sums start near ze
 Trained with the Bradley-Terry loss (paper §4.2, eq. 3) on ``AttributeLabels``: for each
 attribute, which labelled trajectory shows more of it than which. By default they are the
 orderings by proxy of at most ``max_labelled`` ``train`` clips (the stand-in for an agent
-designer's labels); admins add orderings and comparisons of their own (``rba.labelsets``).
+designer's labels); admins add orderings and comparisons of their own (``rba.labels``).
 """
 
 from __future__ import annotations
 
-import logging
 from dataclasses import asdict, dataclass
 
 import numpy as np
 import torch
 from scipy.stats import kendalltau
 from torch import nn
-from torch.nn import functional as F
 
-from rba.learn.common import Normalizer, Ragged, check_shape, mlp, seed_everything, segment_sum
+from rba.labels import AttributeLabels
+from rba.learn.common import (
+    Normalizer,
+    Progress,
+    Ragged,
+    StepLoop,
+    bradley_terry_loss,
+    check_shape,
+    mlp,
+    seed_everything,
+    segment_sum,
+)
 from rba.library import SkillLibrary
-
-log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -90,62 +97,8 @@ class AttributeRanker(nn.Module):
         return self.score(Ragged.from_numpy(lib.states, lib.state_offsets))
 
 
-def labelled_subset(lib: SkillLibrary, max_labelled: int, seed: int) -> np.ndarray:
-    """Indices of the train clips an agent designer would label (a seeded random subset)."""
-    rng = np.random.default_rng(seed)
-    n = min(max_labelled, len(lib))
-    return np.sort(rng.choice(len(lib), size=n, replace=False))
-
-
-@dataclass
-class AttributeLabels:
-    """One attribute's labels: which labelled trajectory shows more of it than which."""
-
-    clips: np.ndarray  # int64[m]: the labelled trajectories (indices into the training data)
-    more: np.ndarray  # bool[m, m]: more[i, j] = clips[i] shows more of the attribute than clips[j]
-
-    def __post_init__(self) -> None:
-        m = len(self.clips)
-        if self.more.shape != (m, m):
-            raise ValueError(f"more must be [{m}, {m}], got {list(self.more.shape)}")
-        if (self.more & self.more.T).any():
-            raise ValueError("contradictory labels: some pair is labelled both ways")
-
-    @classmethod
-    def from_values(cls, clips: np.ndarray, values: np.ndarray) -> AttributeLabels:
-        """A total order by ``values`` (ties stay unlabelled): how proxies label clips."""
-        values = np.asarray(values, dtype=np.float64)
-        return cls(np.asarray(clips, dtype=np.int64), values[:, None] > values[None, :])
-
-    @classmethod
-    def from_pairs(cls, pairs: list[tuple[int, int]]) -> AttributeLabels:
-        """From (more, less) trajectory pairs; orderings become the pairs they imply."""
-        clips = np.unique(np.asarray(pairs, dtype=np.int64).reshape(-1))
-        pos = {int(c): i for i, c in enumerate(clips)}
-        more = np.zeros((len(clips), len(clips)), dtype=bool)
-        for hi, lo in pairs:
-            more[pos[int(hi)], pos[int(lo)]] = True
-        return cls(clips, more)
-
-    @property
-    def num_pairs(self) -> int:
-        return int(self.more.sum())
-
-
-def proxy_labels(lib: SkillLibrary, max_labelled: int, seed: int) -> list[AttributeLabels]:
-    """Every attribute's ordering, by proxy, of the same ``max_labelled`` clips of ``lib``."""
-    idx = labelled_subset(lib, max_labelled, seed)
-    return [AttributeLabels.from_values(idx, lib.proxies[idx, a]) for a in range(lib.proxies.shape[1])]
-
-
-def labelled_pairs_loss(scores: torch.Tensor, more: torch.Tensor) -> torch.Tensor:
-    """Bradley-Terry loss over every labelled pair (i more than j) of a batch."""
-    return F.binary_cross_entropy_with_logits((scores[:, None] - scores[None, :])[more],
-                                              torch.ones(int(more.sum())))
-
-
 def train_ranker(data: Ragged, labels: list[AttributeLabels], attr_embed: np.ndarray, cfg: RankerConfig,
-                 progress=None) -> tuple[AttributeRanker, dict]:
+                 progress: Progress | None = None) -> tuple[AttributeRanker, dict]:
     """Fit ζσ on ``labels`` (one entry per row of ``attr_embed``); returns the model and stats.
 
     Each step scores a batch of each attribute's labelled clips and takes the loss over every
@@ -161,10 +114,9 @@ def train_ranker(data: Ragged, labels: list[AttributeLabels], attr_embed: np.nda
     used = torch.as_tensor(np.unique(np.concatenate([lab.clips for lab in labels])))
     model.norm.fit(data.select(used)[0].numpy())
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(cfg.steps, 1))
+    loop = StepLoop(opt, cfg.steps, progress, torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(cfg.steps, 1)))
     clips = [torch.as_tensor(lab.clips) for lab in labels]
     more = [torch.as_tensor(lab.more) for lab in labels]
-    loss_val = float("nan")
     for step in range(cfg.steps):
         losses = []
         for a in range(len(labels)):
@@ -173,20 +125,14 @@ def train_ranker(data: Ragged, labels: list[AttributeLabels], attr_embed: np.nda
             if not pairs.any():
                 continue
             states, seg = data.select(clips[a][batch])
-            losses.append(labelled_pairs_loss(model.trajectory_scores(states, seg, len(batch), a), pairs))
-        if not losses:
-            continue
-        loss = sum(losses) / len(losses)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        sched.step()
-        loss_val = loss.item()
-        if progress and (step % 50 == 0 or step == cfg.steps - 1):
-            progress(step + 1, cfg.steps, loss_val)
+            scores = model.trajectory_scores(states, seg, len(batch), a)
+            losses.append(bradley_terry_loss(scores[:, None], scores[None, :], torch.ones(int(pairs.sum())),
+                                             mask=pairs))
+        if losses:
+            loop.step(step, sum(losses) / len(losses))
     model.eval()
     stats = {"labelled_clips": len(used), "labelled_pairs": [lab.num_pairs for lab in labels]}
-    return model, {**stats, "final_loss": round(loss_val, 5), "config": asdict(cfg)}
+    return model, {**stats, "final_loss": round(loop.loss, 5), "config": asdict(cfg)}
 
 
 def ranking_metrics(zeta: np.ndarray, proxies: np.ndarray, attribute_names) -> dict[str, dict[str, float]]:

@@ -1,12 +1,11 @@
 """A small convolutional VAE: 64x64 grayscale frames, 3 stacked as channels -> a latent state.
 
 The paper's lane-change states were images encoded this way; ``rba.domains.lane_change_image``
-uses the latent mean as the state the RBA models see.
+uses the latent mean as the state the RBA models see (``rba.training.train_frame_vae`` makes it).
 """
 
 from __future__ import annotations
 
-import logging
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -14,9 +13,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from rba.learn.common import check_shape, seed_everything
-
-log = logging.getLogger(__name__)
+from rba.learn.common import Progress, StepLoop, check_shape, seed_everything
 
 SIZE = 64  # frame side, pixels
 STACK = 3  # frames per input
@@ -67,30 +64,22 @@ class FrameVAE(nn.Module):
         return torch.cat(out).numpy() if out else np.zeros((0, self.latent), np.float32)
 
 
-def train_vae(frames: np.ndarray, cfg: VAEConfig, progress=None) -> tuple[FrameVAE, dict]:
+def train_vae(frames: np.ndarray, cfg: VAEConfig, progress: Progress | None = None) -> tuple[FrameVAE, dict]:
     """Fit the VAE on uint8 frames [N, 3, 64, 64]; returns the model and its final losses."""
     gen = seed_everything(cfg.seed)
     torch.set_num_threads(2)
     model = FrameVAE(cfg.latent)
-    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     data = torch.as_tensor(frames)
     n = len(data)
     steps = max(cfg.epochs * n // cfg.batch, 1)
-    recon_val = kl_val = float("nan")
+    loop = StepLoop(torch.optim.Adam(model.parameters(), lr=cfg.lr), steps, progress, report_every=100)
     for step in range(steps):
-        idx = torch.randint(n, (cfg.batch,), generator=gen)
-        x = data[idx].float() / 255.0
+        x = data[torch.randint(n, (cfg.batch,), generator=gen)].float() / 255.0
         mu, logvar = model.encode(x)
         z = mu + torch.randn(mu.shape, generator=gen) * (0.5 * logvar).exp()
         recon = F.binary_cross_entropy_with_logits(model.decode(z), x, reduction="sum") / len(x)
         kl = -0.5 * torch.sum(1 + logvar - mu.pow(2) - logvar.exp()) / len(x)
-        loss = recon + cfg.beta * kl
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        recon_val, kl_val = recon.item(), kl.item()
-        if progress and (step % 100 == 0 or step == steps - 1):
-            progress(step + 1, steps, recon_val + cfg.beta * kl_val)
+        loop.step(step, recon + cfg.beta * kl)
     model.eval()
-    return model, {"frames": n, "steps": steps, "reconstruction": round(recon_val, 2), "kl": round(kl_val, 2),
+    return model, {"frames": n, "steps": steps, "reconstruction": round(recon.item(), 2), "kl": round(kl.item(), 2),
                    "config": asdict(cfg)}
