@@ -13,10 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from rba.paths import data_dir, models_dir
 
 from rba.domains import domain_names, get_domain
 from rba.library import SPLITS, SkillLibrary
-from rba.paths import data_dir, models_dir
 
 PER_SPLIT = 4  # rollouts re-simulated per split: first, last and two in between (~2 s per domain)
 NEEDS = {"lane_change_image": "vae-frames.pt"}  # domains whose rollouts need a shipped model artifact
