@@ -35,6 +35,7 @@ from rba.learn.common import Progress, Ragged
 from rba.learn.global_reward import GlobalRewardConfig, LibraryScorer, train_global_reward
 from rba.learn.local_reward import (
     LocalLibraryScorer,
+    LocalReward,
     LocalRewardConfig,
     edit_metrics,
     pair_metrics,
@@ -304,7 +305,8 @@ def train_global(domain_name: str, rep: str, cfg: GlobalTrainConfig | None = Non
             "seconds": {"ranker": ranker_seconds, "global_reward": reward_seconds}}
 
 
-def _local_metrics(model, inputs: _Inputs, cfg: LocalTrainConfig, near_copy_radius: float) -> tuple[dict, dict]:
+def _local_metrics(model: LocalReward, inputs: _Inputs, cfg: LocalTrainConfig,
+                   near_copy_radius: float) -> tuple[dict, dict]:
     """(ranking of test pairs among test rollouts, what the agent would do: argmax over serve per test edit)."""
     eps = inputs.domain.epsilons()
     test = inputs.test

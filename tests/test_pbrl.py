@@ -1,6 +1,7 @@
 """The PbRL baseline on the toy domain: the ensemble, its query rule, the agent and evaluation."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -8,8 +9,8 @@ import torch
 
 from rba.domains import get_domain
 from rba.evaluate import evaluate, run_preference_trial
-from rba.interact import load_context, new_agent, restore_agent
-from rba.interact.pbrl_agent import PbRLContext, Preference, stride_states
+from rba.interact import Preference, load_context, new_agent, restore_agent
+from rba.interact.pbrl_agent import PbRLContext, stride_states
 from rba.interact.users import PreferenceTeacher
 from rba.learn.pbrl import PbRLConfig, RewardEnsemble, choose_pair, fit_preferences, returns
 
@@ -99,7 +100,7 @@ def test_bad_answers_give_clear_errors(ctx):
     agent.query_pair()
     with pytest.raises(ValueError, match="is not in the pending pair"):
         agent.update(Preference("serve-99999"))
-    with pytest.raises(ValueError, match="PbRL takes A/B answers"):
+    with pytest.raises(ValueError, match="this agent takes A/B answers"):
         agent.update([])
     with pytest.raises(ValueError, match="unknown representation 'braille'"):
         PbRLContext.load("toy", "braille")
@@ -120,7 +121,7 @@ def test_noisy_teacher_path_is_seeded(ctx):
 
 
 def test_cli_evaluates_pbrl_and_all_methods(toy_roots, tmp_path, monkeypatch, capsys):
-    from rba import embed
+    from rba import methods
     from rba.cli import main
     from rba.training import LocalTrainConfig, train_local
 
@@ -139,7 +140,8 @@ def test_cli_evaluates_pbrl_and_all_methods(toy_roots, tmp_path, monkeypatch, ca
     monkeypatch.setenv("RBA_MODELS_DIR", str(local_models))
     assert main(["eval", "--domain", "toy", "--method", "pbrl", "--targets", "2"]) == 0
     assert "| toy | pbrl | onehot | normal |" in capsys.readouterr().out
-    monkeypatch.setattr(embed, "REPRESENTATIONS", ("onehot",))
+    real = methods.get_method  # one-hot only: no language models were trained
+    monkeypatch.setattr(methods, "get_method", lambda name: replace(real(name), reps=real(name).reps[:1]))
     out = tmp_path / "all.json"
     assert main(["eval", "--domain", "toy", "--all-methods", "--targets", "2", "--json", str(out)]) == 0
     table = capsys.readouterr().out
