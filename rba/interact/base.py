@@ -1,9 +1,9 @@
 """The Agent contract (DESIGN §3) and the feedback records that drive it.
 
-An agent turns feedback into the next rollout to show. Each agent takes one kind of feedback
-(its ``feedback_kind``): more/less about attributes, or the answer to an A/B question. It never reads proxies. Its whole
-state is a JSON-able dict, so a web session survives a server restart; the heavy,
-shareable parts (models, the serve library) live in a separate *context* object.
+An agent turns feedback into the next rollout to show. It takes one kind of feedback (its
+``feedback_kind``): more/less about attributes, or the answer to an A/B question. It never
+reads proxies. Its whole state is a JSON-able dict, so a web session survives a server restart;
+the heavy, shareable parts (models, the serve library) live in a separate *context* object.
 """
 
 from __future__ import annotations

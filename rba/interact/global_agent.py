@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -29,7 +30,10 @@ from rba.learn.common import Ragged
 from rba.learn.global_reward import LibraryScorer
 from rba.library import SkillLibrary
 from rba.methods import Method
-from rba.training import PRESETS, GlobalTrainConfig, LabelSource, Progress, train_global
+from rba.training import PRESETS, GlobalTrainConfig, train_global
+
+if TYPE_CHECKING:
+    from rba.training import LabelSource, Progress
 
 MAX_PUSHES = 8  # doublings of the push step before giving up on a move
 GRID = 401  # belief grid points per attribute

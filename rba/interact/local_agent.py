@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -37,7 +38,10 @@ from rba.learn.common import Ragged
 from rba.learn.local_reward import LocalLibraryScorer
 from rba.library import SkillLibrary
 from rba.methods import Method
-from rba.training import PRESETS, LabelSource, LocalTrainConfig, Progress, train_local
+from rba.training import PRESETS, LocalTrainConfig, train_local
+
+if TYPE_CHECKING:
+    from rba.training import LabelSource, Progress
 
 
 @dataclass
