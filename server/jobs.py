@@ -135,7 +135,7 @@ def run_job(job_id: str, settings_json: dict, registry: dict[str, str]) -> None:
     for name, target in registry.items():
         register(name, target)
     from server.db import make_engine
-    from server.labelling import job_sources
+    from server.labeldata import job_sources
 
     settings = Settings(**settings_json)
     tail = _Tail()
@@ -152,7 +152,8 @@ def run_job(job_id: str, settings_json: dict, registry: dict[str, str]) -> None:
         with Session(engine) as db:
             job = db.get(TrainJob, job_id)
             domain, method, rep, preset = job.domain, job.method, job.rep, job.preset
-            sources = job_sources(db, settings, domain, list(job.datasets), job.include_page_labels)
+            sources = job_sources(db, uploads_dir(settings, domain), domain, list(job.datasets),
+                                  job.include_page_labels)
         shutil.rmtree(tmp, ignore_errors=True)
         if method == "local":
             metrics = train_local(domain, rep, LocalTrainConfig.preset(preset), data_root=settings.data_dir,

@@ -15,6 +15,8 @@ from pydantic import BaseModel, field_validator, model_validator
 from sqlalchemy import JSON, Column, DateTime, UniqueConstraint
 from sqlmodel import Field, SQLModel
 
+from server.feedback import check_kind
+
 
 def utcnow() -> dt.datetime:
     return dt.datetime.now(dt.UTC)
@@ -97,12 +99,11 @@ class FeedbackCreate(BaseModel):
 
     @model_validator(mode="after")
     def _one_kind(self) -> FeedbackCreate:
-        if self.satisfied and self.feedback:
-            raise ValueError("give either 'feedback' or 'satisfied': true, not both")
-        if not self.satisfied and not self.feedback:
-            raise ValueError("give 'feedback': [{'attribute': ..., 'direction': 'more' | 'less'}] "
-                             "or 'satisfied': true")
+        check_kind(self.satisfied, bool(self.feedback))
         return self
+
+    def choices(self) -> list[tuple[str, str]]:
+        return [(c.attribute, c.direction) for c in self.feedback or ()]
 
 
 class AttributePublic(BaseModel):

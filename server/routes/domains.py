@@ -9,8 +9,8 @@ from server.admin_models import BUILTIN_VERSION
 from server.catalog import attribute_methods
 from server.deps import DbDep, ServicesDep
 from server.models import DomainPublic, DomainsPublic, MethodPublic
-from server.sessions import attributes_public
 from server.versions import active_version
+from server.views import attributes_public
 
 router = APIRouter(prefix="/api/domains", tags=["domains"])
 

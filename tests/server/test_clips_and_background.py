@@ -12,7 +12,7 @@ from server import transitions
 from server.background import Background
 from server.clips import ClipCache, ClipKey
 from server.main import create_app
-from server.sessions import candidate_order
+from server.prerender import candidate_order
 from tests.server.conftest import more
 
 
