@@ -1,4 +1,10 @@
-"""SQL tables and API models of the admin side: datasets, labels, attributes, training jobs, model versions."""
+"""SQL tables and API models of the admin side: datasets, labels, attributes, training jobs, model versions.
+
+One family per entity, as SQLModel's template has it: ``XBase`` holds the fields the table and
+the API share; ``X(XBase, table=True)`` adds the keys and bookkeeping columns; ``XPublic(XBase)``
+adds what the API shows beyond them (and ``XCreate`` is the request body). Column names and
+types are those the tables always had, so existing SQLite and PostgreSQL databases keep working.
+"""
 
 from __future__ import annotations
 

@@ -2,6 +2,7 @@
 
 SQLModel's Base / table / Create / Public split: the table classes hold what must survive a
 restart (the agent's JSON state included); the Public classes are what the API returns.
+Imports only ``server.feedback`` (the body's feedback rule), so every other module may import it.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
-"""What the public API shows of a session, a clip and a domain's attributes (read-only, no transactions).
+"""What the public API shows of domains, sessions and clips (read-only, no transactions).
 
-Import direction: above ``server.services`` (it reads the catalog and the clip cache through it),
-below ``server.sessions`` and the routes; it never imports either.
+Import direction: above ``server.services`` (it reads the catalog and the clip cache through it)
+and ``server.versions``, below ``server.sessions`` and the routes; it never imports either.
 """
 
 from __future__ import annotations
@@ -11,19 +11,26 @@ from urllib.parse import quote
 from sqlmodel import Session, select
 
 from rba.domains import Domain
+from rba.embed import REPRESENTATIONS
 from rba.interact import SATISFIED
 from rba.library import LibraryNotFoundError
+from server.admin_models import BUILTIN_VERSION
+from server.catalog import attribute_methods
 from server.models import (
     AttributeChoice,
     AttributePublic,
     ClipPublic,
+    DomainPublic,
+    DomainsPublic,
     FeedbackEvent,
     FeedbackPublic,
+    MethodPublic,
     SessionPublic,
     SessionStatus,
     TuningSession,
 )
 from server.services import Services
+from server.versions import active_version
 
 
 def clip_url(domain: str, rollout_id: str) -> str:
@@ -85,3 +92,18 @@ def session_public(svc: Services, db: Session, s: TuningSession) -> SessionPubli
                          attributes=attributes_public(domain, svc, specs),
                          clip=clip_public(svc, s.domain, s.current_rollout_id),
                          history=history_public(svc, db, s), created_at=s.created_at, updated_at=s.updated_at)
+
+
+def domains_public(svc: Services, db: Session) -> DomainsPublic:
+    """Every domain with its attributes and the method/rep pairs new sessions can get."""
+    domains = []
+    for name in svc.catalog.names():
+        domain = svc.catalog.domain(name)
+        pairs = dict.fromkeys(svc.catalog.available(name))  # the shipped models, then the active version's
+        active = active_version(db, name)
+        if active != BUILTIN_VERSION:
+            pairs |= dict.fromkeys(svc.catalog.available(name, active))
+        available = [MethodPublic(method=m, rep=r) for m, r in pairs]
+        domains.append(DomainPublic(name=name, attributes=attributes_public(domain), frame_rate=domain.frame_rate,
+                                    available=available, missing=svc.catalog.missing_reason(name)))
+    return DomainsPublic(domains=domains, methods=list(attribute_methods()), reps=list(REPRESENTATIONS))
