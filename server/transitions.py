@@ -79,4 +79,3 @@ class Transitions:
             while len(self._memo) > self.maxsize:
                 self._memo.popitem(last=False)
         return rollout_id, copy.deepcopy(new_state)
-
