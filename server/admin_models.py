@@ -1,4 +1,10 @@
-"""SQL tables and API models of the admin side: datasets, labels, attributes, training jobs, model versions."""
+"""SQL tables and API models of the admin side: datasets, labels, attributes, training jobs, model versions.
+
+One family per entity, as SQLModel's template has it: ``XBase`` holds the fields the table and
+the API share; ``X(XBase, table=True)`` adds the keys and bookkeeping columns; ``XPublic(XBase)``
+adds what the API shows beyond them (and ``XCreate`` is the request body). Column names and
+types are those the tables always had, so existing SQLite and PostgreSQL databases keep working.
+"""
 
 from __future__ import annotations
 
@@ -25,118 +31,92 @@ def _time_column() -> Any:
     return Field(default_factory=utcnow, sa_column=Column(DateTime(timezone=True), nullable=False))
 
 
-class Dataset(SQLModel, table=True):
-    """An uploaded .npz of trajectories + JSON of labels, stored as data/uploads/<domain>/<id>.{npz,json}."""
+# -- datasets -------------------------------------------------------------------------------------
 
-    __tablename__ = "rba_dataset"
-
-    id: str = Field(primary_key=True, max_length=40, description="content hash of the two files")
+class DatasetBase(SQLModel):
     domain: str = Field(max_length=64, index=True)
     filename: str = Field(max_length=200, description="the uploader's file name, for display only")
     trajectories: int
     labels: int
     new_attributes: list[str] = Field(sa_column=Column(JSON, nullable=False))
+
+
+class Dataset(DatasetBase, table=True):
+    """An uploaded .npz of trajectories + JSON of labels, stored as data/uploads/<domain>/<id>.{npz,json}."""
+
+    __tablename__ = "rba_dataset"
+
+    id: str = Field(primary_key=True, max_length=40, description="content hash of the two files")
     created_at: dt.datetime = _time_column()
 
 
-class AttributeDef(SQLModel, table=True):
+class DatasetPublic(DatasetBase):
+    id: str
+    created_at: dt.datetime
+    duplicate: bool = False
+
+    _utc = field_validator("created_at")(as_utc)
+
+
+# -- attributes admins added ----------------------------------------------------------------------
+
+class AttributeDefBase(SQLModel):
+    domain: str = Field(max_length=64, index=True)
+    name: str = Field(max_length=32)
+    description: str = Field(max_length=300)
+
+
+class AttributeDef(AttributeDefBase, table=True):
     """An attribute an admin added to a domain (the domain's own ones live in its module)."""
 
     __tablename__ = "rba_attribute"
     __table_args__ = (UniqueConstraint("domain", "name", name="uq_attribute_domain_name"),)
 
     id: int | None = Field(default=None, primary_key=True)
-    domain: str = Field(max_length=64, index=True)
-    name: str = Field(max_length=32)
-    description: str = Field(max_length=300)
     created_at: dt.datetime = _time_column()
 
 
-class LabelRecord(SQLModel, table=True):
+class AttributeCreate(NewAttribute):
+    """Body of POST /api/admin/attributes (the library's rules for a new attribute's name and description)."""
+
+    domain: str
+
+
+class AttributeDefPublic(SQLModel):
+    """One attribute of a domain, as the admin page lists them."""
+
+    name: str
+    description: str
+    added: bool = Field(description="added by an admin (else the domain's own)")
+
+
+class AttributeAddedPublic(AttributeDefPublic):
+    """Response of POST /api/admin/attributes."""
+
+    domain: str
+
+
+class AttributesPublic(SQLModel):
+    domain: str
+    attributes: list[AttributeDefPublic]
+
+
+# -- labels made on the page ----------------------------------------------------------------------
+
+class LabelBase(SQLModel):
+    domain: str = Field(max_length=64, index=True)
+    kind: str = Field(max_length=16)
+    attribute: str = Field(max_length=32)
+    payload: dict[str, Any] = Field(sa_column=Column(JSON, nullable=False))
+
+
+class LabelRecord(LabelBase, table=True):
     """One label made on the admin page (saved as it is made): an ordering, a comparison or a local change."""
 
     __tablename__ = "rba_label"
 
     id: int | None = Field(default=None, primary_key=True)
-    domain: str = Field(max_length=64, index=True)
-    kind: str = Field(max_length=16)
-    attribute: str = Field(max_length=32)
-    payload: dict[str, Any] = Field(sa_column=Column(JSON, nullable=False))
     created_at: dt.datetime = _time_column()
-
-
-class JobState(enum.StrEnum):
-    queued = "queued"
-    running = "running"
-    succeeded = "succeeded"
-    failed = "failed"
-    cancelled = "cancelled"
-
-
-FINISHED = (JobState.succeeded, JobState.failed, JobState.cancelled)
-
-
-def new_job_id() -> str:
-    return uuid.uuid4().hex
-
-
-class TrainJob(SQLModel, table=True):
-    """A retraining run in its own process; ``busy_domain`` (unique) makes one job per domain at a time."""
-
-    __tablename__ = "rba_train_job"
-
-    id: str = Field(default_factory=new_job_id, primary_key=True, max_length=32)
-    domain: str = Field(max_length=64, index=True)
-    busy_domain: str | None = Field(default=None, max_length=64, unique=True)
-    method: str = Field(max_length=32)
-    rep: str = Field(max_length=32)
-    preset: str = Field(max_length=16)
-    datasets: list[str] = Field(sa_column=Column(JSON, nullable=False))
-    include_page_labels: bool = True
-    state: str = Field(default=JobState.queued.value, max_length=16)
-    stage: str = Field(default="", max_length=64)
-    step: int = 0
-    total: int = 0
-    loss: float | None = None
-    held_out: dict[str, Any] | None = Field(default=None, sa_column=Column(JSON))
-    log_tail: str = Field(default="", sa_column=Column(Text, nullable=False))
-    error: str | None = Field(default=None, sa_column=Column(Text))
-    version: str | None = Field(default=None, max_length=64)
-    created_at: dt.datetime = _time_column()
-    updated_at: dt.datetime = _time_column()
-
-
-class ModelVersion(SQLModel, table=True):
-    """Models a job wrote under models/versions/<version>/<domain>/."""
-
-    __tablename__ = "rba_model_version"
-
-    version: str = Field(primary_key=True, max_length=64)
-    domain: str = Field(max_length=64, index=True)
-    method: str = Field(max_length=32)
-    rep: str = Field(max_length=32)
-    job_id: str = Field(max_length=32)
-    attributes: list[str] = Field(sa_column=Column(JSON, nullable=False))
-    held_out: dict[str, Any] = Field(sa_column=Column(JSON, nullable=False))
-    created_at: dt.datetime = _time_column()
-
-
-class ActiveModel(SQLModel, table=True):
-    """Which version new sessions of a domain get (no row: the built-in models)."""
-
-    __tablename__ = "rba_active_model"
-
-    domain: str = Field(primary_key=True, max_length=64)
-    version: str = Field(max_length=64)
-    updated_at: dt.datetime = _time_column()
-
-
-# -- API bodies and responses -------------------------------------------------------------------
-
-class AttributeCreate(NewAttribute):
-    """Body of POST /api/admin/attributes."""
-
-    domain: str
 
 
 class LabelCreate(BaseModel):
@@ -155,28 +135,108 @@ class LabelCreate(BaseModel):
         return given[0]
 
 
-class LabelPublic(BaseModel):
+class LabelPublic(LabelBase):
     id: int
-    domain: str
-    kind: str
-    attribute: str
-    payload: dict[str, Any]
     created_at: dt.datetime
 
     _utc = field_validator("created_at")(as_utc)
 
 
-class DatasetPublic(BaseModel):
-    id: str
-    domain: str
-    filename: str
-    trajectories: int
-    labels: int
-    new_attributes: list[str]
-    created_at: dt.datetime
-    duplicate: bool = False
+class ClipToLabel(SQLModel):
+    rollout_id: str
+    url: str
 
-    _utc = field_validator("created_at")(as_utc)
+
+class ClipsToLabelPublic(SQLModel):
+    """Response of GET /api/admin/pairs: serve clips to label next."""
+
+    domain: str
+    clips: list[ClipToLabel]
+
+
+# -- training jobs --------------------------------------------------------------------------------
+
+class JobState(enum.StrEnum):
+    queued = "queued"
+    running = "running"
+    succeeded = "succeeded"
+    failed = "failed"
+    cancelled = "cancelled"
+
+
+FINISHED = (JobState.succeeded, JobState.failed, JobState.cancelled)
+
+
+def new_job_id() -> str:
+    return uuid.uuid4().hex
+
+
+class TrainJobBase(SQLModel):
+    """What a job trains and how far it got: the fields its table and its API view share."""
+
+    domain: str = Field(max_length=64, index=True)
+    method: str = Field(max_length=32)
+    rep: str = Field(max_length=32)
+    preset: str = Field(max_length=16)
+    datasets: list[str] = Field(sa_column=Column(JSON, nullable=False))
+    stage: str = Field(default="", max_length=64)
+    step: int = 0
+    total: int = 0
+    loss: float | None = None
+    held_out: dict[str, Any] | None = Field(default=None, sa_column=Column(JSON))
+    log_tail: str = Field(default="", sa_column=Column(Text, nullable=False))
+    error: str | None = Field(default=None, sa_column=Column(Text))
+    version: str | None = Field(default=None, max_length=64)
+
+
+class TrainJob(TrainJobBase, table=True):
+    """A retraining run in its own process; ``busy_domain`` (unique) makes one job per domain at a time."""
+
+    __tablename__ = "rba_train_job"
+
+    id: str = Field(default_factory=new_job_id, primary_key=True, max_length=32)
+    busy_domain: str | None = Field(default=None, max_length=64, unique=True)
+    include_page_labels: bool = True
+    state: str = Field(default=JobState.queued.value, max_length=16)
+    created_at: dt.datetime = _time_column()
+    updated_at: dt.datetime = _time_column()
+
+
+# -- model versions -------------------------------------------------------------------------------
+
+class ModelVersionBase(SQLModel):
+    version: str = Field(primary_key=True, max_length=64)
+    domain: str = Field(max_length=64, index=True)
+    method: str = Field(max_length=32)
+    rep: str = Field(max_length=32)
+    attributes: list[str] = Field(sa_column=Column(JSON, nullable=False))
+    held_out: dict[str, Any] = Field(sa_column=Column(JSON, nullable=False))
+
+
+class ModelVersion(ModelVersionBase, table=True):
+    """Models a job wrote under models/versions/<version>/<domain>/."""
+
+    __tablename__ = "rba_model_version"
+
+    job_id: str = Field(max_length=32)
+    created_at: dt.datetime = _time_column()
+
+
+class VersionPublic(ModelVersionBase):
+    active: bool
+    created_at: dt.datetime | None = Field(description="none for the built-in models")
+
+    _utc = field_validator("created_at")(lambda v: None if v is None else as_utc(v))
+
+
+class ActiveModel(SQLModel, table=True):
+    """Which version new sessions of a domain get (no row: the built-in models)."""
+
+    __tablename__ = "rba_active_model"
+
+    domain: str = Field(primary_key=True, max_length=64)
+    version: str = Field(max_length=64)
+    updated_at: dt.datetime = _time_column()
 
 
 def _one_of(valid: tuple[str, ...]) -> str:
@@ -216,37 +276,11 @@ class TrainCreate(BaseModel):
     _preset = field_validator("preset", mode="before")(_registry_choice(train_presets))
 
 
-class JobPublic(BaseModel):
+class JobPublic(TrainJobBase):
     id: str
-    domain: str
-    method: str
-    rep: str
-    preset: str
-    datasets: list[str]
     state: JobState
-    stage: str
-    step: int
-    total: int
     progress: float
-    loss: float | None
-    held_out: dict[str, Any] | None
-    log_tail: str
-    error: str | None
-    version: str | None
     created_at: dt.datetime
     updated_at: dt.datetime
 
     _utc = field_validator("created_at", "updated_at")(as_utc)
-
-
-class VersionPublic(BaseModel):
-    version: str
-    domain: str
-    method: str
-    rep: str
-    attributes: list[str]
-    held_out: dict[str, Any]
-    active: bool
-    created_at: dt.datetime | None
-
-    _utc = field_validator("created_at")(lambda v: None if v is None else as_utc(v))

@@ -51,12 +51,6 @@ class Catalog:
             raise not_found(f"unknown domain {name!r}; valid: {', '.join(domain_names())}")
         return get_domain(name)
 
-    def check_attribute(self, domain: Domain, name: str, valid: tuple[str, ...] | None = None) -> None:
-        valid = valid or domain.attribute_names
-        if name not in valid:
-            raise invalid(f"unknown attribute {name!r} for {domain.name}; valid: {', '.join(valid)}; "
-                          "directions: more, less")
-
     # -- model versions --------------------------------------------------------------------
     def models(self, version: str = BUILTIN_VERSION) -> ModelFiles:
         """A version's models: the shipped ones, or those a job published."""

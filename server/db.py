@@ -1,15 +1,21 @@
-"""The SQL engine: SQLite (default, WAL, usable from many threads) or PostgreSQL via psycopg 3."""
+"""The SQL engine: SQLite (default, WAL, usable from many threads) or PostgreSQL via psycopg 3.
+
+Sits low: it imports only the tables and ``server.errors``.
+"""
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from pathlib import Path
 
 from sqlalchemy import event, inspect, text
 from sqlalchemy.engine import Engine, make_url
-from sqlmodel import SQLModel, create_engine
+from sqlalchemy.exc import IntegrityError
+from sqlmodel import Session, SQLModel, create_engine
 
 from server import admin_models, models  # noqa: F401  (registers the tables on SQLModel.metadata)
+from server.errors import conflict
 
 log = logging.getLogger(__name__)
 
@@ -48,3 +54,15 @@ def _add_columns(engine: Engine) -> None:
             with engine.begin() as conn:
                 conn.execute(text(f"ALTER TABLE {table} ADD COLUMN {column} {ddl}"))
             log.info("database: added %s.%s", table, column)
+
+
+def commit_or_conflict(db: Session, detail: str | Callable[[], str]) -> None:
+    """Commit; if a unique constraint says another request got there first, roll back and answer 409 ``detail``.
+
+    ``detail`` may be a function, called after the rollback, to name what won (it may query ``db``).
+    """
+    try:
+        db.commit()
+    except IntegrityError as exc:
+        db.rollback()
+        raise conflict(detail() if callable(detail) else detail) from exc

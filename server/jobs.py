@@ -132,7 +132,7 @@ def run_job(job_id: str, settings_json: dict, registry: dict[str, str], method_r
     for name, target in method_registry.items():
         methods.register(name, target)
     from server.db import make_engine
-    from server.labelling import job_sources
+    from server.labeldata import job_sources
 
     settings = Settings(**settings_json)
     tail = _Tail()
@@ -150,7 +150,7 @@ def run_job(job_id: str, settings_json: dict, registry: dict[str, str], method_r
         with Session(engine) as db:
             job = db.get(TrainJob, job_id)
             domain, method, rep, preset = job.domain, job.method, job.rep, job.preset
-            sources = job_sources(db, store, domain, list(job.datasets), job.include_page_labels)
+            sources = job_sources(db, store.uploads(domain), domain, list(job.datasets), job.include_page_labels)
         store.discard(job_id)
         metrics = methods.get_method(method).trainer(domain, rep, preset, data_root=store.data_dir,
                                                      models_root=tmp, sources=sources, on_progress=progress)

@@ -1,17 +1,23 @@
-"""Admin operations on labels: attributes, page labels, uploaded datasets, and what a job trains on.
+"""Admin operations on labels: attributes, page labels, uploaded datasets, and clips to label.
 
 Uploads are checked completely before anything is written; then the two files are stored
 atomically under ``data/uploads/<domain>/<content hash>.{npz,json}`` and recorded in one
 transaction. The uploader's file name is kept for display only: paths come from the hash.
+
+Import direction: above ``server.services``, ``server.labeldata`` (the stored label data it shares
+with training jobs), ``server.views`` and ``server.uploads`` (the checks); only routes and
+``server.training`` import it.
 """
 
 from __future__ import annotations
 
 import hashlib
 import logging
+import random
 import shutil
 import tempfile
 from collections.abc import AsyncIterator
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -21,16 +27,29 @@ from sqlmodel import Session, select
 from starlette.datastructures import UploadFile
 from starlette.formparsers import MultiPartException, MultiPartParser
 
-from rba.labels import LabelSet, NewAttribute
+from rba.domains import Domain
+from rba.labels import LabelSet
 from rba.library import SkillLibrary
-from rba.storage import load_npz, save_npz, save_text
-from rba.store import Store
-from rba.training import LabelSource
-from server.admin_models import AttributeDef, Dataset, DatasetPublic, LabelCreate, LabelRecord
-from server.errors import invalid
+from rba.storage import save_npz, save_text
+from server.admin_models import (
+    AttributeAddedPublic,
+    AttributeDef,
+    AttributeDefPublic,
+    AttributesPublic,
+    ClipsToLabelPublic,
+    ClipToLabel,
+    Dataset,
+    DatasetPublic,
+    LabelCreate,
+    LabelRecord,
+)
+from server.db import commit_or_conflict
+from server.errors import conflict, invalid
+from server.labeldata import LABEL_GROUPS, declared_attributes
 from server.services import Services
 from server.settings import Settings
 from server.uploads import UploadLimits, check_labels, check_npz
+from server.views import clip_url
 
 log = logging.getLogger(__name__)
 
@@ -43,12 +62,7 @@ class UploadProblems(HTTPException):
         self.problems = problems
 
 
-# -- what exists ----------------------------------------------------------------------------------
-
-def declared_attributes(db: Session, domain: str) -> dict[str, str]:
-    rows = db.exec(select(AttributeDef).where(AttributeDef.domain == domain)).all()
-    return {r.name: r.description for r in rows}
-
+# -- attributes -----------------------------------------------------------------------------------
 
 def library_ids(svc: Services, domain: str) -> frozenset[str]:
     """Rollouts labels may refer to: ``train`` and ``serve`` (``test`` stays held out)."""
@@ -56,19 +70,24 @@ def library_ids(svc: Services, domain: str) -> frozenset[str]:
                      for rid in SkillLibrary.load(domain, split, svc.store.data_dir).ids)
 
 
-def add_attribute(svc: Services, db: Session, domain: str, name: str, description: str) -> AttributeDef:
+def list_attributes(svc: Services, db: Session, domain: str) -> AttributesPublic:
+    """The domain's own attributes, then those admins added."""
+    d = svc.catalog.domain(domain)
+    own = [AttributeDefPublic(name=a.name, description=a.description, added=False) for a in d.attributes]
+    added = [AttributeDefPublic(name=n, description=desc, added=True)
+             for n, desc in declared_attributes(db, d.name).items()]
+    return AttributesPublic(domain=d.name, attributes=own + added)
+
+
+def add_attribute(svc: Services, db: Session, domain: str, name: str, description: str) -> AttributeAddedPublic:
     d = svc.catalog.domain(domain)
     if name in d.attribute_names:
-        raise HTTPException(409, f"{name!r} is already an attribute of {domain}")
+        raise conflict(f"{name!r} is already an attribute of {domain}")
     row = AttributeDef(domain=domain, name=name, description=description)
     db.add(row)
-    try:
-        db.commit()
-    except IntegrityError as e:
-        db.rollback()
-        raise HTTPException(409, f"attribute {name!r} of {domain} exists already") from e
+    commit_or_conflict(db, f"attribute {name!r} of {domain} exists already")
     db.refresh(row)
-    return row
+    return AttributeAddedPublic(domain=row.domain, name=row.name, description=row.description, added=True)
 
 
 # -- labels made on the page --------------------------------------------------------------------
@@ -79,8 +98,7 @@ def add_label(svc: Services, db: Session, body: LabelCreate) -> LabelRecord:
         kind, item = body.label()
     except ValueError as e:
         raise invalid(str(e)) from e
-    key = {"ordering": "orderings", "comparison": "comparisons", "local_change": "local_changes"}[kind]
-    labels = LabelSet.model_validate({key: [item.model_dump()]})
+    labels = LabelSet.model_validate({LABEL_GROUPS[kind]: [item.model_dump()]})
     problems = labels.problems(declared_attributes(db, d.name), library_ids(svc, d.name), d.attribute_names)
     if problems:
         raise invalid("; ".join(problems))
@@ -91,13 +109,40 @@ def add_label(svc: Services, db: Session, body: LabelCreate) -> LabelRecord:
     return row
 
 
-def page_labels(db: Session, domain: str) -> LabelSet:
-    rows = db.exec(select(LabelRecord).where(LabelRecord.domain == domain).order_by(LabelRecord.id)).all()
-    groups: dict[str, list] = {"orderings": [], "comparisons": [], "local_changes": []}
-    for r in rows:
-        groups[{"ordering": "orderings", "comparison": "comparisons", "local_change": "local_changes"}[r.kind]].append(
-            r.payload)
-    return LabelSet.model_validate(groups)
+def list_labels(db: Session, domain: str, attribute: str | None, limit: int) -> list[LabelRecord]:
+    """The newest ``limit`` page labels of ``domain`` (of one ``attribute``, if given)."""
+    q = select(LabelRecord).where(LabelRecord.domain == domain)
+    if attribute:
+        q = q.where(LabelRecord.attribute == attribute)
+    return list(db.exec(q.order_by(LabelRecord.id.desc()).limit(limit)).all())  # type: ignore[union-attr]
+
+
+def nearest(proxies: np.ndarray, anchor: int, k: int) -> list[int]:
+    """The ``k`` rollouts closest to ``anchor`` in measured attributes (each scaled to its range), not itself."""
+    span = proxies.max(0) - proxies.min(0) + 1e-9
+    dist = (((proxies - proxies[anchor]) / span) ** 2).sum(1)
+    return [int(i) for i in dist.argsort()[1:k + 1]]
+
+
+def clips_to_label(svc: Services, db: Session, domain: str, size: int, anchor: bool,
+                   seed: int | None) -> ClipsToLabelPublic:
+    """``size`` random serve clips (seeded by ``seed``, else by how many labels exist: a reload shows the same).
+
+    With ``anchor``, the first clip is an anchor and the others its nearest neighbours in the
+    library's measured attributes: candidates for "the same, but a little more α".
+    """
+    d = svc.catalog.domain(domain)
+    lib = svc.catalog.library(d.name)
+    if seed is None:
+        seed = len(db.exec(select(LabelRecord.id).where(LabelRecord.domain == d.name)).all())
+    rng = random.Random(seed)
+    if anchor:
+        a = rng.randrange(len(lib))
+        picks = [a, *nearest(lib.proxies, a, size - 1)]
+    else:
+        picks = rng.sample(range(len(lib)), size)
+    ids = [lib.ids[i] for i in picks]
+    return ClipsToLabelPublic(domain=d.name, clips=[ClipToLabel(rollout_id=r, url=clip_url(d.name, r)) for r in ids])
 
 
 # -- uploads --------------------------------------------------------------------------------------
@@ -131,8 +176,24 @@ def _limits(settings: Settings) -> UploadLimits:
     return UploadLimits(max_bytes=settings.upload_max_bytes, max_uncompressed=settings.upload_max_uncompressed)
 
 
-async def store_upload(svc: Services, db: Session, form: dict) -> tuple[DatasetPublic, bool]:
-    """Check everything, then store; returns the dataset and whether it was new."""
+@dataclass
+class CheckedUpload:
+    """What an upload's two files hold once read, and every problem found in them."""
+
+    filename: str  # the uploader's, for display only
+    trajectories: dict[str, np.ndarray] = field(default_factory=dict)
+    npz_bytes: bytes = b""
+    labels: LabelSet | None = None
+    labels_json: bytes = b""  # canonical: what is stored and hashed
+    problems: list[str] = field(default_factory=list)
+
+    def dataset_id(self, domain: str) -> str:
+        """The content hash the dataset is stored and recorded under."""
+        digest = hashlib.sha256(domain.encode() + b"\0" + hashlib.sha256(self.npz_bytes).digest() + self.labels_json)
+        return digest.hexdigest()[:32]
+
+
+def _form_files(svc: Services, form: dict) -> tuple[Domain, UploadFile, UploadFile | None]:
     domain_name = form.get("domain")
     if not isinstance(domain_name, str) or not domain_name:
         raise invalid("field 'domain' is required (e.g. walker)")
@@ -142,52 +203,54 @@ async def store_upload(svc: Services, db: Session, form: dict) -> tuple[DatasetP
         raise invalid("field 'labels' must be a JSON file")
     if npz_file is not None and not isinstance(npz_file, UploadFile):
         raise invalid("field 'trajectories' must be an .npz file")
-    limits = _limits(svc.settings)
-    problems: list[str] = []
-    with tempfile.TemporaryDirectory(prefix="rba-upload-") as tmp:
-        npz_path = Path(tmp) / "upload.npz"  # our name, never the uploader's
-        trajectories: dict[str, np.ndarray] = {}
-        npz_bytes = b""
-        if npz_file is not None:
-            with npz_path.open("wb") as out:
-                shutil.copyfileobj(npz_file.file, out)
-            npz_bytes = npz_path.read_bytes()
-            if not npz_bytes:
-                problems.append("trajectories: the file is empty")
-            else:
-                trajectories, found = check_npz(npz_path, domain.state_dim, limits)
-                problems += found
-        labels, labels_json, found = check_labels(await labels_file.read(), limits.max_bytes)
-        problems += found
-    if labels is not None:
-        library = library_ids(svc, domain.name)
-        clash = sorted(set(trajectories) & library)
-        problems += [f"trajectory name {c!r} is also a library rollout id; rename it" for c in clash[:5]]
-        problems += labels.problems(declared_attributes(db, domain.name), library | set(trajectories),
-                                    domain.attribute_names)
-        if not labels.size() and labels.new_attributes:  # problems() reports a wholly empty set itself
-            problems.append("labels: no orderings, comparisons or local_changes to learn from")
-    if problems:
-        raise UploadProblems(problems)
-    digest = hashlib.sha256(domain.name.encode() + b"\0" + hashlib.sha256(npz_bytes).digest() + labels_json)
-    dataset_id = digest.hexdigest()[:32]
-    existing = db.get(Dataset, dataset_id)
-    if existing is not None:
-        return DatasetPublic(**existing.model_dump(), duplicate=True), False
-    uploads = svc.store.uploads(domain.name)
-    if trajectories:
-        save_npz(uploads.trajectories(dataset_id), trajectories)
-    save_text(uploads.labels(dataset_id), labels_json.decode())
+    return domain, labels_file, npz_file
+
+
+async def _read_files(labels_file: UploadFile, npz_file: UploadFile | None, state_dim: int,
+                      limits: UploadLimits) -> CheckedUpload:
+    """Both files read and checked on their own (the .npz through a temporary file of our naming)."""
     filename = (getattr(labels_file, "filename", None) or "labels.json")[:200]
     if npz_file is not None:
         filename = (npz_file.filename or "trajectories.npz")[:200]
-    row = Dataset(id=dataset_id, domain=domain.name, filename=filename, trajectories=len(trajectories),
+    upload = CheckedUpload(filename)
+    with tempfile.TemporaryDirectory(prefix="rba-upload-") as tmp:
+        npz_path = Path(tmp) / "upload.npz"  # our name, never the uploader's
+        if npz_file is not None:
+            with npz_path.open("wb") as out:
+                shutil.copyfileobj(npz_file.file, out)
+            upload.npz_bytes = npz_path.read_bytes()
+            if not upload.npz_bytes:
+                upload.problems.append("trajectories: the file is empty")
+            else:
+                upload.trajectories, found = check_npz(npz_path, state_dim, limits)
+                upload.problems += found
+        upload.labels, upload.labels_json, found = check_labels(await labels_file.read(), limits.max_bytes)
+        upload.problems += found
+    return upload
+
+
+def _label_problems(svc: Services, db: Session, domain: Domain, upload: CheckedUpload) -> list[str]:
+    """What is wrong with the labels given the library, the uploaded trajectories and declared attributes."""
+    library = library_ids(svc, domain.name)
+    clash = sorted(set(upload.trajectories) & library)
+    problems = [f"trajectory name {c!r} is also a library rollout id; rename it" for c in clash[:5]]
+    problems += upload.labels.problems(declared_attributes(db, domain.name), library | set(upload.trajectories),
+                                       domain.attribute_names)
+    if not upload.labels.size() and upload.labels.new_attributes:  # problems() reports a wholly empty set itself
+        problems.append("labels: no orderings, comparisons or local_changes to learn from")
+    return problems
+
+
+def _record_upload(db: Session, domain: str, dataset_id: str, upload: CheckedUpload) -> tuple[DatasetPublic, bool]:
+    """The dataset's row and its new attributes in one transaction; a twin upload that won the race wins."""
+    labels = upload.labels
+    row = Dataset(id=dataset_id, domain=domain, filename=upload.filename, trajectories=len(upload.trajectories),
                   labels=labels.size(), new_attributes=[a.name for a in labels.new_attributes])
     db.add(row)
-    known = declared_attributes(db, domain.name)
+    known = declared_attributes(db, domain)
     for a in labels.new_attributes:
         if a.name not in known:
-            db.add(AttributeDef(domain=domain.name, name=a.name, description=a.description))
+            db.add(AttributeDef(domain=domain, name=a.name, description=a.description))
     try:
         db.commit()
     except IntegrityError:  # the same upload raced us: it is stored once
@@ -195,36 +258,40 @@ async def store_upload(svc: Services, db: Session, form: dict) -> tuple[DatasetP
         existing = db.get(Dataset, dataset_id)
         if existing is None:
             raise
-        return DatasetPublic(**existing.model_dump(), duplicate=True), False
+        return DatasetPublic.model_validate(existing, update={"duplicate": True}), False
     db.refresh(row)
-    log.info("dataset %s for %s: %d trajectories, %d labels", dataset_id, domain.name, row.trajectories, row.labels)
-    return DatasetPublic(**row.model_dump()), True
+    log.info("dataset %s for %s: %d trajectories, %d labels", dataset_id, domain, row.trajectories, row.labels)
+    return DatasetPublic.model_validate(row), True
 
 
-# -- what a job trains on ----------------------------------------------------------------------------
+async def store_upload(svc: Services, db: Session, form: dict) -> tuple[DatasetPublic, bool]:
+    """Check everything, then store; returns the dataset and whether it was new."""
+    domain, labels_file, npz_file = _form_files(svc, form)
+    upload = await _read_files(labels_file, npz_file, domain.state_dim, _limits(svc.settings))
+    if upload.labels is not None:
+        upload.problems += _label_problems(svc, db, domain, upload)
+    if upload.problems:
+        raise UploadProblems(upload.problems)
+    dataset_id = upload.dataset_id(domain.name)
+    existing = db.get(Dataset, dataset_id)
+    if existing is not None:
+        return DatasetPublic.model_validate(existing, update={"duplicate": True}), False
+    uploads = svc.store.uploads(domain.name)
+    if upload.trajectories:
+        save_npz(uploads.trajectories(dataset_id), upload.trajectories)
+    save_text(uploads.labels(dataset_id), upload.labels_json.decode())
+    return _record_upload(db, domain.name, dataset_id, upload)
+
+
+def list_datasets(db: Session, domain: str) -> list[DatasetPublic]:
+    rows = db.exec(select(Dataset).where(Dataset.domain == domain).order_by(Dataset.created_at)).all()
+    return [DatasetPublic.model_validate(r) for r in rows]
+
 
 def check_datasets(db: Session, domain: str, ids: list[str]) -> None:
+    """422 unless every id is an uploaded dataset of ``domain``."""
     for i in ids:
         row = db.get(Dataset, i)
         if row is None or row.domain != domain:
             have = db.exec(select(Dataset.id).where(Dataset.domain == domain)).all()
             raise invalid(f"no dataset {i!r} for {domain}; uploaded: {', '.join(have) or 'none'}")
-
-
-def job_sources(db: Session, store: Store, domain: str, dataset_ids: list[str],
-                include_page_labels: bool) -> list[LabelSource]:
-    """The label sources of a training job: each dataset (with its trajectories), then the page's labels."""
-    uploads = store.uploads(domain)
-    sources = []
-    for i in dataset_ids:
-        labels = LabelSet.model_validate_json(uploads.labels(i).read_text(encoding="utf-8"))
-        npz = uploads.trajectories(i)
-        sources.append(LabelSource(labels, load_npz(npz) if npz.exists() else {}))
-    if include_page_labels:
-        page = page_labels(db, domain)
-        if page.size():
-            sources.append(LabelSource(page))
-    # attributes added on the page (or by another upload) that these labels use
-    used = set().union(*(s.labels.attributes_used() for s in sources))
-    added = [NewAttribute(name=n, description=d) for n, d in declared_attributes(db, domain).items() if n in used]
-    return [LabelSource(LabelSet(new_attributes=added)), *sources] if added else sources

@@ -13,9 +13,9 @@ from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
 
 from server import errors
+from server.prerender import warm_up
 from server.routes import admin_datasets, admin_labels, admin_training, clips, domains, sessions
 from server.services import Services
-from server.sessions import warm_up
 from server.settings import Settings
 
 os.environ.setdefault("MUJOCO_GL", "egl")

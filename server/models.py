@@ -2,6 +2,7 @@
 
 SQLModel's Base / table / Create / Public split: the table classes hold what must survive a
 restart (the agent's JSON state included); the Public classes are what the API returns.
+Imports only ``server.feedback`` (the body's feedback rule), so every other module may import it.
 """
 
 from __future__ import annotations
@@ -14,6 +15,8 @@ from typing import Any, Literal
 from pydantic import BaseModel, field_validator, model_validator
 from sqlalchemy import JSON, Column, DateTime, UniqueConstraint
 from sqlmodel import Field, SQLModel
+
+from server.feedback import check_kind
 
 
 def utcnow() -> dt.datetime:
@@ -97,12 +100,11 @@ class FeedbackCreate(BaseModel):
 
     @model_validator(mode="after")
     def _one_kind(self) -> FeedbackCreate:
-        if self.satisfied and self.feedback:
-            raise ValueError("give either 'feedback' or 'satisfied': true, not both")
-        if not self.satisfied and not self.feedback:
-            raise ValueError("give 'feedback': [{'attribute': ..., 'direction': 'more' | 'less'}] "
-                             "or 'satisfied': true")
+        check_kind(self.satisfied, bool(self.feedback))
         return self
+
+    def choices(self) -> list[tuple[str, str]]:
+        return [(c.attribute, c.direction) for c in self.feedback or ()]
 
 
 class AttributePublic(BaseModel):

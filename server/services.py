@@ -1,4 +1,17 @@
-"""The app's long-lived parts in one object (``app.state.services``), shared by the routes."""
+"""The app's long-lived parts in one object (``app.state.services``), shared by the routes.
+
+Import direction (no cycles, function-level imports included), lowest first:
+
+1. tables, rules and tools: ``settings``, ``errors``, ``feedback``, ``models``, ``admin_models``,
+   ``db``, ``uploads``, ``transitions``, ``background``, ``locks``, ``clips``, ``catalog``;
+   ``labeldata`` (stored label data) and ``jobs`` (training processes, which read ``labeldata``);
+2. this module, which holds those parts and imports nothing above it;
+3. operations that take a ``Services``: ``versions``, ``views``, ``prerender``, ``sessions``,
+   ``labelling``, ``training`` (each imports only those before it in this list);
+4. ``deps``, ``auth`` and ``routes.*``; then ``main``.
+
+Nothing in 1 imports this module or anything in 3-4.
+"""
 
 from __future__ import annotations
 

@@ -16,7 +16,7 @@ import threading
 from collections import OrderedDict
 from typing import Any
 
-from rba.interact import SATISFIED, AttributeFeedback, Feedback, new_agent, restore_agent
+from rba.interact import SATISFIED, Feedback, new_agent, restore_agent
 
 FeedbackKey = tuple[tuple[str, int], ...] | str
 
@@ -79,8 +79,3 @@ class Transitions:
             while len(self._memo) > self.maxsize:
                 self._memo.popitem(last=False)
         return rollout_id, copy.deepcopy(new_state)
-
-
-def to_feedback(choices: list[tuple[str, str]]) -> list[AttributeFeedback]:
-    """API choices ``[(attribute, "more" | "less")]`` as the library's feedback records."""
-    return [AttributeFeedback(a, 1 if d == "more" else -1) for a, d in choices]

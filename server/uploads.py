@@ -39,58 +39,68 @@ def _header(f, version: tuple[int, int]):
     raise ValueError(f"unsupported .npy format version {version}")
 
 
+def _member_problem(zf: zipfile.ZipFile, info: zipfile.ZipInfo, state_dim: int, limits: UploadLimits) -> str | None:
+    """Why one member of the .npz is not a usable trajectory, judged from its .npy header only; None if it is."""
+    name = info.filename.removesuffix(".npy")
+    if not info.filename.endswith(".npy") or not TRAJECTORY_NAME.match(name):
+        return (f"trajectories: member {info.filename[:80]!r} is not a .npy array named with "
+                "1-128 letters, digits or _ . : -")
+    with zf.open(info) as f:
+        try:
+            shape, _fortran, dtype = _header(f, np.lib.format.read_magic(f))
+        except ValueError as e:
+            return f"trajectory {name!r}: unreadable .npy header ({e})"
+    if dtype.hasobject:
+        return f"trajectory {name!r}: object arrays are refused (they need pickle)"
+    if dtype.kind != "f":
+        return f"trajectory {name!r}: dtype {dtype} is not a float type (float32 or float64)"
+    if len(shape) != 2 or shape[1] != state_dim:
+        return f"trajectory {name!r}: shape {list(shape)}, expected [T, {state_dim}] (state_dim of the domain)"
+    if not limits.min_steps <= shape[0] <= limits.max_steps:
+        return f"trajectory {name!r}: {shape[0]} states; T must be in [{limits.min_steps}, {limits.max_steps}]"
+    if math.prod(shape) * dtype.itemsize > info.file_size:
+        return f"trajectory {name!r}: the array claims more data than the file holds"
+    return None
+
+
+def _check_members(path: Path, state_dim: int, limits: UploadLimits) -> tuple[list[str], list[str]]:
+    """The names of the zip's usable trajectories and the problems found, before any array is read."""
+    problems: list[str] = []
+    names: list[str] = []
+    try:
+        with zipfile.ZipFile(path) as zf:
+            infos = zf.infolist()
+            if not infos:
+                return [], ["trajectories: the .npz holds no arrays"]
+            if len(infos) > limits.max_trajectories:
+                return [], [f"trajectories: {len(infos)} arrays, more than the limit of {limits.max_trajectories}"]
+            expanded = sum(i.file_size for i in infos)
+            if expanded > limits.max_uncompressed:
+                return [], [f"trajectories: the .npz expands to {expanded} bytes, over the limit of "
+                            f"{limits.max_uncompressed} (zip bomb?)"]
+            for info in infos:
+                problem = _member_problem(zf, info, state_dim, limits)
+                if problem is None:
+                    names.append(info.filename.removesuffix(".npy"))
+                else:
+                    problems.append(problem)
+    except (zipfile.BadZipFile, OSError, EOFError) as e:
+        return [], [f"trajectories: corrupt .npz ({e})"]
+    return names, problems
+
+
 def check_npz(path: Path, state_dim: int, limits: UploadLimits) -> tuple[dict[str, np.ndarray], list[str]]:
     """The trajectories of the .npz at ``path`` by name, or the problems that stop them being used."""
     if not zipfile.is_zipfile(path):
         return {}, ["trajectories: not an .npz file (a zip of .npy arrays, as numpy.savez writes); "
                     "pickles and other formats are refused"]
-    problems: list[str] = []
-    names: list[tuple[str, str]] = []
-    try:
-        with zipfile.ZipFile(path) as zf:
-            infos = zf.infolist()
-            if not infos:
-                return {}, ["trajectories: the .npz holds no arrays"]
-            if len(infos) > limits.max_trajectories:
-                return {}, [f"trajectories: {len(infos)} arrays, more than the limit of {limits.max_trajectories}"]
-            expanded = sum(i.file_size for i in infos)
-            if expanded > limits.max_uncompressed:
-                return {}, [f"trajectories: the .npz expands to {expanded} bytes, over the limit of "
-                            f"{limits.max_uncompressed} (zip bomb?)"]
-            for info in infos:
-                name = info.filename.removesuffix(".npy")
-                if not info.filename.endswith(".npy") or not TRAJECTORY_NAME.match(name):
-                    problems.append(f"trajectories: member {info.filename[:80]!r} is not a .npy array named with "
-                                    "1-128 letters, digits or _ . : -")
-                    continue
-                with zf.open(info) as f:
-                    try:
-                        shape, _fortran, dtype = _header(f, np.lib.format.read_magic(f))
-                    except ValueError as e:
-                        problems.append(f"trajectory {name!r}: unreadable .npy header ({e})")
-                        continue
-                if dtype.hasobject:
-                    problems.append(f"trajectory {name!r}: object arrays are refused (they need pickle)")
-                elif dtype.kind != "f":
-                    problems.append(f"trajectory {name!r}: dtype {dtype} is not a float type (float32 or float64)")
-                elif len(shape) != 2 or shape[1] != state_dim:
-                    problems.append(f"trajectory {name!r}: shape {list(shape)}, expected [T, {state_dim}] "
-                                    f"(state_dim of the domain)")
-                elif not limits.min_steps <= shape[0] <= limits.max_steps:
-                    problems.append(f"trajectory {name!r}: {shape[0]} states; T must be in "
-                                    f"[{limits.min_steps}, {limits.max_steps}]")
-                elif math.prod(shape) * dtype.itemsize > info.file_size:
-                    problems.append(f"trajectory {name!r}: the array claims more data than the file holds")
-                else:
-                    names.append((name, info.filename))
-    except (zipfile.BadZipFile, OSError, EOFError) as e:
-        return {}, [f"trajectories: corrupt .npz ({e})"]
+    names, problems = _check_members(path, state_dim, limits)
     if problems:
         return {}, problems
     out: dict[str, np.ndarray] = {}
     try:
         with np.load(path, allow_pickle=False) as npz:
-            for name, _member in names:
+            for name in names:
                 arr = np.asarray(npz[name], dtype=np.float32)
                 if not np.isfinite(arr).all():
                     problems.append(f"trajectory {name!r}: holds NaN or infinite values")

@@ -11,7 +11,6 @@ from dataclasses import replace
 import pytest
 
 from rba import methods
-from rba.artifacts import model_path
 from rba.cli import build_parser
 from rba.domains import get_domain
 from rba.evaluate import TRIAL_LOOPS, evaluate, simulate
@@ -19,6 +18,7 @@ from rba.interact import AttributeFeedback, Preference, new_agent, restore_agent
 from rba.interact.local_agent import LocalAgent
 from rba.library import SkillLibrary
 from rba.methods import Method, UnknownMethodError, get_method, method_names
+from rba.store import ModelFiles
 
 BUILTIN = method_names()
 
@@ -66,8 +66,7 @@ def test_record_is_complete_and_named_after_its_registry_key(trained):
 def test_tiny_preset_writes_the_model_files_the_record_names(trained):
     record, _, models, metrics, ctx = trained  # and the context loaded from exactly these
     for kind in record.model_kinds:
-        path = model_path("toy", kind, record.run_reps[0], models)
-        assert path.exists() and path.with_suffix(".json").exists(), kind
+        assert ModelFiles(models).complete("toy", kind, record.run_reps[0]), kind
     assert sorted(p.name for p in models.rglob("*.pt")) == sorted(f"{k}-{record.run_reps[0]}.pt"
                                                                   for k in record.model_kinds)
     assert (metrics is None) == (record.trainer is None) and ctx.serve.domain == "toy"

@@ -13,10 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from rba.paths import data_dir, models_dir
 
 from rba.domains import domain_names, get_domain
 from rba.library import SPLITS, SkillLibrary
+from rba.store import Store
 
 PER_SPLIT = 4  # rollouts re-simulated per split: first, last and two in between (~2 s per domain)
 NEEDS = {"lane_change_image": "vae-frames.pt"}  # domains whose rollouts need a shipped model artifact
@@ -34,9 +34,10 @@ def _cases() -> list[tuple[str, str]]:
 
 @pytest.mark.parametrize(("domain_name", "split"), _cases())
 def test_stored_rollouts_resimulate_exactly(domain_name: str, split: str) -> None:
-    if not (data_dir() / domain_name / f"{split}.npz").exists():
+    store = Store.from_settings()
+    if not store.libraries.complete(domain_name, split):
         pytest.skip(f"no shipped {domain_name}/{split} library")
-    if domain_name in NEEDS and not (models_dir() / domain_name / NEEDS[domain_name]).exists():
+    if domain_name in NEEDS and not (store.models_dir / domain_name / NEEDS[domain_name]).exists():
         pytest.skip(f"{domain_name} needs models/{domain_name}/{NEEDS[domain_name]}")
     lib = SkillLibrary.load(domain_name, split)
     domain = get_domain(domain_name)

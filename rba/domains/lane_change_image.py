@@ -50,13 +50,15 @@ class LaneChangeImage(LaneChange):
     def _vae(self):
         with self._vae_lock:
             if self._vae_model is None:
-                from rba.artifacts import ModelNotFoundError, load_model, model_path
+                from rba.artifacts import ModelNotFoundError, load_model
+                from rba.store import model_files
 
                 try:
                     vae = load_model(self.name, "vae", "frames")
                 except ModelNotFoundError as e:
-                    raise ModelNotFoundError(f"no frame VAE for {self.name} at {model_path(self.name, 'vae', 'frames')}"
-                                             f" (and its .json card): make it with {MAKE_VAE}") from e
+                    path = model_files().weights(self.name, "vae", "frames")
+                    raise ModelNotFoundError(f"no frame VAE for {self.name} at {path} (and its .json card): "
+                                             f"make it with {MAKE_VAE}") from e
                 seen = {k: vae.card["architecture"].get(k) for k in VIEW}
                 if seen != VIEW:
                     raise ValueError(f"the frame VAE was trained on another view ({seen}; this code renders {VIEW}): "

@@ -4,10 +4,9 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import JSONResponse
-from sqlmodel import select
 
 from server import labelling
-from server.admin_models import Dataset, DatasetPublic
+from server.admin_models import DatasetPublic
 from server.auth import require_admin
 from server.deps import DbDep, ServicesDep
 
@@ -34,5 +33,4 @@ async def upload_dataset(request: Request, svc: ServicesDep, db: DbDep):
 
 @router.get("", response_model=list[DatasetPublic], summary="Uploaded datasets of a domain")
 def list_datasets(domain: str, db: DbDep) -> list[DatasetPublic]:
-    rows = db.exec(select(Dataset).where(Dataset.domain == domain).order_by(Dataset.created_at)).all()
-    return [DatasetPublic(**r.model_dump()) for r in rows]
+    return labelling.list_datasets(db, domain)

@@ -6,7 +6,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, Path
 
-from server import sessions
+from server import prerender, sessions, views
 from server.deps import DbDep, ServicesDep
 from server.models import FeedbackCreate, SessionCreate, SessionPublic
 
@@ -28,8 +28,8 @@ def create_session(body: SessionCreate, svc: ServicesDep, db: DbDep) -> SessionP
             summary="A session: status, step, current clip (with measured values) and history")
 def read_session(session_id: SessionId, svc: ServicesDep, db: DbDep) -> SessionPublic:
     s = sessions.load_session(db, session_id)
-    sessions.resume_prerender(svc, s)
-    return sessions.session_public(svc, db, s)
+    prerender.resume_prerender(svc, s)
+    return views.session_public(svc, db, s)
 
 
 @router.post("/{session_id}/feedback", response_model=SessionPublic, responses=ERRORS,

@@ -13,7 +13,7 @@ from rba.store import ClipStore
 from server import transitions
 from server.background import Background
 from server.main import create_app
-from server.sessions import candidate_order
+from server.prerender import candidate_order
 from tests.server.conftest import more
 
 
