@@ -3,14 +3,15 @@
 Import direction (no cycles, function-level imports included), lowest first:
 
 1. tables, rules and tools: ``settings``, ``errors``, ``feedback``, ``models``, ``admin_models``,
-   ``db``, ``uploads``, ``transitions``, ``background``, ``locks``, ``clips``, ``catalog``;
-   ``labeldata`` (stored label data) and ``jobs`` (training processes, which read ``labeldata``);
+   ``db``, ``uploads``, ``transitions``, ``background``, ``catalog``; ``labeldata`` (stored label
+   data) and ``jobs`` (training processes, which read ``labeldata``); the clip cache and the
+   per-key locks are the library's (``rba.clips``, ``rba.locks``);
 2. this module, which holds those parts and imports nothing above it;
 3. operations that take a ``Services``: ``versions``, ``views``, ``prerender``, ``sessions``,
    ``labelling``, ``training`` (each imports only those before it in this list);
 4. ``deps``, ``auth`` and ``routes.*``; then ``main``.
 
-Nothing in 1 imports this module or anything in 3-4.
+Nothing in 1 imports this module or anything in 3-4 (``tests/test_architecture.py`` checks it).
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ VALID = ("amplitude", "pace")
 def test_choices_become_the_library_records_it_accepts():
     feedback = parse_feedback([("pace", "less"), ("amplitude", "more")], False, "toy", VALID)
     assert feedback == [AttributeFeedback("pace", -1), AttributeFeedback("amplitude", 1)]
-    assert validate_feedback(feedback, VALID) == feedback
+    assert validate_feedback(feedback, "attribute", VALID) == feedback
     assert parse_feedback([], True, "toy", VALID) == SATISFIED
 
 
