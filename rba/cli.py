@@ -14,7 +14,6 @@ from pathlib import Path
 log = logging.getLogger("rba")
 
 
-
 def _domain(name: str) -> str:
     from rba.domains import domain_names
 
@@ -149,14 +148,7 @@ def cmd_serve(args) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
-    from rba.embed import REPRESENTATIONS
-    from rba.methods import method_names, train_presets, trainable
-
-    p = argparse.ArgumentParser(prog="rba", description="RBA Studio: tune agent behaviour by relative attributes.")
-    p.add_argument("-v", "--verbose", action="store_true", help="log progress at INFO level")
-    sub = p.add_subparsers(dest="command", required=True)
-
+def _build_command(sub) -> argparse.ArgumentParser:
     b = sub.add_parser("build", help="simulate the train / serve / test skill libraries")
     b.add_argument("domain", type=_domain)
     b.add_argument("--seed", type=int, default=0)
@@ -166,6 +158,12 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--test", type=_positive, default=120, help="held-out target behaviours")
     b.add_argument("--workers", type=_positive, default=2, help="simulation processes")
     b.set_defaults(func=cmd_build)
+    return b
+
+
+def _train_command(sub) -> argparse.ArgumentParser:
+    from rba.embed import REPRESENTATIONS
+    from rba.methods import train_presets, trainable
 
     t = sub.add_parser("train", help=f"train the models of {' and/or '.join(m.label for m in trainable())} "
                                      "and write model cards")
@@ -177,13 +175,22 @@ def build_parser() -> argparse.ArgumentParser:
                    help="'quick': a shorter rθ; 'tiny': the CI smoke preset")
     t.add_argument("--seed", type=int, default=0)
     t.set_defaults(func=cmd_train)
+    return t
 
+
+def _cache_command(sub) -> argparse.ArgumentParser:
     c = sub.add_parser("cache", help="render every clip of a split into the app's clip cache (RBA_CACHE_DIR)")
     c.add_argument("domain", type=_domain)
     c.add_argument("--split", choices=("serve", "train", "test"), default="serve")
     c.add_argument("--width", type=_positive, default=None, help="default: RBA_CLIP_WIDTH (320)")
     c.add_argument("--height", type=_positive, default=None, help="default: RBA_CLIP_HEIGHT (240)")
     c.set_defaults(func=cmd_cache)
+    return c
+
+
+def _eval_command(sub) -> argparse.ArgumentParser:
+    from rba.embed import REPRESENTATIONS
+    from rba.methods import method_names
 
     e = sub.add_parser("eval", help="run the paper's protocol with simulated users")
     e.add_argument("--domain", type=_domain, required=True)
@@ -197,7 +204,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="evaluate every method and representation (ignores --method/--rep); JSON is a list")
     e.add_argument("--json", help="write the full result (trials included) here")
     e.set_defaults(func=cmd_eval)
+    return e
 
+
+def _render_command(sub) -> argparse.ArgumentParser:
     r = sub.add_parser("render", help="render a library rollout to an MP4 (H.264)")
     r.add_argument("domain", type=_domain)
     r.add_argument("rollout_id", help="e.g. serve-00012")
@@ -205,15 +215,28 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--width", type=_positive, default=320)
     r.add_argument("--height", type=_positive, default=240)
     r.set_defaults(func=cmd_render)
+    return r
 
-    for command in (b, t, c, e, r):  # every command that names a domain can pick its view
-        command.add_argument("--states", default="kinematic",
-                             help="kinematic (default) or another registered view, e.g. image for lane_change")
 
+def _serve_command(sub) -> argparse.ArgumentParser:
     s = sub.add_parser("serve", help="start the web app")
     s.add_argument("--host", default=None)
     s.add_argument("--port", type=int, default=None)
     s.set_defaults(func=cmd_serve)
+    return s
+
+
+DOMAIN_COMMANDS = (_build_command, _train_command, _cache_command, _eval_command, _render_command)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="rba", description="RBA Studio: tune agent behaviour by relative attributes.")
+    p.add_argument("-v", "--verbose", action="store_true", help="log progress at INFO level")
+    sub = p.add_subparsers(dest="command", required=True)
+    for add_command in DOMAIN_COMMANDS:  # every command that names a domain can pick its view
+        add_command(sub).add_argument("--states", default="kinematic",
+                                      help="kinematic (default) or another registered view, e.g. image for lane_change")
+    _serve_command(sub)
     return p
 
 
