@@ -2,13 +2,16 @@
 
 For each registered domain with a library and trained models: every registered method with each
 representation it runs with (RBA-Global, RBA-Global-L, RBA-Local, RBA-Local-L, PbRL), 20 held-out
-targets each (DESIGN §5), beside the paper's numbers. Writes ``benchmarks/results/paper_tables.md`` (and ``.json``).
+targets each (ARCHITECTURE §5), beside the paper's numbers. Writes
+``benchmarks/results/paper_tables.md`` (and ``.json``).
 
     python benchmarks/paper_tables.py                         # every domain, both precisions
     python benchmarks/paper_tables.py --domains lane_change --precisions normal --targets 5
     python benchmarks/paper_tables.py --domains snake --merge benchmarks/results/paper_tables.json
                                                     # re-measure one domain, keep the others' rows
     python benchmarks/paper_tables.py --report-only --merge a.json b.json   # combine parallel runs
+    python benchmarks/paper_tables.py --domains walker --check benchmarks/results/paper_tables.json
+                                                    # re-measure, compare with the report (exit 1 if a row differs)
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import argparse
 import datetime as dt
 import logging
 import platform
+import sys
 from pathlib import Path
 
 from rba.artifacts import ModelNotFoundError
@@ -94,6 +98,27 @@ def merged(rows, paths: list[Path]) -> list:
     return sorted(kept.values(), key=lambda x: (x[0], LABELS.index(x[1])))
 
 
+RESULT_FIELDS = ("success_rate", "avg_feedback", "std_feedback")
+
+
+def check(rows, stored: Path) -> tuple[str, bool]:
+    """This run's rows beside ``stored``'s (same domain, label, precision): (a Markdown table, all equal?).
+
+    Evaluation is seeded, so the same models and libraries must give exactly the same SR / AF.
+    """
+    kept = {(row["domain"], row["label"], row["precision"]): row for row in load_json(stored)}
+    lines = ["| domain | method | precision | stored | measured | same |", "|---|---|---|---|---|---|"]
+    same_all = True
+    for domain, label, r in rows:
+        old = kept.get((domain, label, r.precision))
+        same = old is not None and all(old[k] == getattr(r, k) for k in RESULT_FIELDS)
+        same_all &= same
+        was = "missing" if old is None else _cell(*(old[k] for k in RESULT_FIELDS))
+        lines.append(f"| {domain} | {label} | {r.precision} | {was} | "
+                     f"{_cell(*(getattr(r, k) for k in RESULT_FIELDS))} | {'yes' if same else 'NO'} |")
+    return "\n".join(lines), same_all
+
+
 def json_rows(rows) -> list[dict]:
     """The report's JSON: one object per row, its label and result without the per-trial detail."""
     return [{"label": label, **{k: v for k, v in r.to_json().items() if k != "trials"}} for _, label, r in rows]
@@ -134,6 +159,8 @@ def main(argv: list[str] | None = None) -> None:
                     help="earlier runs' .json (later files win): keep their rows for what this run does not measure")
     ap.add_argument("--report-only", action="store_true",
                     help="measure nothing: write the report from the --merge files (runs made in parallel)")
+    ap.add_argument("--check", type=Path, metavar="REPORT_JSON",
+                    help="re-measure and compare with this report instead of writing one; exit 1 if a row differs")
     args = ap.parse_args(argv)
     if args.report_only and not args.merge:
         ap.error("--report-only needs --merge: the .json files of the runs to report")
@@ -148,6 +175,10 @@ def main(argv: list[str] | None = None) -> None:
         save_json(args.out.with_suffix(".json"), json_rows(rows))
         return text
 
+    if args.check:
+        text, same = check(run(args.domains, args.precisions, args.targets, args.seed, args.methods), args.check)
+        print(text)
+        sys.exit(0 if same else 1)
     rows = [] if args.report_only else run(args.domains, args.precisions, args.targets, args.seed, args.methods,
                                            on_row=write)
     print(write(rows))

@@ -50,3 +50,17 @@ def test_report_only_without_merge_says_what_is_missing(capsys):
     with pytest.raises(SystemExit):
         paper_tables.main(["--report-only"])
     assert "--report-only needs --merge" in capsys.readouterr().err
+
+
+def test_check_says_which_rows_differ_from_the_report(tmp_path):
+    _save(tmp_path / "t.json", [("RBA-Global", _result("walker", "normal", 1.0)),
+                                ("RBA-Global", _result("walker", "high", 0.9))])
+    rows = [("walker", "RBA-Global", _result("walker", "normal", 1.0)),
+            ("walker", "RBA-Global", _result("walker", "high", 0.85)),
+            ("snake", "PbRL", _result("snake", "high", 0.5))]
+    text, same = paper_tables.check(rows, tmp_path / "t.json")
+    assert not same
+    assert "| walker | RBA-Global | normal | 1.00 / 2.00 (1.00) | 1.00 / 2.00 (1.00) | yes |" in text
+    assert "| walker | RBA-Global | high | 0.90 / 2.00 (1.00) | 0.85 / 2.00 (1.00) | NO |" in text
+    assert "| snake | PbRL | high | missing |" in text
+    assert paper_tables.check(rows[:1], tmp_path / "t.json")[1]
