@@ -50,7 +50,9 @@ def _noise(text: str) -> float:
 
 def cmd_build(args) -> int:
     from rba.library import build_all
+    from rba.training import prepare_states
 
+    prepare_states(args.domain, args.seed)  # a learned state encoder the rollouts load, trained if missing
     sizes = {"train": args.train, "serve": args.serve, "test": args.test}
     libs = build_all(args.domain, seed=args.seed, sizes=sizes, workers=args.workers)
     for split, lib in libs.items():

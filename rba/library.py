@@ -226,9 +226,6 @@ def build_all(domain_name: str, seed: int = 0, sizes: dict[str, int] | None = No
     """Generate and save every split; check that no test parameters occur in train."""
     domain = get_domain(domain_name)
     sizes = {**DEFAULT_SIZES, "serve": domain.serve_size, **{k: v for k, v in (sizes or {}).items() if v is not None}}
-    from rba.training import prepare_states  # lazy: training reads libraries
-
-    prepare_states(domain_name, seed)  # a learned state encoder the rollouts need, trained if missing
     libs = {s: generate(domain_name, s, sizes[s], seed, workers, progress) for s in SPLITS}
     train_rows = {tuple(row) for row in libs["train"].params}
     leaked = sum(tuple(row) in train_rows for row in libs["test"].params)

@@ -79,10 +79,6 @@ class ModelFiles:
         """Weights and card exist (the card is written last, so this means a whole artifact)."""
         return self.weights(domain, kind, rep).exists() and self.card(domain, kind, rep).exists()
 
-    def kinds(self, domain: str, prefix: str, rep: str) -> list[str]:
-        """The ``<kind>`` of every weights file for ``rep`` whose kind starts with ``prefix``, sorted."""
-        return sorted(p.stem.rsplit("-", 1)[0] for p in self.folder(domain).glob(f"{prefix}*-{rep}.pt"))
-
 
 @dataclass(frozen=True)
 class UploadFiles:

@@ -362,40 +362,33 @@ def train_local(domain_name: str, rep: str, cfg: LocalTrainConfig | None = None,
 VAE_ROLLOUTS = 300  # kinematic lane-change rollouts whose frames train the frame VAE
 
 
-def train_frame_vae(seed: int = 0, models_root: Path | None = None) -> dict:
-    """Train and save lane_change_image's frame VAE on frames of kinematic lane-change rollouts; its stats."""
-    from rba.domains.lane_change_image import LATENT, VIEW
-
-    domain = get_domain("lane_change_image")
+def train_frame_vae(domain_name: str, seed: int = 0, models_root: Path | None = None) -> dict:
+    """Train and save an image view's frame VAE on frames of its kinematic rollouts; its stats."""
+    domain = get_domain(domain_name)
     rng = np.random.default_rng(10_000 + seed)
     kinematic = [domain.kinematic_rollout(domain.sample_params(rng), seed=i) for i in range(VAE_ROLLOUTS)]
     frames = np.concatenate([domain.frames(r) for r in kinematic])
     log.info("training the frame VAE on %d stacked frames", len(frames))
-    model, stats = train_vae(frames, VAEConfig(latent=LATENT, seed=seed), progress=_progress("vae[frames]"))
-    save_model(model, {"domain": domain.name, "kind": "vae", "representation": "frames",
-                       "architecture": {"latent": LATENT, "size": SIZE, "stack": STACK, **VIEW},
+    latent = domain.state_dim
+    model, stats = train_vae(frames, VAEConfig(latent=latent, seed=seed), progress=_progress("vae[frames]"))
+    kind, rep = domain.state_encoder
+    save_model(model, {"domain": domain.name, "kind": kind, "representation": rep,
+                       "architecture": {"latent": latent, "size": SIZE, "stack": STACK, **domain.frame_view},
                        "training": stats}, models_root)
     return stats
 
 
-@dataclass(frozen=True)
-class StateEncoder:
-    """A learned model a domain's states come from: the artifact its rollouts load, and how to train it."""
-
-    kind: str
-    representation: str
-    train: Callable[[int, Path | None], dict]
-
-
-STATE_ENCODERS: dict[str, StateEncoder] = {"lane_change_image": StateEncoder("vae", "frames", train_frame_vae)}
+# A domain's ``state_encoder`` kind -> what trains it: (domain, seed, models_root) -> training stats.
+ENCODER_TRAINERS: dict[str, Callable[[str, int, Path | None], dict]] = {"vae": train_frame_vae}
 
 
 def prepare_states(domain_name: str, seed: int = 0, models_root: Path | None = None) -> None:
-    """Train the state encoder ``domain_name``'s rollouts need unless it is saved (most domains need none)."""
-    encoder = STATE_ENCODERS.get(domain_name)
-    if encoder is None:
+    """Train the state encoder ``domain_name``'s rollouts load unless it is saved (most domains need none)."""
+    domain = get_domain(domain_name)
+    if domain.state_encoder is None:
         return
+    kind, rep = domain.state_encoder
     try:
-        load_model(domain_name, encoder.kind, encoder.representation, models_root)
+        load_model(domain_name, kind, rep, models_root)
     except ModelNotFoundError:
-        encoder.train(seed, models_root)
+        ENCODER_TRAINERS[kind](domain_name, seed, models_root)

@@ -9,7 +9,7 @@ from torch.nn import functional as F
 
 from rba.labels import AttributeLabels, LocalPairs
 from rba.learn.common import StepLoop, bradley_terry_loss
-from rba.training import PRESETS, STATE_ENCODERS, GlobalTrainConfig, LocalTrainConfig, StateEncoder, prepare_states
+from rba.training import ENCODER_TRAINERS, PRESETS, GlobalTrainConfig, LocalTrainConfig, prepare_states
 
 
 def test_an_unknown_preset_names_the_valid_ones():
@@ -68,15 +68,16 @@ def test_label_pairs_round_trip():
 def test_prepare_states_trains_a_missing_encoder_once(monkeypatch, tmp_path):
     trained = []
 
-    def train(seed, root):
-        trained.append(seed)
+    def train(domain, seed, root):
+        trained.append((domain, seed))
         return {}
 
-    monkeypatch.setitem(STATE_ENCODERS, "walker", StateEncoder("vae", "frames", train))
-    prepare_states("walker", seed=3, models_root=tmp_path)
-    assert trained == [3]
+    monkeypatch.setitem(ENCODER_TRAINERS, "vae", train)
+    prepare_states("lane_change_image", seed=3, models_root=tmp_path)  # none saved under tmp_path
+    assert trained == [("lane_change_image", 3)]
+    prepare_states("lane_change_image", seed=3)  # the shipped one is found
     prepare_states("manipulator", seed=3, models_root=tmp_path)  # needs no encoder
-    assert trained == [3]
+    assert trained == [("lane_change_image", 3)]
 
 
 def test_lane_change_image_only_loads_its_vae_and_says_how_to_make_it(monkeypatch):

@@ -51,6 +51,9 @@ class Domain(ABC):
     frame_rate: float  # frames per second of ``replay`` (and of rendered clips)
     serve_size: int = 1200  # rollouts in ``serve`` by default: denser where high-precision targets need it
     ranker_steps: int | None = None  # ζσ gradient steps of `rba train` where RankerConfig's default underfits
+    # (kind, rep) of a learned model the states come from (models/<name>/<kind>-<rep>.pt): loaded, never trained
+    # here; `rba build` makes it when missing (rba.training.prepare_states)
+    state_encoder: tuple[str, str] | None = None
 
     @abstractmethod
     def sample_params(self, rng: np.random.Generator) -> dict[str, float]:

@@ -31,6 +31,8 @@ class LaneChangeImage(LaneChange):
     name = "lane_change_image"
     state_dim = LATENT
     ranker_steps = 3200  # gap from latents underfits: held-out 0.927 at 800 steps, 0.945 at 1,600, 0.956 at 3,200
+    state_encoder = ("vae", "frames")
+    frame_view = VIEW
     serve_size = 2400  # an image rollout costs ~6x a kinematic one (79 vs 14 ms, `rba build`); 2,400 reach 97.5 %
 
     def __init__(self) -> None:
@@ -54,9 +56,9 @@ class LaneChangeImage(LaneChange):
                 from rba.store import model_files
 
                 try:
-                    vae = load_model(self.name, "vae", "frames")
+                    vae = load_model(self.name, *self.state_encoder)
                 except ModelNotFoundError as e:
-                    path = model_files().weights(self.name, "vae", "frames")
+                    path = model_files().weights(self.name, *self.state_encoder)
                     raise ModelNotFoundError(f"no frame VAE for {self.name} at {path} (and its .json card): "
                                              f"make it with {MAKE_VAE}") from e
                 seen = {k: vae.card["architecture"].get(k) for k in VIEW}
