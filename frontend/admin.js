@@ -1,9 +1,9 @@
 // RBA Studio admin page: label clips (saved one by one), retrain in the background, switch the served model.
 // Everything it shows comes from /api/admin routes, which need the admin token.
 
-import { $, api, el, pretty, toast } from "./common.js";
+import { $, api, el, hideToast, pretty, toast } from "./common.js";
 
-const state = { token: sessionStorage.getItem("rba-admin-token") || "", clips: [], job: null, labels: 0 };
+const state = { token: sessionStorage.getItem("rba-admin-token") || "", clips: [], job: null, labels: 0, trainable: [] };
 
 /** The shared call with the admin token the /api/admin routes need. */
 const adminApi = (path, options = {}) =>
@@ -24,11 +24,22 @@ async function unlock(event) {
     return;
   }
   sessionStorage.setItem("rba-admin-token", state.token);
+  hideToast();  // a refused token's message is stale once the right one unlocks the page
   $("login").hidden = true;
   $("admin").hidden = false;
-  const { domains } = await api("/api/domains");
+  const { domains, trainable, reps } = await api("/api/domains");
   $("domain").replaceChildren(...domains.map((d) => el("option", { value: d.name }, d.name)));
+  state.trainable = trainable;
+  $("train-method").replaceChildren(...trainable.map((m) => el("option", { value: m.method }, m.label)));
+  $("rep").replaceChildren(...reps.map((r) => el("option", { value: r }, r)));
+  showPresets();
   await loadDomain();
+}
+
+// The presets the chosen method's trainer knows (the server's method registry says which).
+function showPresets() {
+  const method = state.trainable.find((m) => m.method === $("train-method").value);
+  $("preset").replaceChildren(...(method ? method.presets : []).map((p) => el("option", { value: p }, p)));
 }
 
 async function loadDomain() {
@@ -171,6 +182,7 @@ $("login").addEventListener("submit", unlock);
 $("domain").addEventListener("change", loadDomain);
 $("attribute").addEventListener("change", nextClips);
 $("mode").addEventListener("change", nextClips);
+$("train-method").addEventListener("change", showPresets);
 $("attribute-form").addEventListener("submit", addAttribute);
 $("left-more").addEventListener("click", () => answer("left"));
 $("right-more").addEventListener("click", () => answer("right"));

@@ -45,4 +45,9 @@ export function toast(message, kind = "error") {
   clearTimeout(toastTimer);
   toastTimer = setTimeout(() => { $("toast").hidden = true; }, kind === "info" ? 4000 : 9000);
 }
-$("toast-close")?.addEventListener("click", () => { $("toast").hidden = true; });
+/** Take the toast away (e.g. an error that the next step has made stale). */
+export function hideToast() {
+  clearTimeout(toastTimer);
+  $("toast").hidden = true;
+}
+$("toast-close")?.addEventListener("click", hideToast);

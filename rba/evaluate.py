@@ -1,4 +1,4 @@
-"""The paper's protocol (DESIGN §5): simulated users chase held-out targets; SR and AF."""
+"""The paper's protocol (ARCHITECTURE §5): simulated users chase held-out targets; SR and AF."""
 
 from __future__ import annotations
 

@@ -120,6 +120,12 @@ class MethodPublic(BaseModel):
     rep: str
 
 
+class TrainablePublic(BaseModel):
+    method: str
+    label: str = Field(description="display name, e.g. RBA-Global")
+    presets: list[str] = Field(description="valid `preset` values of POST /api/admin/train for this method")
+
+
 class DomainPublic(BaseModel):
     name: str
     attributes: list[AttributePublic]
@@ -132,6 +138,7 @@ class DomainsPublic(BaseModel):
     domains: list[DomainPublic]
     methods: list[str] = Field(description="every agent method the server offers (more/less feedback)")
     reps: list[str] = Field(description="every attribute representation")
+    trainable: list[TrainablePublic] = Field(description="methods whose models POST /api/admin/train can retrain")
 
 
 class ClipPublic(BaseModel):

@@ -14,6 +14,7 @@ from rba.domains import Domain
 from rba.embed import REPRESENTATIONS
 from rba.interact import SATISFIED
 from rba.library import LibraryNotFoundError
+from rba.methods import trainable
 from server.admin_models import BUILTIN_VERSION
 from server.catalog import attribute_methods
 from server.models import (
@@ -27,6 +28,7 @@ from server.models import (
     MethodPublic,
     SessionPublic,
     SessionStatus,
+    TrainablePublic,
     TuningSession,
 )
 from server.services import Services
@@ -106,4 +108,6 @@ def domains_public(svc: Services, db: Session) -> DomainsPublic:
         available = [MethodPublic(method=m, rep=r) for m, r in pairs]
         domains.append(DomainPublic(name=name, attributes=attributes_public(domain), frame_rate=domain.frame_rate,
                                     available=available, missing=svc.catalog.missing_reason(name)))
-    return DomainsPublic(domains=domains, methods=list(attribute_methods()), reps=list(REPRESENTATIONS))
+    return DomainsPublic(domains=domains, methods=list(attribute_methods()), reps=list(REPRESENTATIONS),
+                         trainable=[TrainablePublic(method=m.name, label=m.label, presets=list(m.presets))
+                                    for m in trainable()])

@@ -46,7 +46,7 @@ def test_shipped_artifacts_serve_a_fresh_clone(domain):
 
 @pytest.mark.parametrize("domain", SHIPPED)
 def test_epsilons_follow_the_design_contract(domain):
-    """DESIGN §3: ε splits each proxy's range over the library into 5–10 buckets; high precision 5–10× finer."""
+    """ARCHITECTURE §4: ε splits each proxy's range over the library into 5–10 buckets; high precision 5–10× finer."""
     serve = SkillLibrary.load(domain, "serve", REPO_ROOT / "data")
     spec = get_domain(domain)
     buckets = np.ptp(serve.proxies, axis=0) / spec.epsilons("normal")

@@ -164,7 +164,7 @@ def measure(rec: SnakeRecording, period: float, dt: float, data: mujoco.MjData,
 class Snake(Domain):
     name = "snake"
     attributes = (
-        # ε: a seventh of each proxy's range over the library (DESIGN §3: 5–10 buckets); high precision 5× finer
+        # ε: a seventh of each proxy's range over the library (ARCHITECTURE §4: 5–10 buckets); high precision 5× finer
         AttributeSpec("bend_width", "How wide the snake's body bends sideways as it folds.", "m",
                       epsilon=0.027, high_precision_epsilon=0.0054),
         AttributeSpec("compression", "How tightly the snake bunches its body together before stretching out.",

@@ -39,6 +39,10 @@ def test_admin_labels_a_pair(live_server, browser, tmp_path):
     page.get_by_role("button", name="Unlock").click()
     page.wait_for_function(CLIPS_PLAYING, timeout=90_000)  # both clips render on request
     assert page.locator("#attribute").input_value() == "step_size"
+    assert page.locator("#toast").is_hidden()  # the refused token's message went with the unlock
+    methods = page.eval_on_selector_all("#train-method option", "o => o.map((x) => [x.value, x.textContent])")
+    assert methods == [["global", "RBA-Global"], ["local", "RBA-Local"]]  # from the server's method registry
+    assert page.eval_on_selector_all("#preset option", "o => o.map((x) => x.value)") == ["default", "quick", "tiny"]
     shown = page.eval_on_selector_all("#pair figcaption", "c => c.map((x) => x.textContent.split(' · ')[1])")
     page.get_by_role("button", name="Right has more").click()
     page.wait_for_function("() => document.getElementById('label-count').textContent.includes('1 saved')")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 
 from rba.embed import REPRESENTATIONS
+from rba.methods import trainable
 from server.catalog import attribute_methods
 from tests.server.conftest import more
 
@@ -23,6 +24,8 @@ def test_domains_lists_attributes_and_available_models(client):
     walker = next(d for d in body["domains"] if d["name"] == "walker")
     assert walker["available"] == [] and "run `rba build walker`" in walker["missing"]
     assert body["methods"] == list(attribute_methods()) and body["reps"] == list(REPRESENTATIONS)
+    assert body["trainable"] == [{"method": m.name, "label": m.label, "presets": list(m.presets)} for m in trainable()]
+    assert [m["method"] for m in body["trainable"]] == ["global", "local"]  # PbRL learns online: nothing to train
 
 
 # -- creating and reading sessions -----------------------------------------------------------------
