@@ -4,32 +4,26 @@ A method is one frozen ``Method`` record, defined in the method's own module bes
 the agent class, how to load its shared context, the model files it needs, how to train them.
 The CLI, the evaluation, the server's catalog, jobs and API validation all iterate this registry.
 Records are imported lazily (listing names starts no torch). Adding a method = one module + one
-line in ``_BUILTIN``.
+line in ``REGISTRY``.
 """
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
+from rba.registry import Registry, import_object
+
 if TYPE_CHECKING:
     from rba.interact.base import Agent, FeedbackKind
     from rba.training import LabelSource, Progress
 
-__all__ = ["Method", "Trainer", "UnknownMethodError", "get_method", "method_names", "method_target", "methods",
-           "register", "train_presets", "trainable"]
+__all__ = ["Method", "Trainer", "UnknownMethodError", "get_method", "method_names", "method_target", "method_targets",
+           "methods", "register", "train_presets", "trainable"]
 
-# name -> "module:Object" (a ``Method`` record)
-_BUILTIN: dict[str, str] = {
-    "global": "rba.interact.global_agent:METHOD",
-    "local": "rba.interact.local_agent:METHOD",
-    "pbrl": "rba.interact.pbrl_agent:METHOD",
-}
-_EXTRA: dict[str, str] = {}
 _REP_SUFFIX = {"onehot": "", "language": "-L"}  # the paper's row labels: RBA-Global-L is the language rep
 
 
@@ -79,33 +73,26 @@ class UnknownMethodError(ValueError):
     """A method name the registry does not know (a bad value: the message names the valid ones)."""
 
 
+# name -> "module:Object" (a ``Method`` record)
+REGISTRY = Registry("method", {
+    "global": "rba.interact.global_agent:METHOD",
+    "local": "rba.interact.local_agent:METHOD",
+    "pbrl": "rba.interact.pbrl_agent:METHOD",
+}, UnknownMethodError, on_change=lambda: get_method.cache_clear())
+method_names = REGISTRY.names
+method_target = REGISTRY.target
+method_targets = REGISTRY.targets
+
+
 def register(name: str, target: str) -> None:
-    """Register a method at run time (plugins, tests) by the import path ``"module:Object"`` of its record.
-
-    A path, not an object, so that training processes can import it too.
-    """
-    _EXTRA[name] = target
-    get_method.cache_clear()
-
-
-def method_names() -> tuple[str, ...]:
-    return tuple(_BUILTIN) + tuple(n for n in _EXTRA if n not in _BUILTIN)
-
-
-def method_target(name: str) -> str:
-    """The ``"module:Object"`` import path of method ``name``'s record."""
-    if name in _EXTRA:
-        return _EXTRA[name]
-    if name not in _BUILTIN:
-        raise UnknownMethodError(f"unknown method {name!r}; valid: {', '.join(method_names())}")
-    return _BUILTIN[name]
+    """Register a method at run time (plugins, tests) by the import path ``"module:Object"`` of its record."""
+    REGISTRY.register(name, target)
 
 
 @cache
 def get_method(name: str) -> Method:
     """The record of method ``name``; ``UnknownMethodError`` naming the valid ones otherwise."""
-    module_name, obj = method_target(name).split(":")
-    record = getattr(importlib.import_module(module_name), obj)
+    record = import_object(method_target(name))
     if not isinstance(record, Method) or record.name != name:
         raise TypeError(f"{method_target(name)} is not the Method record of {name!r}")
     return record

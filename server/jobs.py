@@ -63,11 +63,10 @@ class JobRunner:
 
     def start(self, job_id: str) -> None:
         ctx = multiprocessing.get_context("spawn")
-        from rba.domains import domain_names, domain_target
-        from rba.methods import method_names, method_target
+        from rba.domains import domain_targets
+        from rba.methods import method_targets
 
-        registry = {name: domain_target(name) for name in domain_names()}  # plugins registered at run time too
-        method_registry = {name: method_target(name) for name in method_names()}
+        registry, method_registry = domain_targets(), method_targets()  # plugins registered at run time too
         proc = ctx.Process(target=run_job, args=(job_id, self.settings.model_dump(mode="json"), registry,
                                                  method_registry),
                            name=f"rba-train-{job_id[:8]}", daemon=True)

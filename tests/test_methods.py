@@ -115,7 +115,7 @@ def test_unknown_method_names_the_valid_ones():
 @pytest.fixture
 def twin(monkeypatch):
     """``local_twin`` registered at run time (and gone afterwards)."""
-    monkeypatch.setattr(methods, "_EXTRA", {})
+    monkeypatch.setattr(methods.REGISTRY, "extra", {})
     methods.register("local_twin", "tests.test_methods:TWIN")
     yield
     get_method.cache_clear()
@@ -135,7 +135,7 @@ def test_a_method_registered_at_run_time_appears_everywhere(twin):
 
 
 def test_a_record_must_match_its_registry_name(monkeypatch):
-    monkeypatch.setattr(methods, "_EXTRA", {})
+    monkeypatch.setattr(methods.REGISTRY, "extra", {})
     methods.register("impostor", "tests.test_methods:TWIN")
     try:
         with pytest.raises(TypeError, match="is not the Method record of 'impostor'"):
