@@ -1,4 +1,4 @@
-"""`rba build | train | eval | render | serve`: the command line over the library.
+"""`rba build | train | eval | render | cache | serve`: the command line over the library.
 
 Bad input prints one line naming the valid choices and exits with status 2.
 """

@@ -19,7 +19,7 @@ from rba.registry import Registry, import_object
 
 if TYPE_CHECKING:
     from rba.interact.base import Agent, FeedbackKind
-    from rba.training import LabelSource, Progress
+    from rba.training import LabelSource, StageProgress
 
 __all__ = ["Method", "Trainer", "UnknownMethodError", "get_method", "method_names", "method_target", "method_targets",
            "methods", "register", "train_presets", "trainable"]
@@ -32,7 +32,7 @@ class Trainer(Protocol):
 
     def __call__(self, domain: str, rep: str, preset: str, seed: int = 0, data_root: Path | None = None,
                  models_root: Path | None = None, sources: list[LabelSource] | None = None,
-                 on_progress: Progress | None = None) -> dict: ...
+                 on_progress: StageProgress | None = None) -> dict: ...
 
 
 @dataclass(frozen=True)

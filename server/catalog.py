@@ -1,6 +1,6 @@
 """What the server can offer: domains, which method/rep pairs have models, and the loaded contexts.
 
-Contexts (models + serve library) are heavy, so each (domain, method, rep) is loaded once,
+Contexts (models + serve library) are heavy, so each (domain, method, rep, model version) is loaded once,
 on first use, behind a per-key lock so that concurrent first requests load it once.
 """
 
@@ -36,7 +36,7 @@ class Catalog:
 
     def __init__(self, settings: Settings) -> None:
         self.store = Store.from_settings(settings)
-        self._contexts: dict[tuple[str, str, str], Any] = {}
+        self._contexts: dict[tuple[str, str, str, str], Any] = {}
         self._libraries: dict[str, SkillLibrary] = {}
         self._locks = KeyedLocks()
         self._guard = threading.Lock()

@@ -17,7 +17,7 @@ from sqlmodel import Session
 from rba.interact import SATISFIED, Feedback
 from server.admin_models import BUILTIN_VERSION
 from server.db import commit_or_conflict
-from server.errors import conflict, not_found
+from server.errors import conflict, invalid, not_found
 from server.feedback import parse_feedback
 from server.models import (
     FeedbackCreate,
@@ -98,7 +98,10 @@ def give_feedback(svc: Services, db: Session, session_id: str, body: FeedbackCre
         if ctx.model_version != s.model_version:
             raise conflict(f"the served model changed since session {s.id} started ({s.model_version} -> "
                            f"{ctx.model_version}); start a new session")
-        rollout_id, state = svc.transitions.advance(ctx, s.method, s.agent_state, feedback)
+        try:  # server.feedback already refused what the agent would; an agent's ValueError is still the client's
+            rollout_id, state = svc.transitions.advance(ctx, s.method, s.agent_state, feedback)
+        except ValueError as exc:
+            raise invalid(str(exc)) from exc
         _record_step(db, s, body, feedback, rollout_id, state)
     if s.status == SessionStatus.active:
         schedule_prerender(svc, s, None if feedback == SATISFIED else feedback)

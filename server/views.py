@@ -87,7 +87,7 @@ def session_public(svc: Services, db: Session, s: TuningSession) -> SessionPubli
     domain = svc.catalog.domain(s.domain)
     try:
         specs = svc.catalog.card_attributes(s.domain, s.method, s.rep, s.model_set)
-    except (FileNotFoundError, KeyError):  # its models were deleted: show the domain's own attributes
+    except (FileNotFoundError, KeyError, ValueError):  # its models (or method) are gone: the domain's own attributes
         specs = None
     return SessionPublic(id=s.id, domain=s.domain, method=s.method, rep=s.rep, model_version=s.model_version,
                          model_set=s.model_set, status=SessionStatus(s.status), step=s.step,

@@ -33,7 +33,7 @@ from rba.methods import Method
 from rba.training import PRESETS, GlobalTrainConfig, train_global
 
 if TYPE_CHECKING:
-    from rba.training import LabelSource, Progress
+    from rba.training import LabelSource, StageProgress
 
 MAX_PUSHES = 8  # doublings of the push step before giving up on a move
 GRID = 401  # belief grid points per attribute
@@ -168,7 +168,7 @@ class GlobalAgent(Agent):
 
 def train(domain: str, rep: str, preset: str, seed: int = 0, data_root: Path | None = None,
           models_root: Path | None = None, sources: list[LabelSource] | None = None,
-          on_progress: Progress | None = None) -> dict:
+          on_progress: StageProgress | None = None) -> dict:
     """Fit ζσ then rθ at ``preset`` (the domain may set its own ζσ steps)."""
     return train_global(domain, rep, GlobalTrainConfig.preset(preset, seed, domain), data_root=data_root,
                         models_root=models_root, sources=sources, on_progress=on_progress)

@@ -41,7 +41,7 @@ from rba.methods import Method
 from rba.training import PRESETS, LocalTrainConfig, train_local
 
 if TYPE_CHECKING:
-    from rba.training import LabelSource, Progress
+    from rba.training import LabelSource, StageProgress
 
 
 @dataclass
@@ -120,7 +120,7 @@ class LocalAgent(Agent):
 
 def train(domain: str, rep: str, preset: str, seed: int = 0, data_root: Path | None = None,
           models_root: Path | None = None, sources: list[LabelSource] | None = None,
-          on_progress: Progress | None = None) -> dict:
+          on_progress: StageProgress | None = None) -> dict:
     """Fit the local rθ at ``preset``."""
     return train_local(domain, rep, LocalTrainConfig.preset(preset, seed), data_root=data_root,
                        models_root=models_root, sources=sources, on_progress=on_progress)

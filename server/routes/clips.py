@@ -39,8 +39,9 @@ async def get_clip(domain: Annotated[str, Path(max_length=64)], rollout_id: Anno
     headers = {"ETag": key.etag, "Cache-Control": "no-cache"}
     if if_none_match and key.etag in {t.strip() for t in if_none_match.split(",")}:
         return Response(status_code=304, headers=headers)
-    path = svc.clips.path(key)
-    if not path.exists():  # render (or wait for the render) on the clip threads, never the API's
+    if svc.clips.cached(key):
+        path = svc.clips.path(key)
+    else:  # render (or wait for the render) on the clip threads, never the API's
         path = await anyio.to_thread.run_sync(svc.clips.get, key, library, limiter=svc.clip_limiter)
     return FileResponse(path, media_type="video/mp4", headers=headers)
 
