@@ -82,11 +82,7 @@ REGISTRY = Registry("method", {
 method_names = REGISTRY.names
 method_target = REGISTRY.target
 method_targets = REGISTRY.targets
-
-
-def register(name: str, target: str) -> None:
-    """Register a method at run time (plugins, tests) by the import path ``"module:Object"`` of its record."""
-    REGISTRY.register(name, target)
+register = REGISTRY.register  # a method at run time (plugins, tests), by the import path of its record
 
 
 @cache

@@ -9,7 +9,6 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from pathlib import Path
 from typing import Any
 
 from rba.domains import Domain, domain_names, get_domain
@@ -55,10 +54,6 @@ class Catalog:
     def models(self, version: str = BUILTIN_VERSION) -> ModelFiles:
         """A version's models: the shipped ones, or those a job published."""
         return self.store.models(None if version == BUILTIN_VERSION else version)
-
-    def models_root(self, version: str = BUILTIN_VERSION) -> Path:
-        """Where a version's models are: the shipped ones, or models/versions/<version>/ (job-written)."""
-        return self.models(version).root
 
     def card_attributes(self, domain: str, method: str, rep: str, version: str = BUILTIN_VERSION) -> list[dict]:
         """The attributes (name, description, unit) the models of ``version`` were trained for."""
@@ -114,7 +109,7 @@ class Catalog:
             ctx = self._contexts.get(key)
             if ctx is None:
                 start = time.perf_counter()
-                ctx = load_context(domain, method, rep, self.store.data_dir, self.models_root(version))
+                ctx = load_context(domain, method, rep, self.store.data_dir, self.models(version).root)
                 self._contexts[key] = ctx
                 log.info("loaded %s/%s/%s (model %s) in %.1f s", domain, method, rep, ctx.model_version,
                          time.perf_counter() - start)

@@ -64,7 +64,7 @@ def activate_version(svc: Services, db: Session, version: str, domain: str | Non
         have = db.exec(select(ModelVersion.version)).all()
         raise not_found(f"no model version {version!r}; versions: {', '.join(have) or 'none yet'}, builtin")
     if (row.method, row.rep) not in svc.catalog.available(row.domain, row.version):
-        raise conflict(f"the files of version {version} are missing under {svc.catalog.models_root(version)}; "
+        raise conflict(f"the files of version {version} are missing under {svc.catalog.models(version).root}; "
                        "it cannot be served")
     current = db.get(ActiveModel, row.domain) or ActiveModel(domain=row.domain, version=version)
     current.version, current.updated_at = version, utcnow()

@@ -9,7 +9,7 @@ import torch
 from rba.artifacts import load_model
 from rba.domains import get_domain
 from rba.evaluate import evaluate
-from rba.interact import AttributeFeedback, check_method, load_context, new_agent, restore_agent
+from rba.interact import AttributeFeedback, load_context, new_agent, restore_agent
 from rba.labels import LocalLabelConfig, local_pairs, validate_local_records
 from rba.learn.local_reward import LocalRewardConfig
 from rba.library import SkillLibrary
@@ -137,7 +137,7 @@ def test_bad_input_gives_clear_errors(ctx):
     with pytest.raises(ValueError, match="unknown attribute 'speed'; valid: amplitude, pace"):
         agent.update([AttributeFeedback("speed", 1)])
     with pytest.raises(ValueError, match="unknown method 'lokal'; valid: global, local, pbrl"):
-        check_method("lokal")
+        new_agent("lokal", ctx)
 
 
 def test_simulated_users_reach_targets(local_roots):

@@ -31,11 +31,7 @@ REGISTRY = Registry("domain", {
 domain_names = REGISTRY.names
 domain_target = REGISTRY.target
 domain_targets = REGISTRY.targets
-
-
-def register(name: str, target: str) -> None:
-    """Register a domain at run time (plugins, tests) by its import path ``"module:Class"``."""
-    REGISTRY.register(name, target)
+register = REGISTRY.register  # a domain at run time (plugins, tests), by its import path "module:Class"
 
 
 @cache

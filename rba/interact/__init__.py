@@ -20,14 +20,8 @@ from rba.interact.base import (
 )
 from rba.methods import get_method
 
-__all__ = ["SATISFIED", "Agent", "AttributeFeedback", "Feedback", "FeedbackKind", "Preference", "check_method",
+__all__ = ["SATISFIED", "Agent", "AttributeFeedback", "Feedback", "FeedbackKind", "Preference",
            "load_context", "new_agent", "restore_agent", "validate_feedback"]
-
-
-def check_method(method: str) -> str:
-    """``method`` if it is registered; ``UnknownMethodError`` (a ValueError) naming the valid ones otherwise."""
-    get_method(method)
-    return method
 
 
 def load_context(domain: str, method: str, rep: str, data_root: Path | None = None,

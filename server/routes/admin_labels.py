@@ -50,9 +50,5 @@ def list_labels(domain: str, db: DbDep, attribute: str | None = None,
             summary="Clips to label next: serve rollouts, with their clip URLs")
 def next_clips(domain: str, svc: ServicesDep, db: DbDep, size: int = Query(default=2, ge=2, le=8),
                anchor: bool = False, seed: int | None = Query(default=None, ge=0)) -> ClipsToLabelPublic:
-    """``size`` random serve clips (seeded by ``seed``, else by how many labels exist: a reload shows the same).
-
-    With ``anchor``, the first clip is an anchor and the others its nearest neighbours in the
-    library's measured attributes: candidates for "the same, but a little more α".
-    """
+    """Clips to label next (``server.labelling.clips_to_label``)."""
     return labelling.clips_to_label(svc, db, domain, size, anchor, seed)
