@@ -49,16 +49,20 @@ def _noise(text: str) -> float:
 
 
 def cmd_build(args) -> int:
+    from rba.compute import make_compute
     from rba.library import build_all
+    from rba.settings import LibrarySettings
     from rba.training import prepare_states
 
     prepare_states(args.domain, args.seed)  # a learned state encoder the rollouts load, trained if missing
     sizes = {"train": args.train, "serve": args.serve, "test": args.test}
-    libs = build_all(args.domain, seed=args.seed, sizes=sizes, workers=args.workers)
+    settings = LibrarySettings(compute_workers=args.workers, compute_nice=0)  # nothing else runs: no need to yield
+    with make_compute(settings, args.ray) as compute:
+        libs = build_all(args.domain, seed=args.seed, sizes=sizes, compute=compute)
     for split, lib in libs.items():
         m = lib.meta
         print(f"{args.domain}/{split}: {len(lib)} rollouts, success {m['success_rate']:.1%} of {m['attempted']}, "
-              f"{m['build_seconds']:.1f} s, version {lib.version}")
+              f"{m['build_seconds']:.1f} s on {m['workers']} workers, version {lib.version}")
     return 0
 
 
@@ -113,12 +117,13 @@ def cmd_render(args) -> int:
 
 
 def cmd_cache(args) -> int:
-    """Render every clip of a split into the app's clip cache, so no one waits for a render."""
+    """Render every clip of a split into the app's clip cache on the compute layer, so no one waits for a render."""
     import time
 
     from tqdm import tqdm
 
     from rba.clips import ClipCache
+    from rba.compute import make_compute
     from rba.library import SkillLibrary
     from rba.settings import LibrarySettings
     from rba.store import Store
@@ -126,15 +131,15 @@ def cmd_cache(args) -> int:
     settings = LibrarySettings()
     store = Store.from_settings(settings)
     lib = SkillLibrary.load(args.domain, args.split, store.data_dir)
-    cache = ClipCache(store.clips(), args.width or settings.clip_width, args.height or settings.clip_height, 1)
-    start, made = time.perf_counter(), 0
-    for rollout_id in tqdm(lib.ids, desc=f"{args.domain}/{args.split} clips", unit="clip"):
-        key = cache.key(lib, rollout_id)
-        if not cache.cached(key):
-            cache.get(key, lib)
-            made += 1
+    start = time.perf_counter()
+    with make_compute(settings, args.ray) as compute, tqdm(total=len(lib), desc=f"{args.domain}/{args.split} clips",
+                                                          unit="clip") as bar:
+        cache = ClipCache(store.clips(), compute, args.width or settings.clip_width,
+                          args.height or settings.clip_height)
+        made = cache.fill(((cache.key(lib, rid), lib) for rid in lib.ids), on_done=lambda key, rendered: bar.update())
     print(f"{len(lib)} clips of {args.domain}/{args.split} in {store.cache_dir}: {made} rendered in "
-          f"{time.perf_counter() - start:.0f} s, {len(lib) - made} were cached already")
+          f"{time.perf_counter() - start:.0f} s on {compute.name} ({compute.capacity} workers), "
+          f"{len(lib) - made} were cached already")
     return 0
 
 
@@ -146,8 +151,15 @@ def cmd_serve(args) -> int:
 
     module, name = SERVER_ENTRY.split(":")
     run = getattr(importlib.import_module(module), name)
-    run(host=args.host, port=args.port)
+    run(host=args.host, port=args.port, ray_address=args.ray)
     return 0
+
+
+def _ray_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--ray", metavar="ADDRESS", default=None,
+                        help="simulate and render on a Ray cluster: auto (the one running on this machine), local "
+                             "(start one here), host:port or ray://host:port; default: RBA_RAY_ADDRESS, else local "
+                             "worker processes")
 
 
 def _build_command(sub) -> argparse.ArgumentParser:
@@ -158,7 +170,8 @@ def _build_command(sub) -> argparse.ArgumentParser:
     b.add_argument("--serve", type=_positive, default=None,
                    help="rollouts the agent chooses from (default: the domain's serve_size)")
     b.add_argument("--test", type=_positive, default=120, help="held-out target behaviours")
-    b.add_argument("--workers", type=_positive, default=2, help="simulation processes")
+    b.add_argument("--workers", type=_positive, default=2, help="simulation processes (without --ray)")
+    _ray_option(b)
     b.set_defaults(func=cmd_build)
     return b
 
@@ -186,6 +199,7 @@ def _cache_command(sub) -> argparse.ArgumentParser:
     c.add_argument("--split", choices=("serve", "train", "test"), default="serve")
     c.add_argument("--width", type=_positive, default=None, help="default: RBA_CLIP_WIDTH (320)")
     c.add_argument("--height", type=_positive, default=None, help="default: RBA_CLIP_HEIGHT (240)")
+    _ray_option(c)
     c.set_defaults(func=cmd_cache)
     return c
 
@@ -224,6 +238,7 @@ def _serve_command(sub) -> argparse.ArgumentParser:
     s = sub.add_parser("serve", help="start the web app")
     s.add_argument("--host", default=None)
     s.add_argument("--port", type=int, default=None)
+    _ray_option(s)
     s.set_defaults(func=cmd_serve)
     return s
 

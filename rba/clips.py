@@ -1,9 +1,9 @@
-"""The clip cache: MP4s rendered off-screen on first request and kept in the store.
+"""The clip cache: MP4s rendered on the compute layer, stored content-addressed and atomically in a ``ClipStore``.
 
-A clip's key is (domain, library version, rollout id, size); the store (``rba.store.ClipStore``)
-names its file. Each key has a lock, so two requests for the same uncached clip render it once;
-a semaphore bounds how many requested clips render at the same time, and background renders
-give way to them.
+A clip's key is (domain, library version, rollout id, size); the store names its file from the
+key's hash, so any number of API replicas can share one cache folder: a clip two of them render
+at once is written twice with the same bytes, and readers never see half a file. Within one
+process each key renders once however many ask (``request`` returns the render in flight).
 """
 
 from __future__ import annotations
@@ -12,24 +12,18 @@ import hashlib
 import logging
 import threading
 import time
-from collections import Counter
-from collections.abc import Iterator
-from contextlib import contextmanager
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable
+from concurrent.futures import Future, wait
+from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
-from rba.domains import get_domain
+from rba.compute import Compute, RenderJob, Task
 from rba.library import SkillLibrary
-from rba.locks import KeyedLocks
 from rba.store import ClipStore
-from rba.video import encode_mp4
 
 log = logging.getLogger(__name__)
 
 STALE_TMP_SECONDS = 600
-PAUSE_CHECK_SECONDS = 0.5  # a paused background render re-checks this often (and on every change)
 
 
 @dataclass(frozen=True)
@@ -50,22 +44,25 @@ class ClipKey:
         return f'"{self.digest}"'
 
 
+@dataclass
+class _Render:
+    """A render in flight: the compute task and the future of the stored file."""
+
+    task: Task
+    urgent: bool
+    done: Future = field(default_factory=Future)
+    started: float = field(default_factory=time.perf_counter)
+
+
 class ClipCache:
-    """Rendered clips in a ``ClipStore``; ``get`` renders when missing.
+    """Rendered clips in a ``ClipStore``; ``request`` renders what is missing on ``compute``."""
 
-    Renders a person is waiting for come first: a background (speculative) render pauses
-    between frames while any requested render runs, unless someone is waiting for its clip.
-    """
-
-    def __init__(self, store: ClipStore, width: int, height: int, concurrency: int = 2) -> None:
-        self.store = store
+    def __init__(self, store: ClipStore, compute: Compute, width: int, height: int) -> None:
+        self.store, self.compute = store, compute
         self.width, self.height = width, height
-        self._locks = KeyedLocks()
-        self._slots = threading.BoundedSemaphore(concurrency)
-        self._cond = threading.Condition()
-        self._urgent = 0  # requested renders running now
-        self._wanted: Counter[ClipKey] = Counter()  # clips requests are waiting for
-        self.renders = 0  # clips rendered by this process (tests and benchmarks read it)
+        self._lock = threading.RLock()  # a cancelled render's callback runs in the canceller's thread
+        self._inflight: dict[ClipKey, _Render] = {}
+        self.renders = 0  # clips rendered for this process (tests and benchmarks read it)
         self.render_seconds = 0.0
         store.sweep(STALE_TMP_SECONDS)  # renders cut short by a crash leave temporaries; old ones are garbage
 
@@ -80,62 +77,94 @@ class ClipCache:
     def cached(self, key: ClipKey) -> bool:
         return self.store.exists(key)
 
-    def get(self, key: ClipKey, library: SkillLibrary, background: bool = False) -> Path:
-        """The clip's file, rendering it first if needed (once per key, however many ask)."""
-        if self.store.exists(key):
-            return self.store.path(key)
-        if not background:
-            self._want(key, 1)
-        try:
-            with self._locks(key):
-                if self.store.exists(key):  # rendered while we waited for the lock
-                    return self.store.path(key)
-                if background:
-                    self._render(key, library, pausable=True)
-                else:
-                    with self._slots, self._running_urgent():
-                        self._render(key, library, pausable=False)
-        finally:
-            if not background:
-                self._want(key, -1)
-        return self.store.path(key)
+    def pending(self, key: ClipKey) -> bool:
+        with self._lock:
+            return key in self._inflight
 
-    def _render(self, key: ClipKey, library: SkillLibrary, pausable: bool) -> None:
-        start = time.perf_counter()
-        domain = get_domain(key.domain)
-        rollout = library.rollout(library.index_of(key.rollout_id))
-        frames = domain.render(rollout, key.width, key.height)
-        frames = self._yielding(key, frames) if pausable else frames
-        count = self.store.write(key, lambda tmp: encode_mp4(frames, tmp, domain.frame_rate))
-        seconds = time.perf_counter() - start
-        with self._cond:
+    def wait_idle(self, timeout: float) -> bool:
+        """True once no render of this cache is in flight (tests and benchmarks use it)."""
+        with self._lock:
+            futures = [r.done for r in self._inflight.values()]
+        return not wait(futures, timeout).not_done
+
+    def request(self, key: ClipKey, library: SkillLibrary, urgent: bool = True) -> Future:
+        """A future of the clip's stored file: done at once if cached, else the render in flight or a new one.
+
+        An urgent request for a clip queued as a guess moves it to the urgent queue when the backend has one.
+        """
+        done: Future = Future()
+        if self.store.exists(key):
+            done.set_result(self.store.path(key))
+            return done
+        with self._lock:
+            render = self._inflight.get(key)
+            upgrade = render is not None and urgent and not render.urgent and self.compute.prioritised
+            if upgrade and render.task.cancel():
+                render = None  # dropped before it started: submit it again as urgent
+            if render is None:
+                render = self._submit(key, library, urgent)
+            return render.done
+
+    def get(self, key: ClipKey, library: SkillLibrary, urgent: bool = True) -> Path:
+        """The clip's file, rendering it first if needed."""
+        return self.request(key, library, urgent).result()
+
+    def _submit(self, key: ClipKey, library: SkillLibrary, urgent: bool) -> _Render:
+        job = RenderJob.of(key.domain, library.rollout(library.index_of(key.rollout_id)), key.width, key.height)
+        render = _Render(self.compute.render(job, urgent), urgent)
+        self._inflight[key] = render
+        render.task.future.add_done_callback(lambda f: self._finish(key, render, f))
+        return render
+
+    def _finish(self, key: ClipKey, render: _Render, result: Future) -> None:
+        with self._lock:
+            if self._inflight.get(key) is render:
+                del self._inflight[key]
+        if result.cancelled():
+            render.done.cancel()
+            return
+        try:
+            data = result.result()
+            self.store.write(key, lambda tmp: tmp.write_bytes(data))
+        except Exception as exc:  # the render's failure is the requester's: every waiter sees it
+            log.warning("render of %s/%s failed: %s", key.domain, key.rollout_id, exc)
+            render.done.set_exception(exc)
+            return
+        seconds = time.perf_counter() - render.started
+        with self._lock:
             self.renders += 1
             self.render_seconds += seconds
-        log.info("rendered %s/%s (%d frames%s) in %.2f s", key.domain, key.rollout_id, count,
-                 ", background" if pausable else "", seconds)
+        log.info("rendered %s/%s (%d kB%s) in %.2f s", key.domain, key.rollout_id, len(data) // 1024,
+                 "" if render.urgent else ", background", seconds)
+        render.done.set_result(self.store.path(key))
 
-    def _yielding(self, key: ClipKey, frames: Iterator[np.ndarray]) -> Iterator[np.ndarray]:
-        """Pass frames on, pausing while a requested render runs and nobody waits for this clip."""
-        for frame in frames:
-            with self._cond:
-                while self._urgent and not self._wanted[key]:
-                    self._cond.wait(PAUSE_CHECK_SECONDS)
-            yield frame
+    def fill(self, keys: Iterable[tuple[ClipKey, SkillLibrary]], window: int | None = None,
+             stop: Callable[[], bool] = lambda: False, on_done: Callable[[ClipKey, bool], None] = lambda k, r: None,
+             ) -> int:
+        """Render every uncached clip of ``keys`` as guesses, at most ``window`` at a time (default: the
+        backend's capacity), in order; ``on_done(key, rendered)`` after each. Returns how many were rendered."""
+        window = window or self.compute.capacity
+        running: dict[Future, ClipKey] = {}
+        rendered = 0
 
-    def _want(self, key: ClipKey, delta: int) -> None:
-        with self._cond:
-            self._wanted[key] += delta
-            if self._wanted[key] <= 0:
-                del self._wanted[key]
-            self._cond.notify_all()
+        def drain(until: str) -> None:
+            nonlocal rendered
+            done, _ = wait(list(running), return_when=until)
+            for f in done:
+                key = running.pop(f)
+                ok = not f.cancelled() and f.exception() is None
+                rendered += ok
+                on_done(key, ok)
 
-    @contextmanager
-    def _running_urgent(self) -> Iterator[None]:
-        with self._cond:
-            self._urgent += 1
-        try:
-            yield
-        finally:
-            with self._cond:
-                self._urgent -= 1
-                self._cond.notify_all()
+        for key, library in keys:
+            if stop():
+                break
+            if self.store.exists(key) and not self.pending(key):
+                on_done(key, False)
+                continue
+            running[self.request(key, library, urgent=False)] = key
+            while len(running) >= window:
+                drain("FIRST_COMPLETED")
+        if running:
+            drain("ALL_COMPLETED")
+        return rendered

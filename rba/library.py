@@ -9,13 +9,15 @@ from __future__ import annotations
 
 import hashlib
 import logging
-import multiprocessing as mp
 import time
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from rba.compute import Compute, SimJob
 from rba.domains import Rollout, domain_target, get_domain, load_domain
 from rba.storage import load_json, load_npz, save_json, save_npz
 from rba.store import library_files
@@ -169,17 +171,14 @@ def _content_hash(lib: SkillLibrary) -> str:
 
 # -- generation ------------------------------------------------------------------------
 
-def _simulate(job: tuple[str, dict[str, float], int]) -> Rollout:
-    target, params, seed = job
-    return load_domain(target).rollout(params, seed)
-
-
-def generate(domain_name: str, split: str, n: int, seed: int = 0, workers: int = 2,
-             progress: bool = True) -> SkillLibrary:
-    """Simulate ``n`` successful rollouts for ``split`` (failures are counted, not kept).
+def generate(domain_name: str, split: str, n: int, seed: int = 0, workers: int = 2, progress: bool = True,
+             compute: Compute | None = None) -> SkillLibrary:
+    """Simulate ``n`` successful rollouts for ``split`` (failures are counted, not kept) on ``compute``
+    (default: ``workers`` local processes, or this process when ``workers`` is 1).
 
     Each split draws parameters from its own seeded stream, so test parameters never repeat
-    train parameters.
+    train parameters; rollout ``k`` of a split always has the same parameters and seed, whatever
+    the backend or the number of workers.
     """
     from tqdm import tqdm
 
@@ -191,42 +190,50 @@ def generate(domain_name: str, split: str, n: int, seed: int = 0, workers: int =
     start = time.perf_counter()
     kept: list[Rollout] = []
     attempted = 0
-    max_attempts = 3 * n + 10
-    pool = mp.get_context("spawn").Pool(workers) if workers > 1 else None
     bar = tqdm(total=n, desc=f"{domain_name}/{split}", unit="rollout", disable=not progress)
-    try:
-        while len(kept) < n and attempted < max_attempts:
-            batch = max(n - len(kept), 1)
+    with _backend(compute, workers) as run:
+        while len(kept) < n and attempted < 3 * n + 10:
             jobs = []
-            for _ in range(batch):
-                jobs.append((target, domain.sample_params(rng), seed * 10_000_000 + split_code * 1_000_000 + attempted))
+            for _ in range(max(n - len(kept), 1)):
+                jobs.append(SimJob(target, domain.sample_params(rng),
+                                   seed * 10_000_000 + split_code * 1_000_000 + attempted))
                 attempted += 1
-            results = pool.imap(_simulate, jobs, chunksize=4) if pool else map(_simulate, jobs)
-            for r in results:
+            for r in run(jobs):
                 if r.success and len(kept) < n:
                     r.id = f"{split}-{len(kept):05d}"
                     kept.append(r)
                     bar.update(1)
-    finally:
-        bar.close()
-        if pool:
-            pool.close()
-            pool.join()
+    bar.close()
     if len(kept) < n:
         raise RuntimeError(f"only {len(kept)} of {attempted} {domain_name} rollouts succeeded; wanted {n}")
     seconds = time.perf_counter() - start
     meta = {"seed": seed, "attempted": attempted, "succeeded": len(kept), "success_rate": len(kept) / attempted,
-            "build_seconds": round(seconds, 2), "workers": workers}
+            "build_seconds": round(seconds, 2), "workers": compute.capacity if compute else workers}
     log.info("%s/%s: %d rollouts (%d attempted) in %.1f s", domain_name, split, n, attempted, seconds)
     return SkillLibrary.from_rollouts(kept, split, domain.param_names, domain.attribute_names, meta)
 
 
+@contextmanager
+def _backend(compute: Compute | None, workers: int) -> Iterator[Callable[[list[SimJob]], Iterable[Rollout]]]:
+    """``compute.simulate``; without a backend, a temporary local pool of ``workers`` (or this process)."""
+    if compute is not None:
+        yield compute.simulate
+    elif workers > 1:
+        from rba.compute.local import LocalCompute
+
+        with LocalCompute(workers, nice=0) as local:
+            yield local.simulate
+    else:
+        yield lambda jobs: (load_domain(j.target).rollout(j.params, j.seed) for j in jobs)
+
+
 def build_all(domain_name: str, seed: int = 0, sizes: dict[str, int] | None = None, workers: int = 2,
-              root: Path | None = None, progress: bool = True) -> dict[str, SkillLibrary]:
+              root: Path | None = None, progress: bool = True, compute: Compute | None = None,
+              ) -> dict[str, SkillLibrary]:
     """Generate and save every split; check that no test parameters occur in train."""
     domain = get_domain(domain_name)
     sizes = {**DEFAULT_SIZES, "serve": domain.serve_size, **{k: v for k, v in (sizes or {}).items() if v is not None}}
-    libs = {s: generate(domain_name, s, sizes[s], seed, workers, progress) for s in SPLITS}
+    libs = {s: generate(domain_name, s, sizes[s], seed, workers, progress, compute) for s in SPLITS}
     train_rows = {tuple(row) for row in libs["train"].params}
     leaked = sum(tuple(row) in train_rows for row in libs["test"].params)
     if leaked:

@@ -25,6 +25,14 @@ class LibrarySettings(BaseSettings):
     cache_dir: Path | None = Field(default=None, description="rendered clips; default <data_dir>/cache/clips")
     clip_width: int = Field(default=320, ge=16, le=1920)
     clip_height: int = Field(default=240, ge=16, le=1080)
+    ray_address: str | None = Field(default=None, description="run simulation and rendering on Ray: 'auto' (the "
+                                    "cluster on this machine), 'local' (start one), host:port or ray://host:port; "
+                                    "unset: local worker processes")
+    compute_workers: int = Field(default=2, ge=1, le=64, description="local worker processes per pool (urgent "
+                                 "renders and simulations; guesses have a pool of the same size)")
+    compute_nice: int = Field(default=5, ge=0, le=19, description="CPU niceness of the urgent pool: below the API")
+    background_nice: int = Field(default=15, ge=0, le=19, description="CPU niceness of the guess pool (prerender, "
+                                 "rba cache): below the urgent pool")
 
     @field_validator("data_dir", "models_dir", "cache_dir")
     @classmethod

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import os
+import threading
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
@@ -12,6 +13,7 @@ from fastapi import FastAPI, HTTPException
 from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
 
+from rba.compute import Compute
 from server import errors
 from server.prerender import warm_up
 from server.routes import admin_datasets, admin_labels, admin_training, clips, domains, sessions
@@ -24,16 +26,20 @@ log = logging.getLogger(__name__)
 FRONTEND = Path(__file__).resolve().parents[1] / "frontend"
 
 
-def create_app(settings: Settings | None = None) -> FastAPI:
-    """A new app; its database schema, clip cache and background workers start with its lifespan."""
+def create_app(settings: Settings | None = None, compute: Compute | None = None) -> FastAPI:
+    """A new app; its database schema, clip cache and background workers start with its lifespan.
+
+    ``compute`` (tests, benchmarks) is used and left running; without it the app makes its own from the settings.
+    """
     settings = settings or Settings()
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        svc = Services.start(settings)
+        svc = Services.start(settings, compute)
         app.state.services = svc
-        if settings.warm_start and svc.renderer is not None:
-            svc.renderer.submit("warm-up", lambda: warm_up(svc))
+        if settings.warm_start:  # its own thread: the thinker stays free for the first sessions
+            svc.warming = threading.Thread(target=warm_up, args=(svc,), name="rba-warm-up", daemon=True)
+            svc.warming.start()
         store = svc.store
         log.info("RBA Studio: data %s, models %s, clips %s", store.data_dir, store.models_dir, store.cache_dir)
         try:
@@ -70,11 +76,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     return app
 
 
-def run(host: str | None = None, port: int | None = None) -> None:
-    """``rba serve``: uvicorn with the app on ``host:port`` (defaults from the settings)."""
+def run(host: str | None = None, port: int | None = None, ray_address: str | None = None) -> None:
+    """``rba serve``: uvicorn with the app on ``host:port`` (defaults from the settings), computing on Ray at
+    ``ray_address`` if given."""
     import uvicorn
 
-    settings = Settings()
+    settings = Settings(**({"ray_address": ray_address} if ray_address else {}))
     logging.basicConfig(level=settings.log_level.upper(), format="%(asctime)s %(name)s %(levelname)s %(message)s")
     uvicorn.run(create_app(settings), host=host or settings.host, port=port or settings.port,
                 log_level=settings.log_level.lower())

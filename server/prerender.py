@@ -1,96 +1,100 @@
-"""The prerender scheduler: while a person watches a clip, work out and render what each answer would show.
+"""Clips before they are asked for: which clips to render as guesses, in the order people will need them.
 
-Import direction: above ``server.services`` (its workers, transitions and clip cache), below
-``server.sessions`` (which schedules and stops it) and ``server.main`` (the warm-up); it never
-imports either.
+Every session of a context (domain, method, rep, model version) starts from the same clip and
+branches on a few answers, so the clips anyone can reach form one tree that all sessions share.
+Guesses are rendered in three tiers (the ``Prefetcher`` keeps the compute layer's guess queue
+short and always takes from the highest tier first):
+
+1. each active session's possible next clips: every answer combination, most likely first;
+2. the shared trees, best-first by how likely a session is to reach each node: answer
+   probabilities are what earlier sessions answered there (counted from the feedback table,
+   plus one per answer, so an unvisited tree is walked breadth-first);
+3. the rest of each serve library.
+
+Import direction: above ``server.services`` (its transitions, catalog, clip cache and prefetcher),
+below ``server.sessions`` and ``server.main``; it never imports either.
 """
 
 from __future__ import annotations
 
+import heapq
+import itertools
 import logging
-from collections.abc import Callable
+from collections import Counter, defaultdict
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 
+from sqlmodel import Session, select
+
+from rba.domains import domain_names, domain_target
 from rba.interact import SATISFIED, AttributeFeedback, Feedback
 from server.admin_models import BUILTIN_VERSION
-from server.models import SessionStatus, TuningSession
-from server.services import Services
+from server.models import FeedbackEvent, SessionStatus, TuningSession
+from server.services import ClipRef, Services
+from server.transitions import FeedbackKey, feedback_key
 
 log = logging.getLogger(__name__)
 
-
-def candidate_order(attributes: tuple[str, ...], last: Feedback | None) -> list[AttributeFeedback]:
-    """Every single feedback, most likely first: people often repeat their last answer."""
-    options = [AttributeFeedback(a, d) for a in attributes for d in (1, -1)]
-    if not last or last == SATISFIED:
-        return options
-    asked = {(fb.attribute, fb.direction) for fb in last}
-    return sorted(options, key=lambda fb: (0 if (fb.attribute, fb.direction) in asked
-                                           else 1 if any(fb.attribute == a for a, _ in asked) else 2))
+ContextKey = tuple[str, str, str, str]  # (domain, method, rep, model version)
+MAX_ANSWER_ATTRIBUTES = 2  # answers name at most this many attributes at once (the page names one)
 
 
-def next_clips(svc: Services, key: tuple[str, str, str, str], state: dict, last: Feedback | None,
+def answer_order(attributes: tuple[str, ...], last: Feedback | None) -> list[list[AttributeFeedback]]:
+    """Every answer a person can give, most likely first: single answers (the last one repeated first, then
+    the same attribute the other way), then combinations of two attributes."""
+    singles = [AttributeFeedback(a, d) for a in attributes for d in (1, -1)]
+    if last and last != SATISFIED:
+        asked = {(fb.attribute, fb.direction) for fb in last}
+        singles.sort(key=lambda fb: 0 if (fb.attribute, fb.direction) in asked
+                     else 1 if any(fb.attribute == a for a, _ in asked) else 2)
+    answers = [[fb] for fb in singles]
+    for k in range(2, min(MAX_ANSWER_ATTRIBUTES, len(attributes)) + 1):
+        for names in itertools.combinations(attributes, k):
+            for dirs in itertools.product((1, -1), repeat=k):
+                answers.append([AttributeFeedback(a, d) for a, d in zip(names, dirs, strict=True)])
+    return answers
+
+
+def next_clips(svc: Services, key: ContextKey, state: dict, last: Feedback | None,
                stale: Callable[[], bool]) -> list[str]:
-    """The rollout each possible single next feedback would show, most likely first (computed on copies).
-
-    ``key`` is (domain, method, rep, model version).
-    """
+    """The rollout each possible next answer would show, most likely first (computed on copies, memoised)."""
     ctx = svc.catalog.context(*key)
-    method = key[1]
     nexts: list[str] = []
-    for fb in candidate_order(ctx.attribute_names, last):
+    for answer in answer_order(ctx.attribute_names, last):
         if stale():
             break
-        nexts.append(svc.transitions.advance(ctx, method, state, [fb])[0])
+        nexts.append(svc.transitions.advance(ctx, key[1], state, answer)[0])
     return list(dict.fromkeys(nexts))
 
 
-def render_clips(svc: Services, domain: str, rollout_ids: list[str], stale: Callable[[], bool]) -> None:
-    lib = svc.catalog.library(domain)
-    for rid in dict.fromkeys(rollout_ids):
-        if stale():
-            return
-        svc.clips.get(svc.clips.key(lib, rid), lib, background=True)
-
-
 def schedule_prerender(svc: Services, s: TuningSession, last: Feedback | None) -> None:
-    """While the person watches: work out every possible next answer, then render the clips they would show.
+    """While the person watches: work out what every possible answer would show, and queue those clips first.
 
-    Two queues, each keeping only a session's newest job: thinking is quick and is what makes the next
-    feedback request fast; rendering is slow and runs on one thread. The shown clip comes first in the
-    render queue, though the page's own request usually renders it first (the cache renders a key once).
+    The thinker keeps only a session's newest job: an answer given before the guesses were worked out
+    replaces them. The clips go to the prefetcher's first tier as they are found, most likely first.
     """
-    if svc.thinker is None or svc.renderer is None or not svc.settings.prerender:
+    if svc.thinker is None or not svc.settings.prerender:
         return
     session_id, step, shown = s.id, s.step, s.current_rollout_id
     key, state = (s.domain, s.method, s.rep, s.model_set), s.agent_state
     svc.prerendering[session_id] = step
-    renderer = svc.renderer
 
     def stale() -> bool:
         return svc.stopping or svc.prerendering.get(session_id) != step
 
     def think() -> None:
         clips = [shown, *next_clips(svc, key, state, last, stale)]
-        if not stale():  # most likely first, dealt round-robin to the render threads
-            names = render_keys(svc, session_id)
-            for w, name in enumerate(names):
-                part = clips[w::len(names)]
-                renderer.submit(name, lambda part=part: render_clips(svc, key[0], part, stale))
+        if not stale():
+            svc.prefetch.offer(session_id, [ClipRef(key[0], rid) for rid in clips])
 
     svc.thinker.submit(session_id, think)
-
-
-def render_keys(svc: Services, session_id: str) -> list[str]:
-    """One background key per render thread, so a session's clips render in parallel."""
-    return [f"{session_id}#{w}" for w in range(len(svc.renderer.workers))] if svc.renderer else []
 
 
 def stop_prerender(svc: Services, session_id: str) -> None:
     svc.prerendering.pop(session_id, None)
     if svc.thinker is not None:
         svc.thinker.cancel(session_id)
-    for name in render_keys(svc, session_id):
-        svc.renderer.cancel(name)
+    svc.prefetch.withdraw(session_id)
 
 
 def resume_prerender(svc: Services, s: TuningSession) -> None:
@@ -99,35 +103,98 @@ def resume_prerender(svc: Services, s: TuningSession) -> None:
         schedule_prerender(svc, s, None)
 
 
-def _first_steps(svc: Services) -> list[tuple[tuple[str, str, str, str], dict]]:
-    """Every available model's first clip, rendered; returns each (context key, first state)."""
+# -- the shared trees -------------------------------------------------------------------------
+
+@dataclass
+class AnswerCounts:
+    """How many sessions of each context gave each answer after each answer path (from the feedback table)."""
+
+    sessions: Counter  # context -> sessions started
+    after: dict  # (context, path) -> Counter(answer -> sessions)
+
+    @classmethod
+    def load(cls, svc: Services) -> AnswerCounts:
+        sessions: Counter = Counter()
+        after: dict = defaultdict(Counter)
+        paths: dict[str, list[FeedbackKey]] = defaultdict(list)
+        with Session(svc.engine) as db:
+            contexts = {s.id: (s.domain, s.method, s.rep, s.model_set) for s in db.exec(select(TuningSession))}
+            rows = db.exec(select(FeedbackEvent).order_by(FeedbackEvent.session_id, FeedbackEvent.step)).all()
+        for sid in contexts:
+            sessions[contexts[sid]] += 1
+        for row in rows:
+            if row.session_id in contexts and row.feedback != SATISFIED:
+                path = paths[row.session_id]
+                answer = tuple(sorted((f["attribute"], 1 if f["direction"] == "more" else -1) for f in row.feedback))
+                after[contexts[row.session_id], tuple(path)][answer] += 1
+                path.append(answer)
+        return cls(sessions, after)
+
+    def share(self, context: ContextKey, contexts: int) -> float:
+        """The share of new sessions expected in ``context`` (add-one smoothing over ``contexts``)."""
+        return (self.sessions[context] + 1) / (sum(self.sessions.values()) + contexts)
+
+    def answer_share(self, context: ContextKey, path: tuple, answer: FeedbackKey, answers: int) -> float:
+        counts = self.after.get((context, path), Counter())
+        return (counts[answer] + 1) / (sum(counts.values()) + answers)
+
+
+def tree_clips(svc: Services, counts: AnswerCounts, starts: list[tuple[ContextKey, str, dict]],
+               min_share: float, stop: Callable[[], bool]) -> Iterator[ClipRef]:
+    """Clips of every context's tree, most likely to be reached first, down to ``min_share`` of sessions."""
+    heap: list[tuple[float, int, ContextKey, tuple, dict]] = []
+    order = itertools.count()
+    for context, first, state in starts:
+        share = counts.share(context, len(starts))
+        yield ClipRef(context[0], first)
+        heapq.heappush(heap, (-share, next(order), context, (), state))
+    while heap and not stop():
+        neg_share, _, context, path, state = heapq.heappop(heap)
+        ctx = svc.catalog.context(*context)
+        answers = answer_order(ctx.attribute_names, None)
+        for answer in answers:
+            share = -neg_share * counts.answer_share(context, path, feedback_key(answer), len(answers))
+            if share < min_share or stop():
+                continue
+            rollout_id, child = svc.transitions.advance(ctx, context[1], state, answer, memo=False)
+            yield ClipRef(context[0], rollout_id)
+            heapq.heappush(heap, (-share, next(order), context, (*path, feedback_key(answer)), child))
+
+
+def library_clips(svc: Services, domains: list[str]) -> Iterator[ClipRef]:
+    for name in domains:
+        for rid in svc.catalog.library(name).ids:
+            yield ClipRef(name, rid)
+
+
+def first_steps(svc: Services) -> list[tuple[ContextKey, str, dict]]:
+    """Every available context's first clip and state, the default domain first (a new session's step 0)."""
+    names = sorted(svc.catalog.names(), key=lambda n: n != svc.settings.default_domain)
     starts = []
-    for name in svc.catalog.names():
+    for name in names:
         for method, rep in svc.catalog.available(name):
             if svc.stopping:
                 return starts
             try:
                 ctx = svc.catalog.context(name, method, rep)
                 rollout_id, state = svc.transitions.first(ctx, method)
-                render_clips(svc, name, [rollout_id], lambda: svc.stopping)
-                starts.append(((name, method, rep, BUILTIN_VERSION), state))
             except Exception:
                 log.exception("warm-up of %s/%s/%s failed", name, method, rep)
+                continue
+            svc.clips.request(svc.clip_key(name, rollout_id), svc.catalog.library(name))  # urgent: first clips
+            starts.append(((name, method, rep, BUILTIN_VERSION), rollout_id, state))
     return starts
 
 
 def warm_up(svc: Services) -> None:
-    """Load every available model and render every first clip, then the clips one answer away from them.
-
-    Every session starts in the same state, so this is the prerender of every new session's first step.
-    """
-    starts = _first_steps(svc)
-    if svc.stopping:
+    """Render every context's first clip now, then queue the shared trees and (if asked) the whole libraries."""
+    if svc.settings.default_domain in domain_names():
+        svc.compute.warm(domain_target(svc.settings.default_domain))
+    starts = first_steps(svc)
+    if svc.stopping or not svc.settings.prerender:
         return
-    if svc.settings.prerender:
-        for key, state in starts:
-            render_clips(svc, key[0], next_clips(svc, key, state, None, lambda: svc.stopping), lambda: svc.stopping)
+    counts = AnswerCounts.load(svc)
+    svc.prefetch.extend(tree_clips(svc, counts, starts, svc.settings.prerender_tree_min_share,
+                                   lambda: svc.stopping))
     if svc.settings.prerender_library:
-        for name in dict.fromkeys(key[0] for key, _ in starts):
-            render_clips(svc, name, list(svc.catalog.library(name).ids), lambda: svc.stopping)
-
+        svc.prefetch.extend(library_clips(svc, list(dict.fromkeys(start[0][0] for start in starts))))

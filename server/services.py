@@ -3,9 +3,9 @@
 Import direction (no cycles, function-level imports included), lowest first:
 
 1. tables, rules and tools: ``settings``, ``errors``, ``feedback``, ``models``, ``admin_models``,
-   ``db``, ``uploads``, ``transitions``, ``background``, ``catalog``; ``labeldata`` (stored label
+   ``db``, ``uploads``, ``transitions``, ``background``, ``prefetch``, ``catalog``; ``labeldata`` (stored label
    data) and ``jobs`` (training processes, which read ``labeldata``); the clip cache and the
-   per-key locks are the library's (``rba.clips``, ``rba.locks``);
+   per-key locks are the library's (``rba.clips``, ``rba.locks``), and so is the compute layer (``rba.compute``);
 2. this module, which holds those parts and imports nothing above it;
 3. operations that take a ``Services``: ``versions``, ``views``, ``prerender``, ``sessions``,
    ``labelling``, ``training`` (each imports only those before it in this list);
@@ -17,23 +17,41 @@ Nothing in 1 imports this module or anything in 3-4 (``tests/test_architecture.p
 from __future__ import annotations
 
 import logging
+import threading
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
-import anyio
 from sqlalchemy.engine import Engine
 
-from rba.clips import ClipCache
+from rba.clips import ClipCache, ClipKey
+from rba.compute import Compute, make_compute
+from rba.library import SkillLibrary
 from rba.locks import KeyedLocks
 from rba.store import Store
 from server.background import Background
 from server.catalog import Catalog
 from server.db import make_engine
 from server.jobs import JobRunner
+from server.prefetch import Prefetcher
 from server.settings import Settings
 from server.transitions import Transitions
 
 log = logging.getLogger(__name__)
-CLIP_WAITERS = 32  # clip requests that may wait for a render at once, beside (not out of) AnyIO's 40 API threads
+
+
+class ClipRef(NamedTuple):
+    """A serve clip by name: what the prerender tiers queue (resolved to a key when its turn comes)."""
+
+    domain: str
+    rollout_id: str
+
+
+def _resolver(catalog: Catalog, clips: ClipCache):  # -> server.prefetch.Resolve
+    def resolve(ref: ClipRef) -> tuple[ClipKey, SkillLibrary]:
+        library = catalog.library(ref.domain)
+        return clips.key(library, ref.rollout_id), library
+
+    return resolve
 
 
 @dataclass
@@ -41,51 +59,69 @@ class Services:
     settings: Settings
     engine: Engine
     catalog: Catalog
+    compute: Compute  # where every simulation and render runs (never this process)
     clips: ClipCache
     transitions: Transitions
     thinker: Background | None  # works out what each possible next answer would show (agent copies)
-    renderer: Background | None  # renders those clips (prerender_workers threads, 1 by default, niced)
-    clip_limiter: anyio.CapacityLimiter  # its own limiter: waiting for renders never takes the API's threads
+    prefetch: Prefetcher  # feeds guessed renders to the compute layer, most needed first
     jobs: JobRunner  # retraining processes
+    owns_compute: bool = True
     session_locks: KeyedLocks = field(default_factory=KeyedLocks)
     prerendering: dict[str, int] = field(default_factory=dict)  # session id -> step being prerendered
+    warming: threading.Thread | None = None  # the warm-up (server.prerender.warm_up), while it runs
 
     @classmethod
-    def start(cls, settings: Settings) -> Services:
-        """Call inside the event loop (the lifespan): the clip limiter belongs to it."""
+    def start(cls, settings: Settings, compute: Compute | None = None) -> Services:
+        """The app's parts; ``compute`` is shared when given (tests), else made from the settings and owned."""
         import torch
 
         torch.set_num_threads(settings.torch_threads)
         engine = make_engine(settings.db_url)
         catalog = Catalog(settings)
-        clips = ClipCache(catalog.store.clips(), settings.clip_width, settings.clip_height,
-                          settings.render_concurrency)
+        owns = compute is None
+        compute = compute or make_compute(settings)
+        clips = ClipCache(catalog.store.clips(), compute, settings.clip_width, settings.clip_height)
         busy = settings.prerender or settings.warm_start
         # Thinking keeps normal priority: it is what makes the next feedback request fast.
         thinker = Background(1, "rba-think") if busy else None
-        renderer = Background(settings.prerender_workers, "rba-render", settings.background_nice) if busy else None
         jobs = JobRunner(settings, engine)
         jobs.recover()
-        return cls(settings, engine, catalog, clips, Transitions(), thinker, renderer,
-                   anyio.CapacityLimiter(CLIP_WAITERS), jobs)
+        prefetch = Prefetcher(clips, _resolver(catalog, clips), settings.prerender_window or compute.capacity,
+                              settings.background_nice)
+        return cls(settings, engine, catalog, compute, clips, Transitions(), thinker, prefetch, jobs, owns)
 
     @property
     def store(self) -> Store:
         """Where the app's files live (the catalog's: one layout for the whole app)."""
         return self.catalog.store
 
+    def clip_key(self, domain: str, rollout_id: str) -> ClipKey:
+        return self.clips.key(self.catalog.library(domain), rollout_id)
+
     def wait_idle(self, timeout: float) -> bool:
         """True once no background work is queued or running (tests and benchmarks use it)."""
-        workers = [w for w in (self.thinker, self.renderer) if w is not None]
-        return all(w.wait_idle(timeout) for w in workers) and all(w.wait_idle(timeout) for w in workers)
+        if self.warming is not None:
+            self.warming.join(timeout)
+            if self.warming.is_alive():
+                return False
+        for _ in range(2):  # thinking queues renders, and a render's end may let more thinking start
+            if not self.clips.wait_idle(timeout):
+                return False
+            if self.thinker is not None and not self.thinker.wait_idle(timeout):
+                return False
+            if not self.prefetch.wait_idle(timeout):
+                return False
+        return True
 
     @property
     def stopping(self) -> bool:
-        return any(w is not None and w.stopping for w in (self.thinker, self.renderer))
+        return self.prefetch.stopping or (self.thinker is not None and self.thinker.stopping)
 
     def stop(self) -> None:
         self.jobs.stop()
-        for worker in (self.thinker, self.renderer):
-            if worker is not None:
-                worker.stop()
+        if self.thinker is not None:
+            self.thinker.stop()
+        self.prefetch.stop()
+        if self.owns_compute:
+            self.compute.close()
         self.engine.dispose()

@@ -18,10 +18,11 @@ class Settings(LibrarySettings):
     port: int = Field(default=8000, ge=1, le=65535)
     admin_token: str | None = Field(default=None, description="bearer token of the admin routes; unset = no admin")
     prerender: bool = Field(default=True, description="render the clips each possible next feedback would show")
-    prerender_workers: int = Field(default=2, ge=1, le=8, description="background render threads (a session's "
-                                   "next clips render in parallel)")
-    background_nice: int = Field(default=10, ge=0, le=19, description="CPU niceness of the background render threads")
-    render_concurrency: int = Field(default=2, ge=1, le=16, description="clips rendered at once on request")
+    prerender_window: int | None = Field(default=None, ge=1, le=1024, description="guessed renders in flight at "
+                                         "once; default: the compute layer's capacity (more only queues them)")
+    prerender_tree_min_share: float = Field(default=1e-3, gt=0, le=1, description="walk the shared answer trees "
+                                            "down to nodes this share of sessions is expected to reach")
+    default_domain: str = Field(default="walker", max_length=64, description="the domain warmed up first")
     torch_threads: int = Field(default=1, ge=1, le=64, description="intra-op threads per request (requests run "
                                "in parallel threads; more oversubscribes the cores)")
     upload_max_bytes: int = Field(default=50 * 2**20, ge=1024, description="largest dataset upload (bytes), "

@@ -61,8 +61,14 @@ class Transitions:
             self._memo[key] = (rollout_id, state)
         return rollout_id, copy.deepcopy(state)
 
-    def advance(self, ctx: Any, method: str, state: dict, feedback: Feedback) -> tuple[str, dict]:
-        """The next rollout id and agent state after ``feedback``; raises ValueError for bad feedback."""
+    def advance(self, ctx: Any, method: str, state: dict, feedback: Feedback, memo: bool = True) -> tuple[str, dict]:
+        """The next rollout id and agent state after ``feedback``; raises ValueError for bad feedback.
+
+        ``memo=False`` (walking the shared trees) neither reads nor fills the memo: those steps are used once,
+        and would push out the steps the sessions' next answers need.
+        """
+        if not memo:
+            return self._step(ctx, state, feedback)
         key = self._key(ctx, method, state, feedback)
         with self._lock:
             hit = self._memo.get(key)
@@ -70,12 +76,16 @@ class Transitions:
                 self._memo.move_to_end(key)
                 self.hits += 1
                 return hit[0], copy.deepcopy(hit[1])
-        agent = restore_agent(copy.deepcopy(state), ctx)
-        rollout_id = agent.update(feedback)
-        new_state = json.loads(json.dumps(agent.state_dict()))  # exactly what the database will hold
+        rollout_id, new_state = self._step(ctx, state, feedback)
         with self._lock:
             self.misses += 1
             self._memo[key] = (rollout_id, new_state)
             while len(self._memo) > self.maxsize:
                 self._memo.popitem(last=False)
         return rollout_id, copy.deepcopy(new_state)
+
+    @staticmethod
+    def _step(ctx: Any, state: dict, feedback: Feedback) -> tuple[str, dict]:
+        agent = restore_agent(copy.deepcopy(state), ctx)
+        rollout_id = agent.update(feedback)
+        return rollout_id, json.loads(json.dumps(agent.state_dict()))  # exactly what the database will hold

@@ -13,6 +13,15 @@ register("toy", "tests.toy:Toy")
 
 
 @pytest.fixture(scope="session")
+def local_compute():
+    """One local compute backend for the whole run (its worker processes start once, on first use)."""
+    from rba.compute.local import LocalCompute
+
+    with LocalCompute(workers=2, nice=0, background_nice=5) as compute:
+        yield compute
+
+
+@pytest.fixture(scope="session")
 def toy_roots(tmp_path_factory):
     """(data_root, models_root) with toy libraries and one-hot global models trained on them."""
     from rba.learn.global_reward import GlobalRewardConfig

@@ -7,6 +7,7 @@ file is rendered on first request and cached; responses carry a content ETag and
 
 from __future__ import annotations
 
+import asyncio
 from typing import Annotated
 
 import anyio
@@ -39,10 +40,8 @@ async def get_clip(domain: Annotated[str, Path(max_length=64)], rollout_id: Anno
     headers = {"ETag": key.etag, "Cache-Control": "no-cache"}
     if if_none_match and key.etag in {t.strip() for t in if_none_match.split(",")}:
         return Response(status_code=304, headers=headers)
-    if svc.clips.cached(key):
-        path = svc.clips.path(key)
-    else:  # render (or wait for the render) on the clip threads, never the API's
-        path = await anyio.to_thread.run_sync(svc.clips.get, key, library, limiter=svc.clip_limiter)
+    # Rendered on the compute layer (or already in flight there): waiting holds no thread.
+    path = await asyncio.wrap_future(svc.clips.request(key, library))
     return FileResponse(path, media_type="video/mp4", headers=headers)
 
 

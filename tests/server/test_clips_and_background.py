@@ -4,23 +4,26 @@ from __future__ import annotations
 
 import threading
 
+import pytest
 from fastapi.testclient import TestClient
 
-from rba.clips import ClipCache, ClipKey
+from rba.clips import ClipCache
 from rba.interact import AttributeFeedback
 from rba.library import SkillLibrary
 from rba.store import ClipStore
 from server import transitions
 from server.background import Background
 from server.main import create_app
-from server.prerender import candidate_order
+from server.prefetch import Prefetcher
+from server.prerender import answer_order
+from tests.fakes import FakeCompute
 from tests.server.conftest import more
 
 
-def test_concurrent_requests_for_one_clip_render_it_once(toy_roots, tmp_path):
+def test_concurrent_requests_for_one_clip_render_it_once(toy_roots, tmp_path, local_compute):
     data, _, _ = toy_roots
     lib = SkillLibrary.load("toy", "serve", data)
-    cache = ClipCache(ClipStore(tmp_path / "clips"), 64, 48, concurrency=2)
+    cache = ClipCache(ClipStore(tmp_path / "clips"), local_compute, 64, 48)
     key = cache.key(lib, "serve-00007")
     barrier = threading.Barrier(6)
     paths = []
@@ -44,7 +47,7 @@ def test_concurrent_requests_for_one_clip_render_it_once(toy_roots, tmp_path):
 def test_clip_keys_only_accept_library_ids(toy_roots, tmp_path):
     data, _, _ = toy_roots
     lib = SkillLibrary.load("toy", "serve", data)
-    cache = ClipCache(ClipStore(tmp_path / "clips"), 64, 48)
+    cache = ClipCache(ClipStore(tmp_path / "clips"), FakeCompute(), 64, 48)
     try:
         cache.key(lib, "../serve-00001")
     except KeyError as exc:
@@ -75,7 +78,7 @@ def test_prerendering_renders_every_next_clip_and_leaves_the_agent_alone(make_se
         assert r.json()["clip"]["ready"] is True  # rendered while we "watched"
         assert svc.wait_idle(60)
         assert all(name.startswith("rba-think") for name in computed_in)  # the answer was precomputed
-        assert svc.thinker.failed == 0 and svc.renderer.failed == 0
+        assert svc.thinker.failed == 0 and svc.prefetch.failed == 0
 
 
 def test_warm_start_renders_the_first_clip(make_settings):
@@ -100,28 +103,69 @@ def test_background_keeps_only_the_newest_job_per_key():
         bg.stop()
 
 
-def test_candidates_start_with_the_last_answer():
-    order = candidate_order(("amplitude", "pace"), [AttributeFeedback("pace", -1)])
-    assert [(fb.attribute, fb.direction) for fb in order] == [("pace", -1), ("pace", 1), ("amplitude", 1),
-                                                              ("amplitude", -1)]
-    assert len(candidate_order(("amplitude", "pace"), None)) == 4
+def test_answers_start_with_the_last_one_then_combine_attributes():
+    order = [[(fb.attribute, fb.direction) for fb in a]
+             for a in answer_order(("amplitude", "pace"), [AttributeFeedback("pace", -1)])]
+    assert order[:4] == [[("pace", -1)], [("pace", 1)], [("amplitude", 1)], [("amplitude", -1)]]
+    assert sorted(map(tuple, order[4:])) == sorted(  # then every two-attribute answer
+        tuple(zip(("amplitude", "pace"), d, strict=True)) for d in ((1, 1), (1, -1), (-1, 1), (-1, -1)))
+    assert len(answer_order(("a", "b", "c"), None)) == 6 + 12
 
 
-def test_background_renders_give_way_to_requested_ones(tmp_path):
-    cache = ClipCache(ClipStore(tmp_path), 64, 48)
-    key = ClipKey("toy", "abc123", "serve-00001", 64, 48)
-    frames, out = cache._yielding(key, iter(range(3))), []
-    assert next(frames) == 0  # nothing requested is rendering: frames flow
-    with cache._running_urgent():  # a person's clip is rendering
-        t = threading.Thread(target=lambda: out.append(next(frames)))
-        t.start()
-        t.join(0.3)
-        assert t.is_alive() and out == []  # the speculative render waits
-        cache._want(key, 1)  # ... unless someone waits for this very clip
-        t.join(5)
-        assert out == [1]
-        cache._want(key, -1)
-    assert next(frames) == 2
+def test_an_urgent_request_overtakes_its_queued_guess(toy_roots, tmp_path):
+    data, _, _ = toy_roots
+    lib = SkillLibrary.load("toy", "serve", data)
+    compute = FakeCompute()
+    cache = ClipCache(ClipStore(tmp_path), compute, 64, 48)
+    key = cache.key(lib, "serve-00003")
+    guess = cache.request(key, lib, urgent=False)
+    wanted = cache.request(key, lib, urgent=True)
+    assert [urgent for urgent, _ in compute.submitted] == [False, True]
+    assert compute.submitted[0][1].cancelled() and guess.cancelled()  # the guess was dropped, not run twice
+    compute.submitted[1][1].set_result(b"mp4 bytes")
+    assert wanted.result(5).read_bytes() == b"mp4 bytes" and cache.cached(key)
+    assert cache.request(key, lib).result(0) == wanted.result()  # cached: no new render
+    assert len(compute.submitted) == 2 and not list(tmp_path.glob("*/.*.tmp"))
+
+
+def test_a_failed_render_reaches_every_waiter_and_leaves_no_file(toy_roots, tmp_path):
+    data, _, _ = toy_roots
+    lib = SkillLibrary.load("toy", "serve", data)
+    compute = FakeCompute()
+    cache = ClipCache(ClipStore(tmp_path), compute, 64, 48)
+    key = cache.key(lib, "serve-00004")
+    a, b = cache.request(key, lib), cache.request(key, lib)
+    compute.submitted[0][1].set_exception(RuntimeError("EGL went away"))
+    for f in (a, b):
+        with pytest.raises(RuntimeError, match="EGL"):
+            f.result(5)
+    assert not cache.cached(key) and not cache.pending(key)
+    cache.request(key, lib)  # asking again renders again
+    assert len(compute.submitted) == 2
+
+
+def test_the_prefetcher_takes_the_newest_session_first_then_the_sources_in_order(toy_roots, tmp_path):
+    data, _, _ = toy_roots
+    lib = SkillLibrary.load("toy", "serve", data)
+    compute = FakeCompute()
+    cache = ClipCache(ClipStore(tmp_path), compute, 64, 48)
+    prefetch = Prefetcher(cache, lambda rid: (cache.key(lib, rid), lib), window=1)
+    try:
+        prefetch.offer("first", ["serve-00099"])
+        assert compute.next_rollout(timeout=5) == "serve-00099"  # the window is full while we queue the rest
+        prefetch.extend(iter(["serve-00010", "serve-00011", "serve-00001"]))  # 00001 is rendered by then: skipped
+        prefetch.extend(iter(["serve-00020"]))
+        prefetch.offer("old", ["serve-00001", "serve-00002"])
+        prefetch.offer("new", ["serve-00003"])
+        compute.submitted[-1][1].set_result(b"x")
+        order = []
+        for _ in range(6):
+            order.append(compute.next_rollout(timeout=5))
+            compute.submitted[-1][1].set_result(b"x")
+        assert order == ["serve-00003", "serve-00001", "serve-00002", "serve-00010", "serve-00011", "serve-00020"]
+        assert prefetch.wait_idle(5) and all(not urgent for urgent, _ in compute.submitted)
+    finally:
+        prefetch.stop()
 
 
 def test_prerender_library_renders_every_serve_clip_once(make_settings, toy_roots, tmp_path):

@@ -1,0 +1,111 @@
+"""The embedded backend: two process pools on this machine, separate from the API process and niced below it.
+
+``urgent`` renders (someone is waiting) and simulations run at ``nice``; guesses (prerender, the
+library cache) run in their own pool at ``background_nice``, so the kernel gives a waiting person's
+clip the CPU first while guesses use what is left. Pools start their processes on first use;
+``warm`` starts them early. A pool whose worker died (killed, out of memory) is replaced and the
+task runs again, as Ray does for its workers.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing as mp
+import threading
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+
+from rba.compute import tasks
+from rba.compute.base import Compute, RenderJob, SimJob, Task
+from rba.domains import Rollout
+
+log = logging.getLogger(__name__)
+SIM_CHUNK = 4  # rollouts per round trip when simulating a library
+RETRIES = 2  # runs after a worker died, as Ray's default task retries
+
+
+class _Pool:
+    """A process pool that replaces itself when broken; ``submit`` retries a task cut short by that."""
+
+    def __init__(self, workers: int, nice: int) -> None:
+        self.workers, self.nice = workers, nice
+        self._lock = threading.Lock()
+        self._closed = False
+        self.executor = self._new()
+
+    def _new(self) -> ProcessPoolExecutor:  # spawn, not fork: EGL contexts and threads do not survive a fork
+        return ProcessPoolExecutor(self.workers, mp.get_context("spawn"), tasks.init_worker, (self.nice,))
+
+    def submit(self, fn: Callable, *args: object) -> Task:
+        outer: Future = Future()
+        state = {"inner": None}
+
+        def attempt(left: int) -> None:
+            executor = self.executor
+            try:
+                inner = executor.submit(fn, *args)
+            except (BrokenProcessPool, RuntimeError) as exc:
+                outer.set_exception(exc)
+                return
+            state["inner"] = inner
+            inner.add_done_callback(lambda f: finish(f, executor, left))
+
+        def finish(inner: Future, executor: ProcessPoolExecutor, left: int) -> None:
+            if outer.done():
+                return
+            if inner.cancelled():
+                outer.cancel()
+            elif isinstance(inner.exception(), BrokenProcessPool) and left and not self._closed:
+                log.warning("a compute worker died; running %s again", getattr(fn, "__name__", fn))
+                self._replace(executor)
+                attempt(left - 1)
+            elif inner.exception() is not None:
+                outer.set_exception(inner.exception())
+            else:
+                outer.set_result(inner.result())
+
+        attempt(RETRIES)  # ``outer`` stays pending until the result is in, so cancelling it works until then
+        return Task(outer, lambda: bool(state["inner"] and state["inner"].cancel()))  # ``finish`` cancels ``outer``
+
+    def _replace(self, broken: ProcessPoolExecutor) -> None:
+        with self._lock:
+            if self.executor is broken:
+                self.executor = self._new()
+        broken.shutdown(wait=False, cancel_futures=True)
+
+    def close(self) -> None:
+        self._closed = True
+        self.executor.shutdown(wait=True, cancel_futures=True)
+
+
+class LocalCompute(Compute):
+    name = "local"
+    prioritised = True
+
+    def __init__(self, workers: int = 2, nice: int = 5, background_nice: int = 15) -> None:
+        self.workers = workers
+        self._urgent = _Pool(workers, nice)
+        self._background = _Pool(workers, background_nice)
+
+    @property
+    def capacity(self) -> int:
+        return self.workers
+
+    def simulate(self, jobs: Iterable[SimJob]) -> Iterator[Rollout]:
+        jobs = list(jobs)
+        yield from self._urgent.executor.map(tasks.simulate, [j.target for j in jobs], [j.params for j in jobs],
+                                             [j.seed for j in jobs], chunksize=SIM_CHUNK)
+
+    def render(self, job: RenderJob, urgent: bool = True) -> Task:
+        pool = self._urgent if urgent else self._background
+        return pool.submit(tasks.render_clip, job.target, job.rollout, job.width, job.height)
+
+    def warm(self, target: str) -> None:
+        for pool in (self._urgent, self._background):
+            for _ in range(self.workers):
+                pool.submit(tasks.warm, target)
+
+    def close(self) -> None:
+        for pool in (self._urgent, self._background):
+            pool.close()

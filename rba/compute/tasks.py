@@ -1,0 +1,85 @@
+"""What runs inside a compute worker (a pool process or a Ray worker): simulate, render, and the worker's set-up.
+
+Workers are long-lived: a domain is imported once per worker (``load_domain`` caches it) and its
+off-screen renderers are made once per worker thread and reused for every clip.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+from rba.domains import Rollout, load_domain
+
+TEMP_PREFIX = "rba-clip-"
+STALE_TEMP_SECONDS = 600  # a render takes seconds: older temporaries were left by a killed worker
+_ready = False  # this process was set up as a worker
+
+
+def init_worker(nice: int = 0) -> None:
+    """Lower this worker's priority below the API's, render off-screen, and keep each worker on one thread.
+
+    One intra-op thread per worker: workers run side by side, and a fixed thread count keeps results
+    identical whatever machine the worker is on.
+    """
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+    global _ready
+    if nice:
+        with contextlib.suppress(OSError):  # not allowed to lower it further: run as we are
+            os.nice(nice)
+    sweep_temporaries()
+    _ready = True
+
+
+def _prepare() -> None:
+    """Ray workers run no initializer: the first task of each does it."""
+    if not _ready:
+        init_worker()
+
+
+def sweep_temporaries(older_than: float = STALE_TEMP_SECONDS) -> int:
+    """Remove what killed workers left in the temp folder; returns how many folders went."""
+    cutoff, removed = time.time() - older_than, 0
+    for folder in Path(tempfile.gettempdir()).glob(f"{TEMP_PREFIX}*"):
+        try:
+            if folder.stat().st_mtime < cutoff:
+                shutil.rmtree(folder)
+                removed += 1
+        except OSError:
+            pass
+    return removed
+
+
+def simulate(target: str, params: dict[str, float], seed: int) -> Rollout:
+    _prepare()
+    return load_domain(target).rollout(params, seed)
+
+
+def render_clip(target: str, rollout: Rollout, width: int, height: int) -> bytes:
+    """The MP4 of ``rollout`` (H.264, see ``rba.video``), as bytes: the caller stores it where it belongs."""
+    from rba.video import encode_mp4
+
+    _prepare()
+    domain = load_domain(target)
+    folder = Path(tempfile.mkdtemp(prefix=TEMP_PREFIX))
+    try:
+        path = folder / "clip.mp4"
+        encode_mp4(domain.render(rollout, width, height), path, domain.frame_rate)
+        return path.read_bytes()
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def warm(target: str) -> float:
+    """Import ``target`` in this worker (the simulator's import is most of a cold worker's first task)."""
+    start = time.perf_counter()
+    _prepare()
+    load_domain(target)
+    return time.perf_counter() - start

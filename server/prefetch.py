@@ -1,0 +1,152 @@
+"""The guess queue: one thread that keeps a few guessed renders in flight on the compute layer, most needed first.
+
+The compute layer runs what it is given; this decides what to give it next. Three tiers, always
+taking from the highest that has work (``server.prerender`` says what goes in each):
+
+1. ``offer(session, clips)``: a session's possible next clips (a newer offer replaces the session's
+   older one; the newest session comes first);
+2. and 3. ``extend(clips)``: lazy sources (the shared trees, then the libraries), drained in order.
+
+Only ``window`` guesses are in flight at once, so a clip a person asks for is never queued behind
+hundreds of guesses, and a guess nobody needs any more costs at most one render.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+from collections import OrderedDict, deque
+from collections.abc import Callable, Iterator
+from concurrent.futures import Future
+
+from rba.clips import ClipCache, ClipKey
+from rba.library import SkillLibrary
+
+log = logging.getLogger(__name__)
+
+Resolve = Callable[[object], tuple[ClipKey, SkillLibrary]]  # a clip reference -> its key and library
+
+
+class Prefetcher:
+    """Feeds guessed renders to ``clips`` from its tiers, ``window`` at a time, on one niced thread."""
+
+    def __init__(self, clips: ClipCache, resolve: Resolve, window: int, nice: int = 0) -> None:
+        self.clips, self.resolve, self.window, self.nice = clips, resolve, window, nice
+        self._cond = threading.Condition()
+        self._offers: OrderedDict[str, deque] = OrderedDict()
+        self._sources: deque[Iterator] = deque()
+        self._inflight = 0
+        self._stopping = False
+        self.submitted = 0
+        self.failed = 0
+        self._thread = threading.Thread(target=self._run, name="rba-prefetch", daemon=True)
+        self._thread.start()
+
+    def offer(self, session_id: str, clips: list) -> None:
+        """Queue a session's next clips (most likely first) ahead of everything else."""
+        with self._cond:
+            self._offers.pop(session_id, None)
+            self._offers[session_id] = deque(clips)
+            self._offers.move_to_end(session_id, last=False)
+            self._cond.notify_all()
+
+    def withdraw(self, session_id: str) -> None:
+        with self._cond:
+            self._offers.pop(session_id, None)
+
+    def extend(self, clips: Iterator) -> None:
+        """Queue a lazy source behind the sessions' offers and the sources before it."""
+        with self._cond:
+            self._sources.append(iter(clips))
+            self._cond.notify_all()
+
+    def idle(self) -> bool:
+        with self._cond:
+            return not self._inflight and not self._sources and not any(self._offers.values())
+
+    def wait_idle(self, timeout: float) -> bool:
+        """True once nothing is queued or in flight (tests and benchmarks use it)."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while self._inflight or self._sources or any(self._offers.values()):
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return False
+                self._cond.wait(min(left, 0.5))
+        return True
+
+    def stop(self, timeout: float = 2.0) -> None:
+        with self._cond:
+            self._stopping = True
+            self._offers.clear()
+            self._sources.clear()
+            self._cond.notify_all()
+        self._thread.join(timeout)
+
+    @property
+    def stopping(self) -> bool:
+        return self._stopping
+
+    def _run(self) -> None:
+        if self.nice:  # thinking for the trees runs here: below the API's threads
+            try:
+                os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), self.nice)
+            except OSError:
+                log.debug("could not lower the prefetch thread's priority")
+        while True:
+            with self._cond:
+                while not self._stopping and (self._inflight >= self.window or not self._has_work()):
+                    self._cond.wait()
+                if self._stopping:
+                    return
+            ref = self._next()
+            if ref is not None:
+                self._start(ref)
+
+    def _has_work(self) -> bool:
+        return bool(self._sources) or any(self._offers.values())
+
+    def _next(self) -> object | None:
+        """The next clip reference to consider: the newest session's, else the first source's."""
+        with self._cond:
+            for queue in self._offers.values():
+                if queue:
+                    return queue.popleft()
+            source = self._sources[0] if self._sources else None
+        if source is None:
+            return None
+        try:
+            return next(source)  # may think (trees): outside the lock
+        except StopIteration:
+            with self._cond:
+                if self._sources and self._sources[0] is source:
+                    self._sources.popleft()
+                self._cond.notify_all()
+        except Exception:
+            log.exception("a prerender source failed; dropping it")
+            with self._cond:
+                if self._sources and self._sources[0] is source:
+                    self._sources.popleft()
+        return None
+
+    def _start(self, ref: object) -> None:
+        try:
+            key, library = self.resolve(ref)
+        except Exception:  # e.g. a library rebuilt under us: skip the guess
+            log.debug("cannot prerender %r", ref, exc_info=True)
+            return
+        if self.clips.cached(key) or self.clips.pending(key):
+            return
+        with self._cond:
+            self._inflight += 1
+            self.submitted += 1
+        self.clips.request(key, library, urgent=False).add_done_callback(self._finished)
+
+    def _finished(self, done: Future) -> None:
+        with self._cond:
+            self._inflight -= 1
+            if not done.cancelled() and done.exception() is not None:
+                self.failed += 1
+            self._cond.notify_all()

@@ -1,0 +1,50 @@
+"""Test doubles behind the library's small interfaces."""
+
+from __future__ import annotations
+
+import threading
+from concurrent.futures import Future
+
+from rba.compute import Compute, RenderJob, Task
+
+
+class FakeCompute(Compute):
+    """Records render jobs; the test completes their futures by hand (``submitted``: (urgent, future))."""
+
+    name = "fake"
+    prioritised = True
+
+    def __init__(self) -> None:
+        self.submitted: list[tuple[bool, Future]] = []
+        self.jobs: list[RenderJob] = []
+        self._cond = threading.Condition()
+
+    @property
+    def capacity(self) -> int:
+        return 1
+
+    def simulate(self, jobs):
+        raise NotImplementedError
+
+    def render(self, job: RenderJob, urgent: bool = True) -> Task:
+        future: Future = Future()
+        with self._cond:
+            self.submitted.append((urgent, future))
+            self.jobs.append(job)
+            self._cond.notify_all()
+        return Task(future, future.cancel)
+
+    def next_rollout(self, timeout: float) -> str:
+        """Wait for the next job after those already seen by this method; its rollout id."""
+        with self._cond:
+            seen = getattr(self, "_seen", 0)
+            if not self._cond.wait_for(lambda: len(self.jobs) > seen, timeout):
+                raise TimeoutError("no render was submitted")
+            self._seen = seen + 1
+            return self.jobs[seen].rollout.id
+
+    def warm(self, target: str) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
