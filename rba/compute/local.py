@@ -45,7 +45,14 @@ class _Pool:
             executor = self.executor
             try:
                 inner = executor.submit(fn, *args)
-            except (BrokenProcessPool, RuntimeError) as exc:
+            except BrokenProcessPool as exc:  # broke between tasks: replace it and submit again
+                if not left or self._closed:
+                    outer.set_exception(exc)
+                    return
+                self._replace(executor)
+                attempt(left - 1)
+                return
+            except RuntimeError as exc:  # shut down
                 outer.set_exception(exc)
                 return
             state["inner"] = inner
