@@ -24,6 +24,7 @@ from rba.store import ClipStore
 log = logging.getLogger(__name__)
 
 STALE_TMP_SECONDS = 600
+CLAIM_TTL_SECONDS = 120  # a guess claimed longer ago than this was left by a crashed process: render it here
 
 
 @dataclass(frozen=True)
@@ -91,12 +92,17 @@ class ClipCache:
         """A future of the clip's stored file: done at once if cached, else the render in flight or a new one.
 
         An urgent request for a clip queued as a guess moves it to the urgent queue when the backend has one.
+        A guess (``urgent=False``) another process sharing the store has claimed resolves to ``None`` at once:
+        replicas split the guesses instead of rendering each twice.
         """
         done: Future = Future()
         if self.store.exists(key):
             done.set_result(self.store.path(key))
             return done
         with self._lock:
+            if not urgent and key not in self._inflight and not self.store.claim(key, CLAIM_TTL_SECONDS):
+                done.set_result(None)  # another process sharing the store renders this guess
+                return done
             render = self._inflight.get(key)
             upgrade = render is not None and urgent and not render.urgent and self.compute.prioritised
             if upgrade and render.task.cancel():
@@ -105,9 +111,9 @@ class ClipCache:
                 render = self._submit(key, library, urgent)
             return render.done
 
-    def get(self, key: ClipKey, library: SkillLibrary, urgent: bool = True) -> Path:
+    def get(self, key: ClipKey, library: SkillLibrary) -> Path:
         """The clip's file, rendering it first if needed."""
-        return self.request(key, library, urgent).result()
+        return self.request(key, library).result()
 
     def _submit(self, key: ClipKey, library: SkillLibrary, urgent: bool) -> _Render:
         job = RenderJob.of(key.domain, library.rollout(library.index_of(key.rollout_id)), key.width, key.height)
@@ -120,6 +126,8 @@ class ClipCache:
         with self._lock:
             if self._inflight.get(key) is render:
                 del self._inflight[key]
+        if not render.urgent:
+            self.store.release(key)
         if result.cancelled():
             render.done.cancel()
             return
@@ -152,7 +160,7 @@ class ClipCache:
             done, _ = wait(list(running), return_when=until)
             for f in done:
                 key = running.pop(f)
-                ok = not f.cancelled() and f.exception() is None
+                ok = not f.cancelled() and f.exception() is None and f.result() is not None
                 rendered += ok
                 on_done(key, ok)
 

@@ -18,6 +18,7 @@ Layout (all absolute)::
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import re
@@ -38,6 +39,7 @@ T = TypeVar("T")
 _SAFE = re.compile(r"^[a-z0-9_]{1,64}$")
 _HEX = re.compile(r"^[0-9a-f]{1,64}$")
 TEMP_GLOB = "*/.*.tmp"  # what ``write_atomic`` leaves behind when a process dies mid-write
+CLAIM_GLOB = "*/.*.claim"  # a guessed render in progress (``ClipStore.claim``)
 
 
 @dataclass(frozen=True)
@@ -118,10 +120,35 @@ class ClipStore:
         write_atomic(self.path(key), lambda tmp: result.append(fill(Path(tmp))))
         return result[0]
 
+    def claim(self, key: ClipKey, ttl: float) -> bool:
+        """Mark the clip as being rendered, for every process sharing this store; False if another holds a
+        claim younger than ``ttl`` seconds (an older one was left by a crash and is taken over)."""
+        marker = self._claim_path(key)
+        marker.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            os.close(os.open(marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+            return True
+        except FileExistsError:
+            try:
+                if time.time() - marker.stat().st_mtime < ttl:
+                    return False
+                os.utime(marker)  # a stale claim: take it over
+                return True
+            except FileNotFoundError:  # released meanwhile
+                return self.claim(key, ttl)
+
+    def release(self, key: ClipKey) -> None:
+        with contextlib.suppress(FileNotFoundError):
+            self._claim_path(key).unlink()
+
+    def _claim_path(self, key: ClipKey) -> Path:
+        path = self.path(key)
+        return path.with_name(f".{path.name}.claim")
+
     def sweep(self, older_than: float) -> int:
-        """Remove temporaries a crash left (older than ``older_than`` seconds); returns how many."""
+        """Remove temporaries and claims a crash left (older than ``older_than`` seconds); returns how many."""
         cutoff, removed = time.time() - older_than, 0
-        for tmp in self.root.glob(TEMP_GLOB):
+        for tmp in [*self.root.glob(TEMP_GLOB), *self.root.glob(CLAIM_GLOB)]:
             try:
                 if tmp.stat().st_mtime < cutoff:
                     tmp.unlink()

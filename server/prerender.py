@@ -36,6 +36,7 @@ from server.transitions import FeedbackKey, feedback_key
 log = logging.getLogger(__name__)
 
 ContextKey = tuple[str, str, str, str]  # (domain, method, rep, model version)
+FIRST_CLIP_WAIT_SECONDS = 120
 MAX_ANSWER_ATTRIBUTES = 2  # answers name at most this many attributes at once (the page names one)
 
 
@@ -168,7 +169,11 @@ def library_clips(svc: Services, domains: list[str]) -> Iterator[ClipRef]:
 
 
 def first_steps(svc: Services) -> list[tuple[ContextKey, str, dict]]:
-    """Every available context's first clip and state, the default domain first (a new session's step 0)."""
+    """Every available context's first clip and state (a new session's step 0), rendered urgently.
+
+    The default domain's first context comes first and its clip is waited for before the other
+    contexts load: on a cold machine that is the clip the first person will ask for.
+    """
     names = sorted(svc.catalog.names(), key=lambda n: n != svc.settings.default_domain)
     starts = []
     for name in names:
@@ -178,10 +183,12 @@ def first_steps(svc: Services) -> list[tuple[ContextKey, str, dict]]:
             try:
                 ctx = svc.catalog.context(name, method, rep)
                 rollout_id, state = svc.transitions.first(ctx, method)
+                clip = svc.clips.request(svc.clip_key(name, rollout_id), svc.catalog.library(name))
+                if not starts:
+                    clip.result(FIRST_CLIP_WAIT_SECONDS)
             except Exception:
                 log.exception("warm-up of %s/%s/%s failed", name, method, rep)
                 continue
-            svc.clips.request(svc.clip_key(name, rollout_id), svc.catalog.library(name))  # urgent: first clips
             starts.append(((name, method, rep, BUILTIN_VERSION), rollout_id, state))
     return starts
 

@@ -14,6 +14,7 @@ from rba.library import SkillLibrary
 from rba.settings import REPO_ROOT, LibrarySettings
 from rba.store import ClipStore, Store
 from server.settings import Settings
+from tests.fakes import FakeCompute
 
 KEY = ClipKey("toy", "abc123", "serve-00001", 64, 48)
 
@@ -103,12 +104,32 @@ def test_what_a_crash_leaves_is_swept_at_start_up(tmp_path):
     folder = tmp_path / "toy"
     folder.mkdir()
     stale, fresh = folder / ".abc-1.mp4.x1.tmp", folder / ".abc-2.mp4.x2.tmp"
-    stale.write_bytes(b"")
-    fresh.write_bytes(b"")  # another process may be writing this one right now
+    stale_claim, fresh_claim = folder / ".abc-3.mp4.claim", folder / ".abc-4.mp4.claim"
+    for f in (stale, fresh, stale_claim, fresh_claim):
+        f.write_bytes(b"")  # the fresh ones: another process may be writing or rendering right now
     old = time.time() - STALE_TMP_SECONDS - 60
-    os.utime(stale, (old, old))
-    ClipCache(ClipStore(tmp_path), 64, 48)
+    for f in (stale, stale_claim):
+        os.utime(f, (old, old))
+    ClipCache(ClipStore(tmp_path), FakeCompute(), 64, 48)
     assert not stale.exists() and fresh.exists()
+    assert not stale_claim.exists() and fresh_claim.exists()
+
+
+def test_replicas_sharing_a_store_split_the_guesses(toy_roots, tmp_path):
+    from rba.library import SkillLibrary
+
+    lib = SkillLibrary.load("toy", "serve", toy_roots[0])
+    a, b = FakeCompute(), FakeCompute()
+    one, two = ClipCache(ClipStore(tmp_path), a, 64, 48), ClipCache(ClipStore(tmp_path), b, 64, 48)
+    key = one.key(lib, "serve-00002")
+    one.request(key, lib, urgent=False)
+    assert two.request(key, lib, urgent=False).result(0) is None and not b.submitted  # one renders it
+    wanted = two.request(key, lib)  # a person asks replica two: it renders at once, whoever claimed the guess
+    assert len(b.submitted) == 1
+    a.submitted[0][1].set_result(b"clip")
+    b.submitted[0][1].set_result(b"clip")
+    assert wanted.result(5).read_bytes() == b"clip"
+    assert not list(tmp_path.rglob(".*.claim"))  # released when the guess was stored
 
 
 def test_the_library_never_imports_the_server():

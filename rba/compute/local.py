@@ -109,9 +109,9 @@ class LocalCompute(Compute):
         return pool.submit(tasks.render_clip, job.target, job.rollout, job.width, job.height)
 
     def warm(self, target: str) -> None:
-        for pool in (self._urgent, self._background):
-            for _ in range(self.workers):
-                pool.submit(tasks.warm, target)
+        """Start the urgent pool's workers (the guess pool starts with the first guess: after the first clip)."""
+        for _ in range(self.workers):
+            self._urgent.submit(tasks.warm, target)
 
     def close(self) -> None:
         for pool in (self._urgent, self._background):
