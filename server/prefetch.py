@@ -3,8 +3,8 @@
 The compute layer runs what it is given; this decides what to give it next. Three tiers, always
 taking from the highest that has work (``server.prerender`` says what goes in each):
 
-1. ``offer(session, clips)``: a session's possible next clips (a newer offer replaces the session's
-   older one; the newest session comes first);
+1. ``offer(session, clips)``: a session's possible next clips, most likely first (a newer offer
+   replaces the session's older one); taken round-robin over the sessions, the newest offer first;
 2. and 3. ``extend(clips)``: lazy sources (the shared trees, then the libraries), drained in order.
 
 Only ``window`` guesses are in flight at once, so a clip a person asks for is never queued behind
@@ -109,10 +109,11 @@ class Prefetcher:
         return bool(self._sources) or any(self._offers.values())
 
     def _next(self) -> object | None:
-        """The next clip reference to consider: the newest session's, else the first source's."""
+        """The next clip reference to consider: a session's (round-robin), else the first source's."""
         with self._cond:
-            for queue in self._offers.values():
-                if queue:
+            for session_id, queue in self._offers.items():
+                if queue:  # round-robin: every session's most likely clip before anyone's second guess
+                    self._offers.move_to_end(session_id)
                     return queue.popleft()
             source = self._sources[0] if self._sources else None
         if source is None:

@@ -144,7 +144,7 @@ def test_a_failed_render_reaches_every_waiter_and_leaves_no_file(toy_roots, tmp_
     assert len(compute.submitted) == 2
 
 
-def test_the_prefetcher_takes_the_newest_session_first_then_the_sources_in_order(toy_roots, tmp_path):
+def test_the_prefetcher_takes_sessions_round_robin_newest_first_then_the_sources_in_order(toy_roots, tmp_path):
     data, _, _ = toy_roots
     lib = SkillLibrary.load("toy", "serve", data)
     compute = FakeCompute()
@@ -156,13 +156,14 @@ def test_the_prefetcher_takes_the_newest_session_first_then_the_sources_in_order
         prefetch.extend(iter(["serve-00010", "serve-00011", "serve-00001"]))  # 00001 is rendered by then: skipped
         prefetch.extend(iter(["serve-00020"]))
         prefetch.offer("old", ["serve-00001", "serve-00002"])
-        prefetch.offer("new", ["serve-00003"])
+        prefetch.offer("new", ["serve-00003", "serve-00005"])
         compute.submitted[-1][1].set_result(b"x")
         order = []
-        for _ in range(6):
+        for _ in range(7):
             order.append(compute.next_rollout(timeout=5))
             compute.submitted[-1][1].set_result(b"x")
-        assert order == ["serve-00003", "serve-00001", "serve-00002", "serve-00010", "serve-00011", "serve-00020"]
+        assert order == ["serve-00003", "serve-00001", "serve-00005", "serve-00002",  # newest first, round-robin
+                         "serve-00010", "serve-00011", "serve-00020"]
         assert prefetch.wait_idle(5) and all(not urgent for urgent, _ in compute.submitted)
     finally:
         prefetch.stop()
