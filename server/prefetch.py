@@ -26,6 +26,7 @@ from rba.library import SkillLibrary
 
 log = logging.getLogger(__name__)
 
+OFFER_TTL_SECONDS = 120.0  # a person answers within seconds; an older offer is for a session that moved on elsewhere
 Resolve = Callable[[object], tuple[ClipKey, SkillLibrary]]  # a clip reference -> its key and library
 
 
@@ -36,6 +37,7 @@ class Prefetcher:
         self.clips, self.resolve, self.window, self.nice = clips, resolve, window, nice
         self._cond = threading.Condition()
         self._offers: OrderedDict[str, deque] = OrderedDict()
+        self._offered_at: dict[str, float] = {}
         self._sources: deque[Iterator] = deque()
         self._inflight = 0
         self._stopping = False
@@ -50,11 +52,13 @@ class Prefetcher:
             self._offers.pop(session_id, None)
             self._offers[session_id] = deque(clips)
             self._offers.move_to_end(session_id, last=False)
+            self._offered_at[session_id] = time.monotonic()
             self._cond.notify_all()
 
     def withdraw(self, session_id: str) -> None:
         with self._cond:
             self._offers.pop(session_id, None)
+            self._offered_at.pop(session_id, None)
 
     def extend(self, clips: Iterator) -> None:
         """Queue a lazy source behind the sessions' offers and the sources before it."""
@@ -105,12 +109,21 @@ class Prefetcher:
             if ref is not None:
                 self._start(ref)
 
+    def _expire(self) -> None:
+        """Drop offers older than ``OFFER_TTL_SECONDS``: that session's next answer went to another replica
+        (or its person left), and this replica will never hear of it."""
+        now = time.monotonic()
+        for session_id in [sid for sid, at in self._offered_at.items() if now - at > OFFER_TTL_SECONDS]:
+            self._offers.pop(session_id, None)
+            self._offered_at.pop(session_id, None)
+
     def _has_work(self) -> bool:
         return bool(self._sources) or any(self._offers.values())
 
     def _next(self) -> object | None:
         """The next clip reference to consider: a session's (round-robin), else the first source's."""
         with self._cond:
+            self._expire()
             for session_id, queue in self._offers.items():
                 if queue:  # round-robin: every session's most likely clip before anyone's second guess
                     self._offers.move_to_end(session_id)
