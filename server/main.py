@@ -82,6 +82,7 @@ def run(host: str | None = None, port: int | None = None, ray_address: str | Non
     import uvicorn
 
     settings = Settings(**({"ray_address": ray_address} if ray_address else {}))
-    logging.basicConfig(level=settings.log_level.upper(), format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    logging.basicConfig(level=settings.log_level.upper(), format="%(asctime)s %(name)s %(levelname)s %(message)s",
+                        force=True)  # `rba serve` set up the CLI's logging already: RBA_LOG_LEVEL decides here
     uvicorn.run(create_app(settings), host=host or settings.host, port=port or settings.port,
                 log_level=settings.log_level.lower())

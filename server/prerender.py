@@ -169,10 +169,11 @@ def library_clips(svc: Services, domains: list[str]) -> Iterator[ClipRef]:
 
 
 def first_steps(svc: Services) -> list[tuple[ContextKey, str, dict]]:
-    """Every available context's first clip and state (a new session's step 0), rendered urgently.
+    """Every available context's first clip and state (a new session's step 0), rendered.
 
-    The default domain's first context comes first and its clip is waited for before the other
-    contexts load: on a cold machine that is the clip the first person will ask for.
+    The default domain's first context comes first and its clip is rendered urgently and waited for
+    before the other contexts load: on a cold machine that is the clip the first person will ask for.
+    The others are guesses, so they never hold up a clip someone asked for.
     """
     names = sorted(svc.catalog.names(), key=lambda n: n != svc.settings.default_domain)
     starts = []
@@ -183,8 +184,9 @@ def first_steps(svc: Services) -> list[tuple[ContextKey, str, dict]]:
             try:
                 ctx = svc.catalog.context(name, method, rep)
                 rollout_id, state = svc.transitions.first(ctx, method)
-                clip = svc.clips.request(svc.clip_key(name, rollout_id), svc.catalog.library(name))
-                if not starts:
+                first = not starts  # the default domain's: urgent, and waited for; the others are guesses
+                clip = svc.clips.request(svc.clip_key(name, rollout_id), svc.catalog.library(name), urgent=first)
+                if first:
                     clip.result(FIRST_CLIP_WAIT_SECONDS)
             except Exception:
                 log.exception("warm-up of %s/%s/%s failed", name, method, rep)
