@@ -45,7 +45,9 @@ def make_engine(url: str) -> Engine:
 
 # Columns added after a table first shipped: (table, column, DDL type + default). create_all makes
 # missing tables only, so databases from older versions get these added in place at start-up.
-ADDED_COLUMNS = [("rba_session", "model_set", "VARCHAR(64) NOT NULL DEFAULT 'builtin'")]
+ADDED_COLUMNS = [("rba_session", "model_set", "VARCHAR(64) NOT NULL DEFAULT 'builtin'"),
+                 ("rba_train_job", "owner", "VARCHAR(160)"),
+                 ("rba_train_job", "heartbeat_at", "TIMESTAMP WITH TIME ZONE")]
 
 
 def _add_columns(engine: Engine) -> None:
