@@ -113,3 +113,27 @@ def test_a_version_activated_on_one_replica_serves_new_sessions_on_the_other(mak
         assert b.post("/api/sessions", json=new).json()["model_set"] == "toy-v2"
         assert a.post("/api/admin/models/builtin/activate", params={"domain": "toy"}, headers=auth).status_code == 200
         assert b.post("/api/sessions", json=new).json()["model_set"] == "builtin"
+
+
+def test_replicas_starting_together_on_a_fresh_database_all_get_the_schema(database_url):
+    """Without the schema lock, concurrent create_all on PostgreSQL fails with a duplicate key in pg_type."""
+    from server.db import make_engine
+
+    engines, errors = [], []
+
+    def start() -> None:
+        try:
+            engines.append(make_engine(database_url))
+        except Exception as exc:
+            errors.append(exc)
+
+    threads = [threading.Thread(target=start) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60)
+    assert errors == [] and len(engines) == 4
+    for engine in engines:
+        with Session(engine) as db:
+            assert db.exec(select(TuningSession)).all() == []
+        engine.dispose()
