@@ -8,12 +8,14 @@ each other. Break a file and a test here fails.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
 import shlex
 import subprocess
 import tomllib
+from importlib import metadata
 from pathlib import Path
 
 import pytest
@@ -224,6 +226,16 @@ def test_compose_values_are_valid_settings(tmp_path):
     assert settings.port == api_port() and settings.host == "0.0.0.0"
 
 
+def test_one_service_builds_the_image_the_others_use():
+    builders = [name for name, s in SERVICES.items() if "build" in s]
+    assert builders == ["api"], builders
+    assert SERVICES["api"]["build"] == "." and (ROOT / "Dockerfile").exists()
+    users = [name for name, s in SERVICES.items() if uses_rba_image(s)]
+    assert {"api", "ray-head", "ray-worker", "ray-auth", "clip-cache"} <= set(users)
+    for name in users:  # never pulled from a registry: it exists only once built here
+        assert SERVICES[name]["pull_policy"] == "never", name
+
+
 def test_compose_up_needs_no_arguments():
     """Every ${VAR} has a default, so `docker compose up` with no .env runs; no core service hides in a profile."""
     raw = (ROOT / "docker-compose.yml").read_text()
@@ -415,3 +427,6 @@ def test_dockerfile_agrees_with_the_readme_and_the_project():
         declared = [d for d in deps if re.match(rf"{package}\b", d)]
         if declared:  # the image installs what the project pins, before the code (a cached layer)
             assert f"{package}=={pin}" in declared[0], (package, pin, declared)
+        else:  # not a declared dependency (yet): then what this machine runs the tests with
+            with contextlib.suppress(metadata.PackageNotFoundError):
+                assert metadata.version(package) == pin, (package, pin, metadata.version(package))
