@@ -125,13 +125,14 @@ class JobRunner:
             live = dict(self._procs)
         if not live:
             return
+        ids = list(live)
         with Session(self.engine) as db:
             db.exec(update(TrainJob)
-                    .where(TrainJob.id.in_(live), TrainJob.owner == self.owner,  # type: ignore[union-attr]
+                    .where(TrainJob.id.in_(ids), TrainJob.owner == self.owner,  # type: ignore[attr-defined]
                            TrainJob.busy_domain.is_not(None))  # type: ignore[union-attr]
                     .values(heartbeat_at=utcnow()))
             db.commit()
-            ended = db.exec(select(TrainJob.id).where(TrainJob.id.in_(live),  # type: ignore[union-attr]
+            ended = db.exec(select(TrainJob.id).where(TrainJob.id.in_(ids),  # type: ignore[attr-defined]
                                                       TrainJob.busy_domain.is_(None))).all()  # type: ignore[union-attr]
         for job_id in ended:
             if live[job_id].is_alive():
