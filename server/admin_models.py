@@ -190,7 +190,12 @@ class TrainJobBase(SQLModel):
 
 
 class TrainJob(TrainJobBase, table=True):
-    """A retraining run in its own process; ``busy_domain`` (unique) makes one job per domain at a time."""
+    """A retraining run in its own process; ``busy_domain`` (unique) makes one job per domain at a time.
+
+    The database enforces that rule, so it holds across API replicas. ``owner`` names the server
+    process that runs the job (``<replica>#<instance>``) and ``heartbeat_at`` is when it last said
+    the job was alive: a job whose heartbeat went stale lost its server, and any replica fails it.
+    """
 
     __tablename__ = "rba_train_job"
 
@@ -200,6 +205,8 @@ class TrainJob(TrainJobBase, table=True):
     state: str = Field(default=JobState.queued.value, max_length=16)
     created_at: dt.datetime = _time_column()
     updated_at: dt.datetime = _time_column()
+    owner: str | None = Field(default=None, max_length=160)
+    heartbeat_at: dt.datetime | None = Field(default=None, sa_column=Column(DateTime(timezone=True)))
 
 
 # -- model versions -------------------------------------------------------------------------------

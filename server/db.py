@@ -10,7 +10,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from sqlalchemy import event, inspect, text
-from sqlalchemy.engine import Engine, make_url
+from sqlalchemy.engine import Connection, Engine, make_url
 from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session, SQLModel, create_engine
 
@@ -37,22 +37,41 @@ def make_engine(url: str) -> Engine:
             cur.close()
     else:
         engine = create_engine(url, pool_pre_ping=True, pool_size=10, max_overflow=20)
-    SQLModel.metadata.create_all(engine)
-    _add_columns(engine)
+    _create_schema(engine)
     log.info("database ready: %s", parsed.render_as_string(hide_password=True))
     return engine
 
 
 # Columns added after a table first shipped: (table, column, DDL type + default). create_all makes
 # missing tables only, so databases from older versions get these added in place at start-up.
-ADDED_COLUMNS = [("rba_session", "model_set", "VARCHAR(64) NOT NULL DEFAULT 'builtin'")]
+ADDED_COLUMNS = [("rba_session", "model_set", "VARCHAR(64) NOT NULL DEFAULT 'builtin'"),
+                 ("rba_train_job", "owner", "VARCHAR(160)"),
+                 ("rba_train_job", "heartbeat_at", "TIMESTAMP WITH TIME ZONE")]
 
 
-def _add_columns(engine: Engine) -> None:
+SCHEMA_LOCK = 0x5_2BA_5C4E  # PostgreSQL advisory lock key: one replica at a time creates or alters tables
+
+
+def _create_schema(engine: Engine) -> None:
+    """Missing tables and columns, in one transaction that holds a database-wide lock.
+
+    API replicas start together on one fresh database: without the lock, two ``create_all`` race and
+    one fails (PostgreSQL: a duplicate key in pg_type). PostgreSQL takes an advisory lock; SQLite a
+    write lock (``BEGIN IMMEDIATE``), which its DDL otherwise runs without.
+    """
+    with engine.begin() as conn:
+        if engine.dialect.name == "postgresql":
+            conn.execute(text("SELECT pg_advisory_xact_lock(:key)"), {"key": SCHEMA_LOCK})
+        elif engine.dialect.name == "sqlite":
+            conn.exec_driver_sql("BEGIN IMMEDIATE")
+        SQLModel.metadata.create_all(conn)
+        _add_columns(conn)
+
+
+def _add_columns(conn: Connection) -> None:
     for table, column, ddl in ADDED_COLUMNS:
-        if column not in {c["name"] for c in inspect(engine).get_columns(table)}:
-            with engine.begin() as conn:
-                conn.execute(text(f"ALTER TABLE {table} ADD COLUMN {column} {ddl}"))
+        if column not in {c["name"] for c in inspect(conn).get_columns(table)}:
+            conn.execute(text(f"ALTER TABLE {table} ADD COLUMN {column} {ddl}"))
             log.info("database: added %s.%s", table, column)
 
 

@@ -4,6 +4,12 @@ The child writes its progress (stage, step, loss, log tail) to the job's row and
 into ``models/versions/.tmp-<job>``; only a finished run renames that folder to the version's
 name and records the version, in one transaction with the job's success. A failed or
 cancelled job leaves nothing that could be served.
+
+Several API replicas may share the database. Each job row names the server process that runs it
+(``owner``) and carries a heartbeat that process refreshes; a replica fails only jobs whose
+heartbeat went stale (their server died) or that it ran itself before a restart, never a live
+job of another replica. A job cancelled through another replica is stopped by its owner at the
+next heartbeat. The database's unique ``busy_domain`` keeps one job per domain across replicas.
 """
 
 from __future__ import annotations
@@ -14,13 +20,15 @@ import logging
 import multiprocessing
 import os
 import threading
+import uuid
 
+from sqlalchemy import func, update
 from sqlalchemy.exc import SQLAlchemyError
 from sqlmodel import Session, select
 
 from rba.store import Store
 from server.admin_models import FINISHED, JobState, ModelVersion, TrainJob
-from server.models import utcnow
+from server.models import as_utc, utcnow
 from server.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -43,23 +51,93 @@ def update_job(engine, job_id: str, **changes) -> None:
 
 
 class JobRunner:
-    """Starts, watches and cancels the training processes of one server."""
+    """Starts, watches and cancels the training processes of one server, and keeps their rows alive."""
 
     def __init__(self, settings: Settings, engine) -> None:
         self.settings, self.engine = settings, engine
         self.store = Store.from_settings(settings)
+        self.replica = settings.replica_name
+        self.owner = f"{self.replica}#{uuid.uuid4().hex[:8]}"  # this process: a restart is a new owner
         self._procs: dict[str, multiprocessing.process.BaseProcess] = {}
         self._lock = threading.Lock()
         self._stopped = False
+        self._halt = threading.Event()
+        self._keeper: threading.Thread | None = None
 
     def recover(self) -> None:
-        """Jobs a previous server left queued or running can never finish: mark them failed."""
+        """At start-up: fail the jobs no server runs any more, then keep this server's jobs alive (a thread)."""
+        self.reap(restarted=True)
+        self._keeper = threading.Thread(target=self._keep, name="rba-jobs-keeper", daemon=True)
+        self._keeper.start()
+
+    def reap(self, domain: str | None = None, restarted: bool = False) -> list[str]:
+        """Fail the unfinished jobs (of ``domain``, or all) whose server is gone; returns their ids.
+
+        Gone means: no heartbeat for ``job_stale_seconds``, or (with ``restarted``) run by this
+        replica's previous process. Each is failed by a conditional update, so a heartbeat that
+        lands first, or another replica reaping it too, makes it a no-op.
+        """
+        stale = self.settings.job_stale_seconds
+        cutoff = utcnow() - dt.timedelta(seconds=stale)
         with Session(self.engine) as db:
-            stale = db.exec(select(TrainJob).where(TrainJob.busy_domain.is_not(None))).all()  # type: ignore[union-attr]
-            ids = [j.id for j in stale]
-        for job_id in ids:
-            update_job(self.engine, job_id, state=JobState.failed.value, error="the server stopped while the job ran")
-            self.store.discard(job_id)
+            q = select(TrainJob).where(TrainJob.busy_domain.is_not(None))  # type: ignore[union-attr]
+            jobs = db.exec(q if domain is None else q.where(TrainJob.busy_domain == domain)).all()
+        with self._lock:
+            running_here = set(self._procs)
+        reaped = []
+        for job in jobs:
+            if job.id in running_here:
+                continue
+            if restarted and job.owner is not None and job.owner.rpartition("#")[0] == self.replica:
+                still, error = TrainJob.owner == job.owner, "the server stopped while the job ran"
+            elif as_utc(job.heartbeat_at or job.updated_at) < cutoff:
+                still = func.coalesce(TrainJob.heartbeat_at, TrainJob.updated_at) < cutoff
+                error = f"the server running the job ({job.owner or 'unknown'}) stopped: no heartbeat for {stale:g} s"
+            else:
+                continue
+            if self._fail_if(job.id, still, error):
+                log.warning("job %s: %s", job.id, error)
+                self.store.discard(job.id)
+                reaped.append(job.id)
+        return reaped
+
+    def _fail_if(self, job_id: str, condition, error: str) -> bool:
+        """Fail the job if it is unfinished and ``condition`` still holds, in one statement."""
+        with Session(self.engine) as db:
+            result = db.exec(update(TrainJob)
+                             .where(TrainJob.id == job_id, TrainJob.busy_domain.is_not(None), condition)  # type: ignore[union-attr]
+                             .values(state=JobState.failed.value, busy_domain=None, error=error, updated_at=utcnow()))
+            db.commit()
+        return result.rowcount == 1
+
+    def _keep(self) -> None:
+        """Every ``job_heartbeat_seconds``: mark this server's jobs alive, and reap those of dead replicas."""
+        while not self._halt.wait(self.settings.job_heartbeat_seconds):
+            try:
+                self.heartbeat()
+                self.reap()
+            except SQLAlchemyError:  # the database may be restarting: try again at the next beat
+                log.exception("training job heartbeat failed")
+
+    def heartbeat(self) -> None:
+        """Mark the jobs this server runs alive; stop the processes of jobs finished elsewhere (cancelled)."""
+        with self._lock:
+            live = dict(self._procs)
+        if not live:
+            return
+        ids = list(live)
+        with Session(self.engine) as db:
+            db.exec(update(TrainJob)
+                    .where(TrainJob.id.in_(ids), TrainJob.owner == self.owner,  # type: ignore[attr-defined]
+                           TrainJob.busy_domain.is_not(None))  # type: ignore[union-attr]
+                    .values(heartbeat_at=utcnow()))
+            db.commit()
+            ended = db.exec(select(TrainJob.id).where(TrainJob.id.in_(ids),  # type: ignore[attr-defined]
+                                                      TrainJob.busy_domain.is_(None))).all()  # type: ignore[union-attr]
+        for job_id in ended:
+            if live[job_id].is_alive():
+                log.info("job %s was finished by another server: stopping its process", job_id)
+                live[job_id].terminate()
 
     def start(self, job_id: str) -> None:
         ctx = multiprocessing.get_context("spawn")
@@ -102,6 +180,9 @@ class JobRunner:
             proc.join(timeout)
 
     def stop(self) -> None:
+        self._halt.set()
+        if self._keeper is not None:
+            self._keeper.join(timeout=10)
         with self._lock:
             ids = list(self._procs)
         for job_id in ids:

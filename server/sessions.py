@@ -11,12 +11,14 @@ Import direction: above ``server.services``, ``server.views``, ``server.prerende
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 
+from sqlalchemy import update
+from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session
 
 from rba.interact import SATISFIED, Feedback
 from server.admin_models import BUILTIN_VERSION
-from server.db import commit_or_conflict
 from server.errors import conflict, invalid, not_found
 from server.feedback import parse_feedback
 from server.models import (
@@ -61,31 +63,61 @@ def create_session(svc: Services, db: Session, body: SessionCreate) -> SessionPu
     return session_public(svc, db, s)
 
 
+def _closed(s: TuningSession) -> str:
+    return f"session {s.id} is {s.status}; it takes no more feedback (start a new session)"
+
+
 def _answerable(db: Session, session_id: str, step: int) -> TuningSession:
     """The session, if it is active and at ``step``; 409 otherwise."""
     s = load_session(db, session_id)
     if s.status != SessionStatus.active:
-        raise conflict(f"session {s.id} is {s.status}; it takes no more feedback (start a new session)")
+        raise conflict(_closed(s))
     if step != s.step:
         raise conflict(f"step {step} is stale: session {s.id} is at step {s.step}; "
                        "GET the session and answer about the clip it shows now")
     return s
 
 
+class _Lost(Exception):
+    """The session was no longer where this request read it."""
+
+
+def _move(db: Session, s: TuningSession, at_step: int | None, lost: Callable[[TuningSession], str],
+          **values) -> None:
+    """Set ``values`` on the session only if it is still active (and at ``at_step``, unless None), then commit.
+
+    ``session_locks`` serialise one process's requests; this compare-and-set makes a request that lost
+    a race with another replica a 409 too (``lost(session as it is now)``), never a lost update.
+    """
+    where = [TuningSession.id == s.id, TuningSession.status == SessionStatus.active.value]
+    if at_step is not None:
+        where.append(TuningSession.step == at_step)
+    try:
+        moved = db.exec(update(TuningSession).where(*where).values(updated_at=utcnow(), **values))
+        if moved.rowcount != 1:
+            raise _Lost
+        db.commit()
+    except (IntegrityError, _Lost) as exc:  # the feedback row is unique per (session, step) as well
+        db.rollback()
+        db.refresh(s)
+        raise conflict(lost(s)) from exc
+    db.refresh(s)
+
+
 def _record_step(db: Session, s: TuningSession, body: FeedbackCreate, feedback: Feedback, rollout_id: str,
                  state: dict) -> None:
-    """Store the round and move the session on, in one transaction; 409 if another process answered first."""
+    """Store the round and move the session on, in one transaction; 409 if another request answered first."""
     stored = SATISFIED if feedback == SATISFIED else [c.model_dump() for c in body.feedback or ()]
     db.add(FeedbackEvent(session_id=s.id, step=s.step, feedback=stored, rollout_before=s.current_rollout_id,
                          rollout_after=rollout_id))
-    s.step += 1
-    s.current_rollout_id = rollout_id
-    s.agent_state = state
-    s.status = SessionStatus.satisfied.value if feedback == SATISFIED else SessionStatus.active.value
-    s.updated_at = utcnow()
-    db.add(s)
-    commit_or_conflict(db, f"step {body.step} is stale: session {s.id} already moved on")
-    db.refresh(s)
+    status = SessionStatus.satisfied.value if feedback == SATISFIED else SessionStatus.active.value
+
+    def lost(now: TuningSession) -> str:
+        if now.status != SessionStatus.active:
+            return _closed(now)
+        return f"step {body.step} is stale: session {now.id} already moved on"
+
+    _move(db, s, s.step, lost, step=s.step + 1, current_rollout_id=rollout_id, agent_state=state, status=status)
 
 
 def give_feedback(svc: Services, db: Session, session_id: str, body: FeedbackCreate) -> SessionPublic:
@@ -110,15 +142,15 @@ def give_feedback(svc: Services, db: Session, session_id: str, body: FeedbackCre
     return session_public(svc, db, s)
 
 
+def _not_abandonable(s: TuningSession) -> str:
+    return f"session {s.id} is {s.status} already; only active sessions can be abandoned"
+
+
 def abandon_session(svc: Services, db: Session, session_id: str) -> SessionPublic:
     with svc.session_locks(session_id):
         s = load_session(db, session_id)
         if s.status != SessionStatus.active:
-            raise conflict(f"session {s.id} is {s.status} already; only active sessions can be abandoned")
-        s.status = SessionStatus.abandoned.value
-        s.updated_at = utcnow()
-        db.add(s)
-        db.commit()
-        db.refresh(s)
+            raise conflict(_not_abandonable(s))
+        _move(db, s, None, _not_abandonable, status=SessionStatus.abandoned.value)
     stop_prerender(svc, s.id)
     return session_public(svc, db, s)

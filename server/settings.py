@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from pydantic import Field
+import socket
+
+from pydantic import Field, model_validator
 
 from rba.settings import LibrarySettings
 from rba.store import Store
@@ -33,7 +35,26 @@ class Settings(LibrarySettings):
                                     "cached yet (background, niced; once: the cache is on disk): then no one waits "
                                     "for a render")
     warm_start: bool = Field(default=True, description="load models and render first clips after start-up")
+    replica: str | None = Field(default=None, max_length=120, description="this server's name among the API "
+                                "replicas on one database; default <hostname>:<port>. A restarted replica fails "
+                                "the training jobs it ran before at once (others wait for their heartbeat)")
+    job_heartbeat_seconds: float = Field(default=5.0, gt=0, le=300, description="how often a server marks the "
+                                         "training jobs it runs alive in the database")
+    job_stale_seconds: float = Field(default=30.0, gt=0, description="a training job not marked alive for this "
+                                     "long lost its server: any replica fails it and frees its domain")
     log_level: str = "info"
+
+    @model_validator(mode="after")
+    def _heartbeat_before_stale(self) -> Settings:
+        if self.job_stale_seconds <= 2 * self.job_heartbeat_seconds:
+            raise ValueError(f"job_stale_seconds ({self.job_stale_seconds:g}) must exceed twice "
+                             f"job_heartbeat_seconds ({self.job_heartbeat_seconds:g}), or live jobs look dead")
+        return self
+
+    @property
+    def replica_name(self) -> str:
+        """This server among the replicas: ``replica``, else <hostname>:<port> (unique per container or port)."""
+        return self.replica or f"{socket.gethostname()}:{self.port}"
 
     @property
     def db_url(self) -> str:

@@ -12,6 +12,7 @@ from server.admin_models import FINISHED, JobPublic, JobState, TrainCreate, Trai
 from server.db import commit_or_conflict
 from server.errors import conflict, invalid, not_found
 from server.labelling import check_datasets
+from server.models import utcnow
 from server.services import Services
 
 JOBS_LISTED = 50  # newest first
@@ -30,14 +31,16 @@ def load_job(db: Session, job_id: str) -> TrainJob:
 
 
 def start_job(svc: Services, db: Session, body: TrainCreate) -> JobPublic:
-    """Record the job (one per domain at a time: 409 while another runs) and start its process."""
+    """Record the job (one per domain at a time, across replicas: 409 while another runs) and start its process."""
     if body.domain not in svc.catalog.names():
         raise invalid(f"unknown domain {body.domain!r}; valid: {', '.join(svc.catalog.names())}")
     if not svc.catalog.has_library(body.domain):
         raise invalid(f"{body.domain} has no skill library to train on; run `rba build {body.domain}`")
     check_datasets(db, body.domain, body.datasets)
+    svc.jobs.reap(body.domain)  # a job whose replica died holds the domain only until its heartbeat is stale
     job = TrainJob(domain=body.domain, busy_domain=body.domain, method=body.method, rep=body.rep, preset=body.preset,
-                   datasets=list(dict.fromkeys(body.datasets)), include_page_labels=body.include_page_labels)
+                   datasets=list(dict.fromkeys(body.datasets)), include_page_labels=body.include_page_labels,
+                   owner=svc.jobs.owner, heartbeat_at=utcnow())
     db.add(job)
 
     def busy() -> str:

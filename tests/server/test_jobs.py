@@ -1,0 +1,214 @@
+"""Training jobs across API replicas on one database: who owns a job, heartbeats, and who may fail it.
+
+Each runner here stands for one replica's process (its own engine, its own replica name). Jobs are
+rows written directly, and "processes" are stand-ins, so nothing trains: the rules under test are
+those of the rows.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import threading
+import time
+
+import pytest
+from sqlalchemy import inspect, text
+from sqlalchemy.exc import IntegrityError
+from sqlmodel import Session, create_engine
+
+from server.admin_models import JobState, TrainJob
+from server.db import make_engine
+from server.jobs import JobRunner
+from server.models import as_utc, utcnow
+from server.settings import Settings
+
+
+class StandInProcess:
+    """What ``JobRunner`` asks of a training process: alive until terminated."""
+
+    def __init__(self) -> None:
+        self.stopped = threading.Event()
+        self.exitcode: int | None = None
+
+    def is_alive(self) -> bool:
+        return not self.stopped.is_set()
+
+    def terminate(self) -> None:
+        self.exitcode = -15
+        self.stopped.set()
+
+    def join(self, timeout: float | None = None) -> None:
+        self.stopped.wait(timeout)
+
+
+@pytest.fixture
+def replica(make_settings, database_url, tmp_path):
+    """replica(name, **settings) -> a JobRunner of its own, on the shared database and models folder."""
+    runners: list[JobRunner] = []
+
+    def make(name: str, **overrides) -> JobRunner:
+        settings = make_settings(database_url=database_url, models_dir=tmp_path / "models", replica=name,
+                                 **overrides)
+        runner = JobRunner(settings, make_engine(settings.db_url))
+        runners.append(runner)
+        return runner
+
+    yield make
+    for runner in runners:
+        runner.stop()
+        runner.engine.dispose()
+
+
+def add_job(runner: JobRunner, domain: str, owner: str | None, beat_age: float | None,
+            updated_age: float = 0.0) -> str:
+    """A running job row of ``domain``, last heartbeat ``beat_age`` seconds ago, with a staging folder."""
+    now = utcnow()
+    job = TrainJob(domain=domain, busy_domain=domain, method="global", rep="onehot", preset="tiny", datasets=[],
+                   state=JobState.running.value, owner=owner, updated_at=now - dt.timedelta(seconds=updated_age),
+                   heartbeat_at=None if beat_age is None else now - dt.timedelta(seconds=beat_age))
+    with Session(runner.engine) as db:
+        db.add(job)
+        db.commit()
+        db.refresh(job)
+    runner.store.staging(job.id).mkdir(parents=True)
+    return job.id
+
+
+def run_here(runner: JobRunner, job_id: str) -> StandInProcess:
+    """Register a stand-in process for ``job_id``, as ``JobRunner.start`` does for a real one."""
+    proc = StandInProcess()
+    with runner._lock:
+        runner._procs[job_id] = proc
+    return proc
+
+
+def row(runner: JobRunner, job_id: str) -> TrainJob:
+    with Session(runner.engine) as db:
+        return db.get(TrainJob, job_id)
+
+
+def test_a_starting_replica_fails_only_jobs_no_live_server_runs(replica):
+    a = replica("a")
+    live = add_job(a, "toy", a.owner, beat_age=1)  # replica a's job, heartbeat fresh
+    dead = add_job(a, "walker", "c#0badc0de", beat_age=120)  # replica c died two minutes ago
+    legacy = add_job(a, "snake", None, beat_age=None, updated_age=120)  # from a server without heartbeats
+    b_before = add_job(a, "manipulator", "b#01d1ce00", beat_age=1)  # b's previous process: fresh, but gone
+    b = replica("b")
+    b.recover()
+
+    kept = row(b, live)
+    assert (kept.state, kept.busy_domain, kept.error) == ("running", "toy", None)
+    assert b.store.staging(live).is_dir()  # the live job's models in progress are not touched
+    for job_id, error in [(dead, "the server running the job (c#0badc0de) stopped: no heartbeat for 30 s"),
+                          (legacy, "the server running the job (unknown) stopped: no heartbeat for 30 s"),
+                          (b_before, "the server stopped while the job ran")]:
+        failed = row(b, job_id)
+        assert (failed.state, failed.busy_domain, failed.error) == ("failed", None, error)
+        assert not b.store.staging(job_id).exists()
+
+
+def test_only_a_restarted_replica_fails_its_own_fresh_jobs_at_once(replica):
+    a = replica("a")
+    job = add_job(a, "toy", "b#01d1ce00", beat_age=1)
+    assert a.reap(restarted=True) == []  # another replica's fresh job
+    assert replica("b").reap() == []  # b's own previous process, but not at start-up: wait for the heartbeat
+    assert replica("b").reap(restarted=True) == [job]
+
+
+def test_heartbeat_keeps_a_job_alive_and_its_absence_lets_another_replica_fail_it(replica):
+    a = replica("a", job_heartbeat_seconds=0.1, job_stale_seconds=0.6)
+    b = replica("b", job_heartbeat_seconds=0.1, job_stale_seconds=0.6)
+    job = add_job(a, "toy", a.owner, beat_age=0)
+    proc = run_here(a, job)
+    a.recover()  # starts a's keeper: a heartbeat every 0.1 s
+    time.sleep(1.0)
+    assert b.reap() == [] and row(b, job).state == "running"
+    assert (utcnow() - as_utc(row(b, job).heartbeat_at)).total_seconds() < 0.6
+
+    a._halt.set()  # replica a dies: its keeper stops, nothing records an end
+    a._keeper.join(5)
+    time.sleep(0.8)
+    assert b.reap() == [job]
+    assert row(b, job).state == "failed" and row(b, job).busy_domain is None
+    a.heartbeat()  # were a only slow, not dead: its next beat stops the process of the job it lost
+    assert not proc.is_alive()
+
+
+def test_a_job_cancelled_through_another_replica_is_stopped_by_its_owner(replica):
+    a, b = replica("a"), replica("b")
+    job = add_job(a, "toy", a.owner, beat_age=0)
+    proc = run_here(a, job)
+    b.cancel(job)  # the admin's request reached replica b; the process runs on a
+    assert row(b, job).state == "cancelled" and proc.is_alive()
+    a.heartbeat()
+    assert not proc.is_alive()
+
+
+def test_one_job_per_domain_holds_across_replicas(replica):
+    a, b = replica("a"), replica("b")
+    add_job(a, "toy", a.owner, beat_age=0)
+    with pytest.raises(IntegrityError):
+        add_job(b, "toy", b.owner, beat_age=0)
+
+
+def test_train_route_on_two_replicas(make_settings, database_url, tmp_path, monkeypatch):
+    """Through the API: the second replica's request is a 409 while the first's job lives; once its server
+    is gone (no heartbeat), the next request on the other replica reaps it and starts."""
+    import shutil
+
+    from fastapi.testclient import TestClient
+
+    from server.main import create_app
+
+    monkeypatch.setattr(JobRunner, "start", lambda runner, job_id: run_here(runner, job_id))
+    auth = {"Authorization": "Bearer t0ken"}
+    data, models = tmp_path / "data", tmp_path / "models"
+    shutil.copytree(make_settings().data_dir, data)
+    shutil.copytree(make_settings().models_dir, models)
+
+    def app(name: str):
+        return TestClient(create_app(make_settings(database_url=database_url, admin_token="t0ken", replica=name,
+                                                   data_dir=data, models_dir=models, job_heartbeat_seconds=0.1,
+                                                   job_stale_seconds=0.6)))
+
+    with app("a") as a, app("b") as b:
+        first = a.post("/api/admin/train", headers=auth, json={"domain": "toy", "preset": "tiny"})
+        assert first.status_code == 202, first.text
+        time.sleep(1.0)  # longer than the staleness limit: a's heartbeats keep its job alive
+        busy = b.post("/api/admin/train", headers=auth, json={"domain": "toy", "preset": "tiny"})
+        assert busy.status_code == 409
+        assert busy.json()["detail"] == (f"a training job for toy is already running ({first.json()['id']}); "
+                                         "wait for it or cancel it")
+        runner = a.app.state.services.jobs
+        runner._halt.set()  # replica a's process hangs: no more heartbeats
+        runner._keeper.join(5)
+        time.sleep(0.8)
+        second = b.post("/api/admin/train", headers=auth, json={"domain": "toy", "preset": "tiny"})
+        assert second.status_code == 202, second.text
+        jobs = {j["id"]: j for j in b.get("/api/admin/jobs", headers=auth).json()}
+        assert jobs[first.json()["id"]]["state"] == "failed"
+        assert "stopped: no heartbeat for 0.6 s" in jobs[first.json()["id"]]["error"]
+        assert jobs[second.json()["id"]]["state"] == "queued"
+
+
+def test_heartbeat_must_be_well_inside_the_staleness_limit():
+    with pytest.raises(ValueError, match=r"job_stale_seconds \(10\) must exceed twice job_heartbeat_seconds \(5\)"):
+        Settings(job_heartbeat_seconds=5, job_stale_seconds=10)
+
+
+def test_old_databases_get_the_ownership_columns(tmp_path):
+    """A job table from before replicas (no owner, no heartbeat) gains both columns at start-up."""
+    url = f"sqlite:///{tmp_path / 'old.db'}"
+    old = create_engine(url)
+    with old.begin() as conn:
+        conn.execute(text("CREATE TABLE rba_train_job (id VARCHAR(32) PRIMARY KEY, domain VARCHAR(64) NOT NULL, "
+                          "method VARCHAR(32) NOT NULL, rep VARCHAR(32) NOT NULL, preset VARCHAR(16) NOT NULL, "
+                          "datasets JSON NOT NULL, stage VARCHAR(64) NOT NULL, step INTEGER NOT NULL, "
+                          "total INTEGER NOT NULL, loss FLOAT, held_out JSON, log_tail TEXT NOT NULL, error TEXT, "
+                          "version VARCHAR(64), busy_domain VARCHAR(64) UNIQUE, include_page_labels BOOLEAN NOT NULL, "
+                          "state VARCHAR(16) NOT NULL, created_at DATETIME NOT NULL, updated_at DATETIME NOT NULL)"))
+    old.dispose()
+    engine = make_engine(url)
+    columns = {c["name"] for c in inspect(engine).get_columns("rba_train_job")}
+    assert {"owner", "heartbeat_at"} <= columns
+    engine.dispose()
