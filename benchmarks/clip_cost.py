@@ -147,6 +147,7 @@ class Totals:
     replay: float = 0.0
     render: float = 0.0
     encode: float = 0.0
+    render_cpu: float = 0.0  # this process's CPU time over replay + render, all threads (llvmpipe's too)
     encode_cpu: float = 0.0  # ffmpeg's user + system time
     streamed: float = 0.0
     sizes: list[int] = field(default_factory=list)  # MP4 bytes
@@ -171,6 +172,7 @@ class Totals:
                 **{f"{k}_ms_per_clip": round(v / n * 1000, 1) for k, v in stages.items()},
                 "stages_ms_per_clip": round(sum(stages.values()) / n * 1000, 1),
                 **{f"{k}_ms_per_frame": round(v / f * 1000, 3) for k, v in stages.items()},
+                "render_cpu_ms_per_clip": round(self.render_cpu / n * 1000, 1),
                 "encode_cpu_ms_per_clip": round(self.encode_cpu / n * 1000, 1),
                 "streamed_ms_per_clip": round(self.streamed / n * 1000, 1),
                 "mp4_kb_mean": round(sum(self.sizes) / n / 1024, 1),
@@ -299,7 +301,9 @@ class Clip:
 def measure_clip(config: Config, scene, rollout: Rollout, tmp: Path) -> Clip:
     """Stage by stage (frames kept in memory, then encoded), then streamed as the app does."""
     domain, times = scene.domain, {"replay": 0.0, "render": 0.0}
+    cpu = time.process_time()
     frames = list(scene.frames(rollout, times))
+    times["render_cpu"] = time.process_time() - cpu
     times["encode"], times["encode_cpu"] = _encode_timed(config, frames, tmp / "clip.mp4", domain.frame_rate)
     mp4 = (tmp / "clip.mp4").read_bytes()
     seen: list[np.ndarray] = []
@@ -385,8 +389,57 @@ def gl_renderer() -> str:
         return "unknown"
 
 
+NOTES = """\
+## What changed, what was left alone
+
+Changed (the *after* configuration, now production):
+
+- **Encoding** (`rba/video.py`): ffmpeg is started directly. `imageio_ffmpeg.write_frames` forked the whole
+  process (a `preexec_fn` rules out vfork) and polled for ffmpeg's exit every 10 ms: ~10 ms of every clip.
+  x264 runs on **one thread** (`-threads 1`): its default follows the CPU count, and the thread count
+  changes the bytes, so on main the same clip gave other bytes on a machine (or cgroup) with another
+  number of CPUs (`tests/test_video.py` renders a walker clip in two processes, one limited to one CPU,
+  and compares the bytes). The RGB to YUV conversion runs single-threaded with swscale's bit-exact paths and
+  the muxer drops its version tag. Preset (`veryfast`) and crf (23) are unchanged: the clips stay 20-60 kB.
+- **MuJoCo replay** (`rba/domains/mujoco_render.py`): `mj_fwdPosition` instead of `mj_forward`: a frame
+  needs only positions (kinematics, centres of mass for the snake's camera, lights, tendons); the frames
+  are identical pixel for pixel (walker and manipulator above: every clip identical; and
+  `tests/domains/test_mujoco_render.py`). The frame copy after `Renderer.render` is gone (it returns a
+  new array). Both are small: the replay stage was ~2-3 % of a clip.
+- **Snake** (`assets/snake.xml`, `snake.py`): the floor plane was drawn as 200 x 200 quads (MuJoCo's cap;
+  its third size, 0.1 m, only spaces them for drawing), twice with the reflection: quads 1 m apart look the
+  same under its directional light (at most 1 level of 255 apart) and the physics is bit-identical
+  (`tests/test_resimulate.py`). Its floor reflection is off: the snake lies flat, so the reflection was a
+  hairline under the body (mean difference 0.08 levels) and ~40 % of what was left of each frame.
+- **Lane change** (`lane_change.py`): the frame is read from the pygame surface with `pygame.image.tobytes`
+  (row-major, one pass) instead of highway-env's column-major `surfarray` plus a transposed copy: same pixels.
+
+Left alone:
+
+- **Frame rate.** A clip's frame rate is its domain's replay rate, and it is about what the attribute is:
+  walker *softness* is the foot's speed at touchdown, and at 1.4 m/s the last 5 cm take ~35 ms, one frame
+  at 30 fps; at 15 fps a stomp and a soft landing would be one frame apart. The manipulator's *tremor* is
+  held 40 ms (25 Hz), which 33 fps barely samples and half that would alias away. The snake (8-50 mm/s)
+  would survive 12.5 fps, but the encoder's rate comes from `domain.frame_rate`, which `rba/clips.py` and
+  `rba/cli.py` pass on (not changed here); the lane change is at 15 fps already.
+- **Resolution**: 320x240, the settings' default.
+- **The walker's and the manipulator's skybox** (`no-sky` in `clip_cost_options.md`): the largest lever
+  left, ~45 % of the walker's render and ~15 % of the manipulator's, and the walker's sky carries nothing
+  (the camera only slides along x, so the sky never moves). But MuJoCo then clears to black: a look
+  change, and clip caches are keyed by library version, not by renderer, so old and new clips would mix
+  in one session. A product call, one flag (`mjRND_SKYBOX`) when made.
+- **The walker's and the manipulator's reflections**: they show where feet touch down and the ball lifts off.
+- **x264 `ultrafast` / `superfast`** (`ultrafast` in `clip_cost_options.md`): 10-40 ms a clip faster, but
+  without mb-tree the files are 2-5x larger (the walker's starry sky over 150 kB at `ultrafast`).
+  `me=dia:subme=1` saves ~10 ms at +20 % size; `-tune zerolatency` or `animation` were slower or bigger.
+  Encoding overlaps rendering anyway (compare *stages* and *streamed*).
+- **Renderers**: already one per thread and size (`ThreadRenderers`), one highway-env per thread and view;
+  the creation column shows what the warm-up clip pays once.
+"""
+
+
 def _stage_table(report: dict) -> list[str]:
-    lines = ["| domain | config | frames | replay | render | encode | stages | streamed | ffmpeg CPU "
+    lines = ["| domain | config | frames | replay | render | encode | stages | streamed | CPU: render + ffmpeg "
              "| MP4 kB mean / max |", "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for d in report["domains"]:
         for name in report["configs"]:
@@ -395,7 +448,8 @@ def _stage_table(report: dict) -> list[str]:
                 f"| {d['domain']} | {name} | {r['frames_per_clip']:g} | {r['replay_ms_per_clip']:.1f} "
                 f"({r['replay_ms_per_frame']:.3f}) | {r['render_ms_per_clip']:.0f} ({r['render_ms_per_frame']:.2f}) | "
                 f"{r['encode_ms_per_clip']:.0f} ({r['encode_ms_per_frame']:.2f}) | **{r['stages_ms_per_clip']:.0f}** | "
-                f"{r['streamed_ms_per_clip']:.0f} | {r['encode_cpu_ms_per_clip']:.0f} | "
+                f"{r['streamed_ms_per_clip']:.0f} | {r['render_cpu_ms_per_clip']:.0f} + "
+                f"{r['encode_cpu_ms_per_clip']:.0f} | "
                 f"{r['mp4_kb_mean']:.1f} / {r['mp4_kb_max']:.1f} |")
     return lines
 
@@ -441,10 +495,14 @@ def markdown(report: dict) -> str:
              f"the fastest of {report['repeat']} run(s), configurations taking turns", "",
              "ms per clip (per frame in brackets). *stages* = replay + render + encode, each timed on its own "
              "(encode: frames already in memory); *streamed* = the clip as the app makes it, frames piped to "
-             "ffmpeg as they are rendered, so encoding overlaps rendering; *ffmpeg CPU* = its user + system time.",
+             "ffmpeg as they are rendered, so encoding overlaps rendering; *CPU* = this process's CPU time over "
+             "replay + render (every thread, llvmpipe's too) + ffmpeg's user + system time: what a clip costs a "
+             "busy server.",
              "", *_stage_table(report), "", *_change_table(report), "", *_check_table(report),
              "", "Configurations:", "", *[f"- **{n}**: {report['config_about'][n]}" for n in report["configs"]],
              "", f"Rendering: {report['gl']}; MuJoCo {report['mujoco']}; ffmpeg {report['ffmpeg']}.", ""]
+    if report["configs"] == ["before", "after"]:
+        lines += [NOTES]
     return "\n".join(lines)
 
 
