@@ -6,9 +6,9 @@ the output), the RGB to YUV conversion runs on one thread with swscale's bit-exa
 the muxer leaves out its version tag. One thread is enough: x264 at ``veryfast`` needs about
 0.5 ms a 320x240 frame, less than rendering one, and it runs in its own process beside the renderer.
 
-ffmpeg is started directly instead of through ``imageio_ffmpeg.write_frames``, which forks with
-a ``preexec_fn`` (a full fork of a large server process, ~5 ms) and polls for the exit every
-10 ms: ~10 ms of each clip. See ``benchmarks/clip_cost.py``.
+ffmpeg is started directly instead of through ``imageio_ffmpeg.write_frames``, which forks the
+whole process (its ``preexec_fn`` rules out vfork) and polls for ffmpeg's exit every 10 ms:
+together ~10 ms of each clip. See ``benchmarks/clip_cost.py``.
 """
 
 from __future__ import annotations
@@ -25,8 +25,8 @@ import numpy as np
 
 from rba.storage import write_atomic
 
-# x264 at crf 23 / veryfast: ~20-60 kB a clip; ultrafast and superfast encode 10-40 ms faster
-# but give 2-5x larger files (no mb-tree), over 150 kB for the walker's starry sky
+# x264 at crf 23 / veryfast: ~20-60 kB a clip. ultrafast encodes 10-40 ms a clip faster but gives
+# 2-5x larger files (no mb-tree), over 150 kB for the walker's starry sky; superfast is bigger and hardly faster
 X264 = ("-c:v", "libx264", "-preset", "veryfast", "-crf", "23", "-threads", "1")
 BIT_EXACT = ("-filter_threads", "1", "-sws_flags", "bicubic+accurate_rnd+bitexact")
 
@@ -65,7 +65,8 @@ def encode_mp4(frames: Iterable[np.ndarray], path: Path, fps: float) -> int:
     height, width = first.shape[:2]
     with tempfile.TemporaryFile() as errors:  # a file, not a pipe: ffmpeg can never block on it
         proc = subprocess.Popen(ffmpeg_command(width, height, fps, Path(path)), stdin=subprocess.PIPE,
-                                stdout=subprocess.DEVNULL, stderr=errors, process_group=0)
+                                stdout=subprocess.DEVNULL, stderr=errors,
+                                process_group=0)  # a Ctrl-C in a terminal stops us, not ffmpeg mid-file
         try:
             count = _feed(proc.stdin, first, frames)
         except BrokenPipeError:
