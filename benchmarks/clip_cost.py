@@ -310,10 +310,15 @@ def measure_clip(config: Config, scene, rollout: Rollout, tmp: Path) -> Clip:
     height, width = frames[0].shape[:2]
     stream = domain.render(rollout, width, height) if config.production else scene.frames(rollout, None)
     times["streamed"], _ = _encode_timed(config, _keep(stream, seen), tmp / "streamed.mp4", domain.frame_rate)
-    mirror = frames_digest(seen) == frames_digest(frames) if config.production else None
+    same_frames = frames_digest(seen) == frames_digest(frames)
+    mirror = same_frames if config.production else None
     if mirror is False:
         log.warning("%s: the stage loop's frames differ from the production render's", domain.name)
-    return Clip(times, frames, mp4, (tmp / "streamed.mp4").read_bytes() == mp4, mirror)
+    same_bytes = (tmp / "streamed.mp4").read_bytes() == mp4
+    if not same_bytes:
+        log.warning("%s %s %s: the streamed MP4 differs from the one encoded from memory (%s frames)",
+                    config.name, domain.name, rollout.id, "same" if same_frames else "different")
+    return Clip(times, frames, mp4, same_bytes, mirror)
 
 
 def fastest(clips: list[Clip]) -> Clip:
@@ -321,6 +326,9 @@ def fastest(clips: list[Clip]) -> Clip:
     best = clips[0]
     best.times = {k: min(c.times[k] for c in clips) for k in best.times}
     best.stream_same_bytes = all(c.stream_same_bytes and c.mp4 == best.mp4 for c in clips)
+    if any(c.mp4 != best.mp4 for c in clips):
+        log.warning("the repeats of one clip gave different MP4s (frames %s)",
+                    "the same" if len({frames_digest(c.frames) for c in clips}) == 1 else "different")
     return best
 
 
