@@ -43,7 +43,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import mujoco
@@ -129,10 +129,10 @@ AFTER = Config("after", "production: mj_fwdPosition, no copy, no snake reflectio
                lane._draw, video.encode_mp4)
 CONFIGS = {c.name: c for c in (
     BEFORE, AFTER,
-    Config("no-sky", "after without the skybox (black above the horizon)", False, AFTER.pose, False,
-           AFTER.reflection, False, {}, AFTER.lane_frame, AFTER.encode),
-    Config("ultrafast", "after with x264 preset ultrafast", False, AFTER.pose, False, AFTER.reflection, True, {},
-           AFTER.lane_frame, encode_preset("ultrafast")),
+    replace(AFTER, name="no-sky", about="after without the skybox (black above the horizon)", production=False,
+            skybox=False),
+    replace(AFTER, name="ultrafast", about="after with x264 preset ultrafast", production=False,
+            encode=encode_preset("ultrafast")),
 )}
 
 
@@ -147,7 +147,8 @@ class Totals:
     replay: float = 0.0
     render: float = 0.0
     encode: float = 0.0
-    render_cpu: float = 0.0  # this process's CPU time over replay + render, all threads (llvmpipe's too)
+    replay_cpu: float = 0.0  # this process's CPU time (all threads: llvmpipe's too)
+    render_cpu: float = 0.0
     encode_cpu: float = 0.0  # ffmpeg's user + system time
     streamed: float = 0.0
     sizes: list[int] = field(default_factory=list)  # MP4 bytes
@@ -172,7 +173,9 @@ class Totals:
                 **{f"{k}_ms_per_clip": round(v / n * 1000, 1) for k, v in stages.items()},
                 "stages_ms_per_clip": round(sum(stages.values()) / n * 1000, 1),
                 **{f"{k}_ms_per_frame": round(v / f * 1000, 3) for k, v in stages.items()},
+                "replay_cpu_ms_per_clip": round(self.replay_cpu / n * 1000, 1),
                 "render_cpu_ms_per_clip": round(self.render_cpu / n * 1000, 1),
+                "cpu_ms_per_clip": round((self.replay_cpu + self.render_cpu + self.encode_cpu) / n * 1000, 1),
                 "encode_cpu_ms_per_clip": round(self.encode_cpu / n * 1000, 1),
                 "streamed_ms_per_clip": round(self.streamed / n * 1000, 1),
                 "mp4_kb_mean": round(sum(self.sizes) / n / 1024, 1),
@@ -186,6 +189,30 @@ def frames_digest(frames: Iterable[np.ndarray]) -> str:
     for frame in frames:
         h.update(np.ascontiguousarray(frame).tobytes())
     return h.hexdigest()
+
+
+class Stopwatch:
+    """Wall time and this process's CPU time (all threads: llvmpipe rasterises on its own), summed per stage.
+
+    Under other load the CPU times stay put while the wall times grow: compare both."""
+
+    def __init__(self) -> None:
+        self.sums: dict[str, float] = {}
+        self.restart()
+
+    def restart(self) -> None:
+        self._wall, self._cpu = time.perf_counter(), time.process_time()
+
+    def lap(self, stage: str) -> None:
+        wall, cpu = time.perf_counter(), time.process_time()
+        self.sums[stage] = self.sums.get(stage, 0.0) + wall - self._wall
+        self.sums[stage + "_cpu"] = self.sums.get(stage + "_cpu", 0.0) + cpu - self._cpu
+        self._wall, self._cpu = wall, cpu
+
+    def add_to(self, times: dict[str, float] | None) -> None:
+        if times is not None:
+            for k, v in self.sums.items():
+                times[k] = times.get(k, 0.0) + v
 
 
 class _Capture:
@@ -225,27 +252,26 @@ class MujocoScene:
     def frames(self, rollout: Rollout, times: dict[str, float] | None) -> Iterator[np.ndarray]:
         _, camera = mujoco_view(self.domain, rollout, *self.size)
         model, renderer, pose = self.model, self.renderer, self.config.pose
-        start = time.perf_counter()
+        watch = Stopwatch()
         data = mujoco.MjData(model)
         cam = mujoco.MjvCamera()
         cam.type = mujoco.mjtCamera.mjCAMERA_FREE
         cam.distance, cam.azimuth, cam.elevation = camera.distance, camera.azimuth, camera.elevation
         cam.lookat[:] = camera.lookat
-        replay, render = time.perf_counter() - start, 0.0
+        watch.lap("replay")
         for qpos in rollout.replay:
-            start = time.perf_counter()
+            watch.restart()  # what the consumer did with the last frame is not ours
             data.qpos[:] = qpos
             pose(model, data)
             if camera.aim is not None:
                 cam.lookat[:] = camera.aim(data)
             renderer.update_scene(data, camera=cam)
-            posed = time.perf_counter()
+            watch.lap("replay")
             frame = renderer.render()
             frame = frame.copy() if self.config.copy_frames else frame
-            replay, render = replay + posed - start, render + time.perf_counter() - posed
+            watch.lap("render")
             yield frame
-        if times is not None:
-            times["replay"], times["render"] = times["replay"] + replay, times["render"] + render
+        watch.add_to(times)
 
 
 class LaneScene:
@@ -262,19 +288,18 @@ class LaneScene:
         self.gl = "pygame (software)"
 
     def frames(self, rollout: Rollout, times: dict[str, float] | None) -> Iterator[np.ndarray]:
-        start = time.perf_counter()
+        watch = Stopwatch()
         ego, follower = self.domain._scene(self.env, 10.0, 1.0)
-        replay, render = time.perf_counter() - start, 0.0
+        watch.lap("replay")
         for ex, ey, eh, fx, fy, fh in rollout.replay:
-            start = time.perf_counter()
+            watch.restart()
             ego.position, ego.heading = np.array([ex, ey]), float(eh)
             follower.position, follower.heading = np.array([fx, fy]), float(fh)
-            placed = time.perf_counter()
+            watch.lap("replay")
             frame = self.config.lane_frame(self.env)
-            replay, render = replay + placed - start, render + time.perf_counter() - placed
+            watch.lap("render")
             yield frame
-        if times is not None:
-            times["replay"], times["render"] = times["replay"] + replay, times["render"] + render
+        watch.add_to(times)
 
 
 # ---------------------------------------------------------------- one clip, one domain
@@ -300,10 +325,8 @@ class Clip:
 
 def measure_clip(config: Config, scene, rollout: Rollout, tmp: Path) -> Clip:
     """Stage by stage (frames kept in memory, then encoded), then streamed as the app does."""
-    domain, times = scene.domain, {"replay": 0.0, "render": 0.0}
-    cpu = time.process_time()
+    domain, times = scene.domain, {}
     frames = list(scene.frames(rollout, times))
-    times["render_cpu"] = time.process_time() - cpu
     times["encode"], times["encode_cpu"] = _encode_timed(config, frames, tmp / "clip.mp4", domain.frame_rate)
     mp4 = (tmp / "clip.mp4").read_bytes()
     seen: list[np.ndarray] = []
@@ -447,8 +470,9 @@ Left alone:
 
 
 def _stage_table(report: dict) -> list[str]:
-    lines = ["| domain | config | frames | replay | render | encode | stages | streamed | CPU: render + ffmpeg "
-             "| MP4 kB mean / max |", "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    lines = ["| domain | config | frames | replay | render | encode | **stages** | streamed "
+             "| CPU: replay + render + ffmpeg = total | MP4 kB mean / max |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for d in report["domains"]:
         for name in report["configs"]:
             r = d["configs"][name]
@@ -456,25 +480,24 @@ def _stage_table(report: dict) -> list[str]:
                 f"| {d['domain']} | {name} | {r['frames_per_clip']:g} | {r['replay_ms_per_clip']:.1f} "
                 f"({r['replay_ms_per_frame']:.3f}) | {r['render_ms_per_clip']:.0f} ({r['render_ms_per_frame']:.2f}) | "
                 f"{r['encode_ms_per_clip']:.0f} ({r['encode_ms_per_frame']:.2f}) | **{r['stages_ms_per_clip']:.0f}** | "
-                f"{r['streamed_ms_per_clip']:.0f} | {r['render_cpu_ms_per_clip']:.0f} + "
-                f"{r['encode_cpu_ms_per_clip']:.0f} | "
-                f"{r['mp4_kb_mean']:.1f} / {r['mp4_kb_max']:.1f} |")
+                f"{r['streamed_ms_per_clip']:.0f} | {r['replay_cpu_ms_per_clip']:.0f} + "
+                f"{r['render_cpu_ms_per_clip']:.0f} + {r['encode_cpu_ms_per_clip']:.0f} = "
+                f"**{r['cpu_ms_per_clip']:.0f}** | {r['mp4_kb_mean']:.1f} / {r['mp4_kb_max']:.1f} |")
     return lines
+
+
+def _change(a: dict, b: dict, key: str) -> str:
+    return f"{a[key]:.0f} → {b[key]:.0f} ({b[key] / a[key] - 1:+.0%})"
 
 
 def _change_table(report: dict) -> list[str]:
     first, rest = report["configs"][0], report["configs"][1:]
-    lines = ["| domain | " + " | ".join(f"{first} → {n}: stages, streamed (ms per clip)" for n in rest) + " |",
+    lines = ["| domain | " + " | ".join(f"{first} → {n}: stages · streamed · CPU (ms per clip)" for n in rest) + " |",
              "|---|" + "---|" * len(rest)]
     for d in report["domains"]:
         a = d["configs"][first]
-        cells = []
-        for n in rest:
-            b = d["configs"][n]
-            cells.append(f"{a['stages_ms_per_clip']:.0f} → {b['stages_ms_per_clip']:.0f} "
-                         f"({b['stages_ms_per_clip'] / a['stages_ms_per_clip'] - 1:+.0%}), "
-                         f"{a['streamed_ms_per_clip']:.0f} → {b['streamed_ms_per_clip']:.0f} "
-                         f"({b['streamed_ms_per_clip'] / a['streamed_ms_per_clip'] - 1:+.0%})")
+        cells = [" · ".join(_change(a, d["configs"][n], k) for k in
+                            ("stages_ms_per_clip", "streamed_ms_per_clip", "cpu_ms_per_clip")) for n in rest]
         lines.append(f"| {d['domain']} | " + " | ".join(cells) + " |")
     return lines
 
@@ -503,9 +526,9 @@ def markdown(report: dict) -> str:
              f"the fastest of {report['repeat']} run(s), configurations taking turns", "",
              "ms per clip (per frame in brackets). *stages* = replay + render + encode, each timed on its own "
              "(encode: frames already in memory); *streamed* = the clip as the app makes it, frames piped to "
-             "ffmpeg as they are rendered, so encoding overlaps rendering; *CPU* = this process's CPU time over "
-             "replay + render (every thread, llvmpipe's too) + ffmpeg's user + system time: what a clip costs a "
-             "busy server.",
+             "ffmpeg as they are rendered, so encoding overlaps rendering; *CPU* = this process's CPU time in "
+             "replay and render (every thread: llvmpipe rasterises on its own) and ffmpeg's user + system time, "
+             "what a clip costs a busy server, and what moves least when other work shares the machine.",
              "", *_stage_table(report), "", *_change_table(report), "", *_check_table(report),
              "", "Configurations:", "", *[f"- **{n}**: {report['config_about'][n]}" for n in report["configs"]],
              "", f"Rendering: {report['gl']}; MuJoCo {report['mujoco']}; ffmpeg {report['ffmpeg']}.", ""]
