@@ -2,7 +2,14 @@
 
 An EGL context belongs to the thread that made it, and making one costs ~0.4 s, so each
 thread keeps its renderers. Shadows are off: in software rendering (Mesa) they cost more
-than half of each frame, and the floor's reflection still shows where things touch.
+than half of each frame, and the floor's reflection still shows where things touch. A domain
+whose bodies always lie on the floor can turn the reflection off too (``reflection=False``):
+it draws the scene a second time, mirrored, and blends the floor over it.
+
+Each frame needs only the model's pose, so a replay row is turned into one with
+``mj_fwdPosition`` (kinematics, centres of mass, lights, tendons, contacts) instead of a full
+``mj_forward``, which also computes velocities, forces and the constraint solution: the frames
+are the same pixel for pixel. See ``benchmarks/clip_cost.py`` for what each stage costs.
 """
 
 from __future__ import annotations
@@ -35,7 +42,8 @@ class Camera:
 class ThreadRenderers:
     """``get(model, width, height)``: this thread's renderer for that size, made once."""
 
-    def __init__(self) -> None:
+    def __init__(self, reflection: bool = True) -> None:
+        self.reflection = reflection
         self._local = threading.local()
         self._made: list[mujoco.Renderer] = []
         _ALL.add(self)
@@ -48,6 +56,7 @@ class ThreadRenderers:
             model.vis.quality.offsamples = 0  # no multisampling: 2.6x faster, no visible difference at 320x240
             renderer = mujoco.Renderer(model, height=height, width=width)
             renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = 0
+            renderer.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = int(self.reflection)
             _close_at_exit()
             cache[width, height] = renderer
             self._made.append(renderer)
@@ -64,11 +73,11 @@ class ThreadRenderers:
         cam.lookat[:] = camera.lookat
         for qpos in qposes:
             data.qpos[:] = qpos
-            mujoco.mj_forward(model, data)
+            mujoco.mj_fwdPosition(model, data)  # all a frame shows; velocities and forces are not drawn
             if camera.aim is not None:
                 cam.lookat[:] = camera.aim(data)
             renderer.update_scene(data, camera=cam)  # update + render with no yield between: safe to interleave
-            yield renderer.render().copy()
+            yield renderer.render()  # a new array each call
 
     def close(self) -> None:
         for renderer in self._made:

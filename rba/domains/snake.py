@@ -181,7 +181,9 @@ class Snake(Domain):
 
     def __init__(self) -> None:
         self._model: mujoco.MjModel | None = None
-        self._renderers = ThreadRenderers()
+        # no floor reflection: the snake lies flat on the floor, so it would be a hairline under the
+        # body, and drawing it costs ~2 ms of a ~5 ms frame (benchmarks/clip_cost.py)
+        self._renderers = ThreadRenderers(reflection=False)
 
     def _physics(self) -> mujoco.MjModel:
         if self._model is None:

@@ -1,0 +1,31 @@
+"""MuJoCo clip rendering: the position pass draws exactly what a full mj_forward would, renderers keep their flags."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+
+from rba.domains import get_domain
+
+
+@pytest.mark.parametrize("name", ["walker", "manipulator", "snake"])
+def test_the_position_pass_draws_what_a_full_forward_draws(name, monkeypatch):
+    domain = get_domain(name)
+    r = domain.rollout(domain.sample_params(np.random.default_rng(1)), seed=0)
+    r.replay = r.replay[:: max(len(r.replay) // 4, 1)][:4]  # start, middle, end: a few frames keep it fast
+    fast = list(domain.render(r, 64, 48))
+    monkeypatch.setattr(mujoco, "mj_fwdPosition", mujoco.mj_forward)
+    full = list(domain.render(r, 64, 48))
+    assert len(fast) == len(full) == len(r.replay)
+    for f, g in zip(fast, full, strict=True):
+        np.testing.assert_array_equal(f, g)
+
+
+def test_only_the_snake_turns_the_floor_reflection_off():
+    """The walker's and the arm's reflections show where they touch the floor; the snake always lies on it."""
+    assert get_domain("walker")._renderers.reflection and get_domain("manipulator")._renderers.reflection
+    snake = get_domain("snake")
+    assert not snake._renderers.reflection
+    renderer = snake._renderers.get(snake._physics(), 64, 48)
+    assert renderer.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] == 0
