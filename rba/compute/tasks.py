@@ -23,12 +23,13 @@ _ready = False  # this process was set up as a worker
 def init_worker(nice: int = 0) -> None:
     """Lower this worker's priority below the API's, render off-screen, and keep each worker on one thread.
 
-    One intra-op thread per worker: workers run side by side, and a fixed thread count keeps results
+    One thread per worker (torch's, BLAS's and Mesa's software rasteriser's): workers run side by side,
+    one per CPU, so more threads would only fight over the cores; and a fixed count keeps results
     identical whatever machine the worker is on.
     """
     os.environ.setdefault("MUJOCO_GL", "egl")
     os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
-    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "LP_NUM_THREADS"):  # LP: Mesa
         os.environ.setdefault(var, "1")
     global _ready
     if nice:
