@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import multiprocessing as mp
+import os
 import threading
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
@@ -22,20 +23,22 @@ from rba.domains import Rollout
 
 log = logging.getLogger(__name__)
 SIM_CHUNK = 4  # rollouts per round trip when simulating a library
+URGENT_RENDER_THREADS = 4  # rasteriser threads of a worker rendering a clip someone waits for
 RETRIES = 2  # runs after a worker died, as Ray's default task retries
 
 
 class _Pool:
     """A process pool that replaces itself when broken; ``submit`` retries a task cut short by that."""
 
-    def __init__(self, workers: int, nice: int) -> None:
-        self.workers, self.nice = workers, nice
+    def __init__(self, workers: int, nice: int, render_threads: int = 1) -> None:
+        self.workers, self.nice, self.render_threads = workers, nice, render_threads
         self._lock = threading.Lock()
         self._closed = False
         self.executor = self._new()
 
     def _new(self) -> ProcessPoolExecutor:  # spawn, not fork: EGL contexts and threads do not survive a fork
-        return ProcessPoolExecutor(self.workers, mp.get_context("spawn"), tasks.init_worker, (self.nice,))
+        return ProcessPoolExecutor(self.workers, mp.get_context("spawn"), tasks.init_worker,
+                                   (self.nice, self.render_threads))
 
     def submit(self, fn: Callable, *args: object) -> Task:
         outer: Future = Future()
@@ -92,7 +95,8 @@ class LocalCompute(Compute):
 
     def __init__(self, workers: int = 2, nice: int = 5, background_nice: int = 15) -> None:
         self.workers = workers
-        self._urgent = _Pool(workers, nice)
+        cores = len(os.sched_getaffinity(0))
+        self._urgent = _Pool(workers, nice, min(cores, URGENT_RENDER_THREADS))  # someone waits: use the cores
         self._background = _Pool(workers, background_nice)
 
     @property
@@ -109,9 +113,8 @@ class LocalCompute(Compute):
         return pool.submit(tasks.render_clip, job.target, job.rollout, job.width, job.height)
 
     def warm(self, target: str) -> None:
-        """Start the urgent pool's workers (the guess pool starts with the first guess: after the first clip)."""
-        for _ in range(self.workers):
-            self._urgent.submit(tasks.warm, target)
+        """Start one urgent worker (for the first clip; the rest start when needed, after the API has loaded)."""
+        self._urgent.submit(tasks.warm, target)
 
     def close(self) -> None:
         for pool in (self._urgent, self._background):

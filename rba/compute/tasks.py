@@ -20,17 +20,19 @@ STALE_TEMP_SECONDS = 600  # a render takes seconds: older temporaries were left 
 _ready = False  # this process was set up as a worker
 
 
-def init_worker(nice: int = 0) -> None:
-    """Lower this worker's priority below the API's, render off-screen, and keep each worker on one thread.
+def init_worker(nice: int = 0, render_threads: int = 1) -> None:
+    """Lower this worker's priority below the API's, render off-screen, and fix the worker's thread counts.
 
-    One thread per worker (torch's, BLAS's and Mesa's software rasteriser's): workers run side by side,
-    one per CPU, so more threads would only fight over the cores; and a fixed count keeps results
-    identical whatever machine the worker is on.
+    One thread for torch and BLAS, and ``render_threads`` for Mesa's software rasteriser: guesses and
+    Ray tasks run one worker per CPU, so more threads would only fight over the cores; the pool for the
+    clip a person waits for may use every core. Rendered pixels do not depend on the rasteriser's thread
+    count, and the encoder's is fixed (``rba.video``), so clips are identical whatever the machine.
     """
     os.environ.setdefault("MUJOCO_GL", "egl")
     os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
-    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "LP_NUM_THREADS"):  # LP: Mesa
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
         os.environ.setdefault(var, "1")
+    os.environ.setdefault("LP_NUM_THREADS", str(render_threads))  # Mesa llvmpipe
     global _ready
     if nice:
         with contextlib.suppress(OSError):  # not allowed to lower it further: run as we are
