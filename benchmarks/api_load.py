@@ -63,7 +63,7 @@ from pathlib import Path
 
 import httpx
 
-from rba.storage import save_text
+from rba.storage import save_report
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"
@@ -484,9 +484,7 @@ def main(argv: list[str] | None = None) -> int:
         "results": results,
         "goals": judge(results),
     }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    save_text(args.out.with_suffix(".json"), json.dumps(report, indent=2) + "\n")
-    save_text(args.out.with_suffix(".md"), markdown(report))
+    save_report(args.out, report, markdown(report))
     log.info("wrote %s.json and %s.md", args.out, args.out)
     return 0
 

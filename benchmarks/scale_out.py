@@ -45,7 +45,7 @@ from pathlib import Path
 from rba.clips import ClipCache
 from rba.compute import Compute, make_compute
 from rba.library import SkillLibrary, generate
-from rba.storage import save_text
+from rba.storage import save_report
 from rba.store import ClipStore
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -372,9 +372,7 @@ def main(argv: list[str] | None = None) -> int:
         "load_average_before": load_before, "load_average_after": round(os.getloadavg()[0], 2),
         "runs": runs, "summary": summary, "goals": judge(summary),
     }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    save_text(args.out.with_suffix(".json"), json.dumps(report, indent=2) + "\n")
-    save_text(args.out.with_suffix(".md"), markdown(report))
+    save_report(args.out, report, markdown(report))
     log.info("wrote %s.json and %s.md", args.out, args.out)
     return 0
 

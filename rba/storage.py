@@ -34,6 +34,13 @@ def save_text(path: Path, text: str) -> None:
     write_atomic(Path(path), lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
 
 
+def save_report(out: Path, report: dict, markdown: str) -> None:
+    """A benchmark's report: ``<out>.json`` (the numbers) and ``<out>.md`` (for people), each atomically."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    save_text(out.with_suffix(".json"), json.dumps(report, indent=2) + "\n")
+    save_text(out.with_suffix(".md"), markdown)
+
+
 def save_json(path: Path, obj: Any) -> None:
     def write(tmp: str) -> None:
         with open(tmp, "w") as f:

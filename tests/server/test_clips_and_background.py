@@ -103,6 +103,13 @@ def test_background_keeps_only_the_newest_job_per_key():
         bg.stop()
 
 
+@pytest.fixture
+def fake_cache(toy_roots, tmp_path):
+    """A clip cache over the toy serve library whose renders the test finishes by hand."""
+    compute = FakeCompute()
+    return ClipCache(ClipStore(tmp_path), compute, 64, 48), compute, SkillLibrary.load("toy", "serve", toy_roots[0])
+
+
 def test_answers_start_with_the_last_one_then_combine_attributes():
     order = [[(fb.attribute, fb.direction) for fb in a]
              for a in answer_order(("amplitude", "pace"), [AttributeFeedback("pace", -1)])]
@@ -112,11 +119,8 @@ def test_answers_start_with_the_last_one_then_combine_attributes():
     assert len(answer_order(("a", "b", "c"), None)) == 6 + 12
 
 
-def test_an_urgent_request_overtakes_its_queued_guess(toy_roots, tmp_path):
-    data, _, _ = toy_roots
-    lib = SkillLibrary.load("toy", "serve", data)
-    compute = FakeCompute()
-    cache = ClipCache(ClipStore(tmp_path), compute, 64, 48)
+def test_an_urgent_request_overtakes_its_queued_guess(fake_cache, tmp_path):
+    cache, compute, lib = fake_cache
     key = cache.key(lib, "serve-00003")
     guess = cache.request(key, lib, urgent=False)
     wanted = cache.request(key, lib, urgent=True)
@@ -128,11 +132,8 @@ def test_an_urgent_request_overtakes_its_queued_guess(toy_roots, tmp_path):
     assert len(compute.submitted) == 2 and not list(tmp_path.glob("*/.*.tmp"))
 
 
-def test_a_failed_render_reaches_every_waiter_and_leaves_no_file(toy_roots, tmp_path):
-    data, _, _ = toy_roots
-    lib = SkillLibrary.load("toy", "serve", data)
-    compute = FakeCompute()
-    cache = ClipCache(ClipStore(tmp_path), compute, 64, 48)
+def test_a_failed_render_reaches_every_waiter_and_leaves_no_file(fake_cache):
+    cache, compute, lib = fake_cache
     key = cache.key(lib, "serve-00004")
     a, b = cache.request(key, lib), cache.request(key, lib)
     compute.submitted[0][1].set_exception(RuntimeError("EGL went away"))
@@ -144,11 +145,8 @@ def test_a_failed_render_reaches_every_waiter_and_leaves_no_file(toy_roots, tmp_
     assert len(compute.submitted) == 2
 
 
-def test_the_prefetcher_takes_sessions_round_robin_newest_first_then_the_sources_in_order(toy_roots, tmp_path):
-    data, _, _ = toy_roots
-    lib = SkillLibrary.load("toy", "serve", data)
-    compute = FakeCompute()
-    cache = ClipCache(ClipStore(tmp_path), compute, 64, 48)
+def test_the_prefetcher_takes_sessions_round_robin_newest_first_then_the_sources_in_order(fake_cache):
+    cache, compute, lib = fake_cache
     prefetch = Prefetcher(cache, lambda rid: (cache.key(lib, rid), lib), window=1)
     try:
         prefetch.offer("first", ["serve-00099"])
