@@ -24,6 +24,9 @@ from rba.store import ClipStore
 log = logging.getLogger(__name__)
 
 STALE_TMP_SECONDS = 600
+# Part of every clip's key: bump it when rendering or encoding changes what a clip looks like, so a cache
+# filled before never mixes old clips with new ones (2: snake floor without reflection, one x264 thread).
+RENDERER_VERSION = 2
 CLAIM_TTL_SECONDS = 120  # a guess claimed longer ago than this was left by a crashed process: render it here
 
 
@@ -37,7 +40,7 @@ class ClipKey:
 
     @property
     def digest(self) -> str:
-        raw = f"{self.domain}\0{self.version}\0{self.rollout_id}\0{self.width}x{self.height}"
+        raw = f"{self.domain}\0{self.version}\0{self.rollout_id}\0{self.width}x{self.height}\0{RENDERER_VERSION}"
         return hashlib.sha256(raw.encode()).hexdigest()[:24]
 
     @property

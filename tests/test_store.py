@@ -140,3 +140,11 @@ def test_the_library_never_imports_the_server():
                 [node.module or ""] if isinstance(node, ast.ImportFrom) else []
             offenders += [f"{path.relative_to(REPO_ROOT)}: {n}" for n in names if n.split(".")[0] == "server"]
     assert offenders == []
+
+
+def test_a_new_renderer_version_gives_every_clip_a_new_name(monkeypatch):
+    from rba import clips
+
+    before = KEY.digest
+    monkeypatch.setattr(clips, "RENDERER_VERSION", clips.RENDERER_VERSION + 1)
+    assert KEY.digest != before  # a cache filled by the old renderer is never served as the new one's
