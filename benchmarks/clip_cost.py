@@ -5,7 +5,8 @@ clip size (320x240 by default) under each configuration, in one run, the configu
 turns clip by clip so that a change in machine load hits them alike:
 
 * ``before``: the code of main before issue 13 item 3 (commit 0c32c5c), mirrored here: a full
-  ``mj_forward`` per frame, a copy of every frame, the floor's reflection in every MuJoCo domain,
+  ``mj_forward`` per frame, a copy of every frame, the skybox drawn in every frame, the floor's
+  reflection in every MuJoCo domain,
   the snake's floor drawn with quads 0.1 m apart, highway-env's column-major read-back, and
   ``imageio_ffmpeg.write_frames`` with x264 ``veryfast`` / crf 23 and x264's default threads;
 * ``after``: the production code (``rba.video.encode_mp4``, ``rba.domains.mujoco_render``, the
@@ -53,7 +54,7 @@ from rba import video
 from rba.domains import get_domain
 from rba.domains import lane_change as lane
 from rba.domains.base import Domain, Rollout
-from rba.domains.mujoco_render import Camera, ThreadRenderers
+from rba.domains.mujoco_render import Camera, ThreadRenderers, render_over_sky, sky_alone
 from rba.library import SkillLibrary
 from rba.settings import LibrarySettings
 from rba.storage import save_text
@@ -114,6 +115,7 @@ class Config:
     pose: Callable[[mujoco.MjModel, mujoco.MjData], None]
     copy_frames: bool
     reflection: Callable[[Domain], bool]
+    still_sky: Callable[[Domain], bool]  # the sky drawn once a clip and pasted in (``ThreadRenderers``)
     skybox: bool
     floor_spacing: dict[str, float]  # domain -> the floor plane's third size to render with
     lane_frame: Callable[..., np.ndarray]
@@ -122,15 +124,17 @@ class Config:
 
 BEFORE = Config("before", "main at 0c32c5c: mj_forward, frame copy, reflections, snake floor quads 0.1 m, "
                 "surfarray read-back, imageio-ffmpeg, x264 veryfast crf 23, default threads", False,
-                mujoco.mj_forward, True, lambda domain: True, True, {"snake": 0.1}, lane_frame_main, encode_main)
-AFTER = Config("after", "production: mj_fwdPosition, no copy, no snake reflection, snake floor quads 1 m, "
-               "tobytes read-back, ffmpeg piped directly, x264 veryfast crf 23, 1 thread, bit-exact", True,
-               mujoco.mj_fwdPosition, False, lambda domain: domain._renderers.reflection, True, {},
+                mujoco.mj_forward, True, lambda domain: True, lambda domain: False, True, {"snake": 0.1},
+                lane_frame_main, encode_main)
+AFTER = Config("after", "production: mj_fwdPosition, no copy, the walker's sky drawn once a clip, no snake "
+               "reflection, snake floor quads 1 m, tobytes read-back, ffmpeg piped directly, x264 veryfast crf 23, "
+               "1 thread, bit-exact", True, mujoco.mj_fwdPosition, False,
+               lambda domain: domain._renderers.reflection, lambda domain: domain._renderers.still_sky, True, {},
                lane._draw, video.encode_mp4)
 CONFIGS = {c.name: c for c in (
     BEFORE, AFTER,
     replace(AFTER, name="no-sky", about="after without the skybox (black above the horizon)", production=False,
-            skybox=False),
+            still_sky=lambda domain: False, skybox=False),
     replace(AFTER, name="ultrafast", about="after with x264 preset ultrafast", production=False,
             encode=encode_preset("ultrafast")),
 )}
@@ -244,9 +248,12 @@ class MujocoScene:
             model.geom_size[planes, 2] = config.floor_spacing[domain.name]
         self.model = model
         start = time.perf_counter()
-        self.renderer = ThreadRenderers(reflection=config.reflection(domain)).get(model, width, height)
+        self.still_sky = config.still_sky(domain)
+        renderers = ThreadRenderers(reflection=config.reflection(domain), still_sky=self.still_sky)
+        self.renderer = renderers.get(model, width, height)
         self.created = time.perf_counter() - start
-        self.renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = int(config.skybox)
+        if not config.skybox:
+            self.renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = 0
         self.gl = gl_renderer()  # the new renderer's context is current
 
     def frames(self, rollout: Rollout, times: dict[str, float] | None) -> Iterator[np.ndarray]:
@@ -259,6 +266,7 @@ class MujocoScene:
         cam.distance, cam.azimuth, cam.elevation = camera.distance, camera.azimuth, camera.elevation
         cam.lookat[:] = camera.lookat
         watch.lap("replay")
+        sky = None
         for qpos in rollout.replay:
             watch.restart()  # what the consumer did with the last frame is not ours
             data.qpos[:] = qpos
@@ -267,7 +275,11 @@ class MujocoScene:
                 cam.lookat[:] = camera.aim(data)
             renderer.update_scene(data, camera=cam)
             watch.lap("replay")
-            frame = renderer.render()
+            if self.still_sky:
+                sky = sky_alone(renderer) if sky is None else sky
+                frame = render_over_sky(renderer, sky)
+            else:
+                frame = renderer.render()
             frame = frame.copy() if self.config.copy_frames else frame
             watch.lap("render")
             yield frame
@@ -437,6 +449,11 @@ Changed (the *after* configuration, now production):
   are identical pixel for pixel (walker and manipulator above: every clip identical; and
   `tests/domains/test_mujoco_render.py`). The frame copy after `Renderer.render` is gone (it returns a
   new array). Both are small: the replay stage was ~2-3 % of a clip.
+- **The walker's sky** (`ThreadRenderers(still_sky=True)`): its camera only slides along x, and MuJoCo
+  draws the skybox around the camera, so the sky (three quarters of the frame) is one image for the whole
+  clip: it is drawn once per clip and pasted wherever a frame drew nothing (depth at the far plane, read
+  back with the colour). Identical pixel for pixel (above; and the test). Not for the manipulator (its
+  backdrop hides the sky: the depth read-back cost more than it saved) or the snake (looks down at the floor).
 - **Snake** (`assets/snake.xml`, `snake.py`): the floor plane was drawn as 200 x 200 quads (MuJoCo's cap;
   its third size, 0.1 m, only spaces them for drawing), twice with the reflection: quads 1 m apart look the
   same under its directional light (at most 1 level of 255 apart) and the physics is bit-identical
@@ -454,11 +471,10 @@ Left alone:
   would survive 12.5 fps, but the encoder's rate comes from `domain.frame_rate`, which `rba/clips.py` and
   `rba/cli.py` pass on (not changed here); the lane change is at 15 fps already.
 - **Resolution**: 320x240, the settings' default.
-- **The walker's and the manipulator's skybox** (`no-sky` in `clip_cost_options.md`): the largest lever
-  left, ~45 % of the walker's render and ~15 % of the manipulator's, and the walker's sky carries nothing
-  (the camera only slides along x, so the sky never moves). But MuJoCo then clears to black: a look
-  change, and clip caches are keyed by library version, not by renderer, so old and new clips would mix
-  in one session. A product call, one flag (`mjRND_SKYBOX`) when made.
+- **No skybox at all** (`no-sky` in `clip_cost_options.md`): MuJoCo then clears to black, a look change
+  for the walker (black above the horizon) and a black corner for the manipulator, and clip caches are
+  keyed by library version, not by renderer, so old and new clips would mix in one session. With the
+  walker's sky pasted in, what is left to gain is small.
 - **The walker's and the manipulator's reflections**: they show where feet touch down and the ball lifts off.
 - **x264 `ultrafast` / `superfast`** (`ultrafast` in `clip_cost_options.md`): 10-40 ms a clip faster, but
   without mb-tree the files are 2-5x larger (the walker's starry sky over 150 kB at `ultrafast`).

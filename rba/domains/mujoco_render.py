@@ -6,6 +6,12 @@ than half of each frame, and the floor's reflection still shows where things tou
 whose bodies always lie on the floor can turn the reflection off too (``reflection=False``):
 it draws the scene a second time, mirrored, and blends the floor over it.
 
+Where a domain's camera only slides (its orientation never changes), the skybox, which MuJoCo
+draws around the camera, is the same image in every frame of a clip: ``still_sky=True`` draws it
+once per clip and pastes it wherever a frame drew nothing (depth at the far plane), instead of
+texturing the sky again each frame. The frames are the same pixel for pixel; it pays where much
+sky shows (a quarter of a walker frame in software GL), not where little does (manipulator, snake).
+
 Each frame needs only the model's pose, so a replay row is turned into one with
 ``mj_fwdPosition`` (kinematics, centres of mass, lights, tendons, contacts) instead of a full
 ``mj_forward``, which also computes velocities, forces and the constraint solution: the frames
@@ -42,8 +48,8 @@ class Camera:
 class ThreadRenderers:
     """``get(model, width, height)``: this thread's renderer for that size, made once."""
 
-    def __init__(self, reflection: bool = True) -> None:
-        self.reflection = reflection
+    def __init__(self, reflection: bool = True, still_sky: bool = False) -> None:
+        self.reflection, self.still_sky = reflection, still_sky
         self._local = threading.local()
         self._made: list[mujoco.Renderer] = []
         _ALL.add(self)
@@ -57,6 +63,7 @@ class ThreadRenderers:
             renderer = mujoco.Renderer(model, height=height, width=width)
             renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = 0
             renderer.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = int(self.reflection)
+            renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = int(not self.still_sky)  # pasted in instead
             _close_at_exit()
             cache[width, height] = renderer
             self._made.append(renderer)
@@ -71,18 +78,50 @@ class ThreadRenderers:
         cam.type = mujoco.mjtCamera.mjCAMERA_FREE
         cam.distance, cam.azimuth, cam.elevation = camera.distance, camera.azimuth, camera.elevation
         cam.lookat[:] = camera.lookat
+        sky = None
         for qpos in qposes:
             data.qpos[:] = qpos
             mujoco.mj_fwdPosition(model, data)  # all a frame shows; velocities and forces are not drawn
             if camera.aim is not None:
                 cam.lookat[:] = camera.aim(data)
             renderer.update_scene(data, camera=cam)  # update + render with no yield between: safe to interleave
-            yield renderer.render()  # a new array each call
+            if not self.still_sky:
+                yield renderer.render()  # a new array each call
+                continue
+            sky = sky_alone(renderer) if sky is None else sky
+            yield render_over_sky(renderer, sky)
 
     def close(self) -> None:
         for renderer in self._made:
             renderer.close()
         self._made.clear()
+
+
+def sky_alone(renderer: mujoco.Renderer) -> np.ndarray:
+    """The skybox alone, as the scene's camera sees it now (the scene keeps its geoms and flags)."""
+    scene = renderer.scene
+    ngeom, scene.ngeom = scene.ngeom, 0
+    scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = 1
+    try:
+        return renderer.render()
+    finally:
+        scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = 0
+        scene.ngeom = ngeom
+
+
+def render_over_sky(renderer: mujoco.Renderer, sky: np.ndarray) -> np.ndarray:
+    """``renderer.render()`` of a scene drawn without its skybox, ``sky`` pasted where nothing was drawn.
+
+    Colour and depth come from one read-back; depth 0 is the far plane (the Renderer reads depth
+    reversed, ``mjDEPTH_ZEROFAR``), where only the cleared background is. No multisampling, so no
+    edge pixel is a blend of a body and the background."""
+    rgb, depth = np.empty_like(sky), np.empty(sky.shape[:2], np.float32)
+    renderer._gl_context.make_current()
+    mujoco.mjr_render(renderer._rect, renderer.scene, renderer._mjr_context)
+    mujoco.mjr_readPixels(rgb, depth, renderer._rect, renderer._mjr_context)
+    frame = np.flipud(rgb).copy()  # GL's rows run bottom up
+    np.copyto(frame, sky, where=np.flipud(depth == 0)[..., None])
+    return frame
 
 
 def _close_all() -> None:

@@ -767,7 +767,8 @@ class Walker(Domain):
 
     def __init__(self) -> None:
         self._physics: WalkerPhysics | None = None
-        self._renderers = ThreadRenderers()
+        # the camera only slides along x, and three quarters of each frame are sky: drawn once a clip
+        self._renderers = ThreadRenderers(still_sky=True)
 
     def physics(self) -> WalkerPhysics:
         """The walker's physics, made on first use."""

@@ -1,4 +1,4 @@
-"""MuJoCo clip rendering: the position pass draws exactly what a full mj_forward would, renderers keep their flags."""
+"""MuJoCo clip rendering: the shortcuts (position pass, the sky drawn once) draw what the full render draws."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from rba.domains import get_domain
+from rba.domains.mujoco_render import ThreadRenderers
 
 
 @pytest.mark.parametrize("name", ["walker", "manipulator", "snake"])
@@ -29,3 +30,17 @@ def test_only_the_snake_turns_the_floor_reflection_off():
     assert not snake._renderers.reflection
     renderer = snake._renderers.get(snake._physics(), 64, 48)
     assert renderer.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] == 0
+
+
+def test_the_walkers_sky_pasted_in_is_the_sky_drawn_every_frame(monkeypatch):
+    """The camera slides with the torso; the sky drawn once a clip must look as if drawn in every frame."""
+    walker = get_domain("walker")
+    assert walker._renderers.still_sky
+    r = walker.rollout(walker.sample_params(np.random.default_rng(2)), seed=0)
+    r.replay = r.replay[::8]  # the whole walk, a frame in eight: the camera slides the whole way
+    pasted = list(walker.render(r, 96, 64))
+    monkeypatch.setattr(walker, "_renderers", ThreadRenderers())
+    drawn = list(walker.render(r, 96, 64))
+    assert len(pasted) == len(drawn) == len(r.replay)
+    for f, g in zip(pasted, drawn, strict=True):
+        np.testing.assert_array_equal(f, g)
