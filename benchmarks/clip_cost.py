@@ -444,6 +444,9 @@ Changed (the *after* configuration, now production):
   number of CPUs (`tests/test_video.py` renders a walker clip in two processes, one limited to one CPU,
   and compares the bytes). The RGB to YUV conversion runs single-threaded with swscale's bit-exact paths and
   the muxer drops its version tag. Preset (`veryfast`) and crf (23) are unchanged: the clips stay 20-60 kB.
+  Twice, in runs of this benchmark under heavy load, main's encoder even gave other bytes for the same
+  walker frames in the same process (logged: "the streamed MP4 differs from the one encoded from memory
+  (same frames)"); the one-thread encoder never has.
 - **MuJoCo replay** (`rba/domains/mujoco_render.py`): `mj_fwdPosition` instead of `mj_forward`: a frame
   needs only positions (kinematics, centres of mass for the snake's camera, lights, tendons); the frames
   are identical pixel for pixel (walker and manipulator above: every clip identical; and
