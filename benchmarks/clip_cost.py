@@ -54,7 +54,7 @@ from rba import video
 from rba.domains import get_domain
 from rba.domains import lane_change as lane
 from rba.domains.base import Domain, Rollout
-from rba.domains.mujoco_render import Camera, ThreadRenderers, render_over_sky, sky_alone
+from rba.domains.mujoco_render import Camera, Sky, ThreadRenderers, render_over_sky, sky_alone
 from rba.library import SkillLibrary
 from rba.settings import LibrarySettings
 from rba.storage import save_text
@@ -115,7 +115,7 @@ class Config:
     pose: Callable[[mujoco.MjModel, mujoco.MjData], None]
     copy_frames: bool
     reflection: Callable[[Domain], bool]
-    still_sky: Callable[[Domain], bool]  # the sky drawn once a clip and pasted in (``ThreadRenderers``)
+    sky: Callable[[Domain], Sky]  # how the skybox is drawn (``ThreadRenderers``)
     skybox: bool
     floor_spacing: dict[str, float]  # domain -> the floor plane's third size to render with
     lane_frame: Callable[..., np.ndarray]
@@ -124,17 +124,17 @@ class Config:
 
 BEFORE = Config("before", "main at 0c32c5c: mj_forward, frame copy, reflections, snake floor quads 0.1 m, "
                 "surfarray read-back, imageio-ffmpeg, x264 veryfast crf 23, default threads", False,
-                mujoco.mj_forward, True, lambda domain: True, lambda domain: False, True, {"snake": 0.1},
+                mujoco.mj_forward, True, lambda domain: True, lambda domain: Sky.DRAWN, True, {"snake": 0.1},
                 lane_frame_main, encode_main)
 AFTER = Config("after", "production: mj_fwdPosition, no copy, the walker's sky drawn once a clip, no snake "
-               "reflection, snake floor quads 1 m, tobytes read-back, ffmpeg piped directly, x264 veryfast crf 23, "
-               "1 thread, bit-exact", True, mujoco.mj_fwdPosition, False,
-               lambda domain: domain._renderers.reflection, lambda domain: domain._renderers.still_sky, True, {},
+               "reflection or sky, snake floor quads 1 m, tobytes read-back, ffmpeg piped directly, x264 veryfast "
+               "crf 23, 1 thread, bit-exact", True, mujoco.mj_fwdPosition, False,
+               lambda domain: domain._renderers.reflection, lambda domain: domain._renderers.sky, True, {},
                lane._draw, video.encode_mp4)
 CONFIGS = {c.name: c for c in (
     BEFORE, AFTER,
     replace(AFTER, name="no-sky", about="after without the skybox (black above the horizon)", production=False,
-            still_sky=lambda domain: False, skybox=False),
+            sky=lambda domain: Sky.DRAWN, skybox=False),
     replace(AFTER, name="ultrafast", about="after with x264 preset ultrafast", production=False,
             encode=encode_preset("ultrafast")),
 )}
@@ -248,8 +248,8 @@ class MujocoScene:
             model.geom_size[planes, 2] = config.floor_spacing[domain.name]
         self.model = model
         start = time.perf_counter()
-        self.still_sky = config.still_sky(domain)
-        renderers = ThreadRenderers(reflection=config.reflection(domain), still_sky=self.still_sky)
+        self.sky = config.sky(domain)
+        renderers = ThreadRenderers(reflection=config.reflection(domain), sky=self.sky)
         self.renderer = renderers.get(model, width, height)
         self.created = time.perf_counter() - start
         if not config.skybox:
@@ -275,7 +275,7 @@ class MujocoScene:
                 cam.lookat[:] = camera.aim(data)
             renderer.update_scene(data, camera=cam)
             watch.lap("replay")
-            if self.still_sky:
+            if self.sky is Sky.ONCE:
                 sky = sky_alone(renderer) if sky is None else sky
                 frame = render_over_sky(renderer, sky)
             else:
@@ -444,21 +444,27 @@ Changed (the *after* configuration, now production):
   number of CPUs (`tests/test_video.py` renders a walker clip in two processes, one limited to one CPU,
   and compares the bytes). The RGB to YUV conversion runs single-threaded with swscale's bit-exact paths and
   the muxer drops its version tag. Preset (`veryfast`) and crf (23) are unchanged: the clips stay 20-60 kB.
+  Twice, in runs of this benchmark under heavy load, main's encoder even gave other bytes for the same
+  walker frames in the same process (logged: "the streamed MP4 differs from the one encoded from memory
+  (same frames)"); the one-thread encoder never has.
 - **MuJoCo replay** (`rba/domains/mujoco_render.py`): `mj_fwdPosition` instead of `mj_forward`: a frame
   needs only positions (kinematics, centres of mass for the snake's camera, lights, tendons); the frames
   are identical pixel for pixel (walker and manipulator above: every clip identical; and
   `tests/domains/test_mujoco_render.py`). The frame copy after `Renderer.render` is gone (it returns a
   new array). Both are small: the replay stage was ~2-3 % of a clip.
-- **The walker's sky** (`ThreadRenderers(still_sky=True)`): its camera only slides along x, and MuJoCo
-  draws the skybox around the camera, so the sky (three quarters of the frame) is one image for the whole
-  clip: it is drawn once per clip and pasted wherever a frame drew nothing (depth at the far plane, read
-  back with the colour). Identical pixel for pixel (above; and the test). Not for the manipulator (its
-  backdrop hides the sky: the depth read-back cost more than it saved) or the snake (looks down at the floor).
+- **The skybox** (`ThreadRenderers(sky=...)`): MuJoCo draws it every frame, and it costs even where the
+  scene covers it. The walker's camera only slides along x, and MuJoCo draws the sky around the camera,
+  so the sky (three quarters of the frame) is one image for the whole clip: `Sky.ONCE` draws it once per
+  clip and pastes it wherever a frame drew nothing (depth at the far plane, read back with the colour).
+  The snake's camera looks down at its floor and never sees the sky: `Sky.HIDDEN` does not draw it
+  (`no-sky` gave the snake identical frames). Both identical pixel for pixel (above; and the tests). The
+  manipulator keeps drawing it: its backdrop hides all but a corner, and pasting cost more than it saved.
 - **Snake** (`assets/snake.xml`, `snake.py`): the floor plane was drawn as 200 x 200 quads (MuJoCo's cap;
   its third size, 0.1 m, only spaces them for drawing), twice with the reflection: quads 1 m apart look the
   same under its directional light (at most 1 level of 255 apart) and the physics is bit-identical
   (`tests/test_resimulate.py`). Its floor reflection is off: the snake lies flat, so the reflection was a
   hairline under the body (mean difference 0.08 levels) and ~40 % of what was left of each frame.
+  (That, and the floor's quads, are the only pixel changes: the *frames vs before* column.)
 - **Lane change** (`lane_change.py`): the frame is read from the pygame surface with `pygame.image.tobytes`
   (row-major, one pass) instead of highway-env's column-major `surfarray` plus a transposed copy: same pixels.
 

@@ -6,11 +6,12 @@ than half of each frame, and the floor's reflection still shows where things tou
 whose bodies always lie on the floor can turn the reflection off too (``reflection=False``):
 it draws the scene a second time, mirrored, and blends the floor over it.
 
-Where a domain's camera only slides (its orientation never changes), the skybox, which MuJoCo
-draws around the camera, is the same image in every frame of a clip: ``still_sky=True`` draws it
-once per clip and pastes it wherever a frame drew nothing (depth at the far plane), instead of
-texturing the sky again each frame. The frames are the same pixel for pixel; it pays where much
-sky shows (a quarter of a walker frame in software GL), not where little does (manipulator, snake).
+The skybox (``Sky``) costs even where bodies cover it. Where a domain's camera only slides (its
+orientation never changes), the sky, which MuJoCo draws around the camera, is the same image in
+every frame of a clip: ``Sky.ONCE`` draws it once per clip and pastes it wherever a frame drew
+nothing (depth at the far plane), a quarter of a walker frame in software GL. A camera that never
+sees the sky (the snake's, looking down at its floor) need not draw it: ``Sky.HIDDEN``. Both give
+the same pixels as drawing it every frame (``Sky.DRAWN``).
 
 Each frame needs only the model's pose, so a replay row is turned into one with
 ``mj_fwdPosition`` (kinematics, centres of mass, lights, tendons, contacts) instead of a full
@@ -25,6 +26,7 @@ import threading
 import weakref
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from enum import Enum
 
 import mujoco
 import numpy as np
@@ -45,11 +47,19 @@ class Camera:
     aim: Callable[[mujoco.MjData], tuple[float, float, float]] | None = None
 
 
+class Sky(Enum):
+    """How a domain's clips get their skybox: all give the same pixels where they apply (module docstring)."""
+
+    DRAWN = "drawn every frame"
+    ONCE = "drawn once a clip and pasted in: for a camera that only slides"
+    HIDDEN = "not drawn: for a camera that never sees it"
+
+
 class ThreadRenderers:
     """``get(model, width, height)``: this thread's renderer for that size, made once."""
 
-    def __init__(self, reflection: bool = True, still_sky: bool = False) -> None:
-        self.reflection, self.still_sky = reflection, still_sky
+    def __init__(self, reflection: bool = True, sky: Sky = Sky.DRAWN) -> None:
+        self.reflection, self.sky = reflection, sky
         self._local = threading.local()
         self._made: list[mujoco.Renderer] = []
         _ALL.add(self)
@@ -63,7 +73,7 @@ class ThreadRenderers:
             renderer = mujoco.Renderer(model, height=height, width=width)
             renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = 0
             renderer.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = int(self.reflection)
-            renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = int(not self.still_sky)  # pasted in instead
+            renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = int(self.sky is Sky.DRAWN)
             _close_at_exit()
             cache[width, height] = renderer
             self._made.append(renderer)
@@ -85,7 +95,7 @@ class ThreadRenderers:
             if camera.aim is not None:
                 cam.lookat[:] = camera.aim(data)
             renderer.update_scene(data, camera=cam)  # update + render with no yield between: safe to interleave
-            if not self.still_sky:
+            if self.sky is not Sky.ONCE:
                 yield renderer.render()  # a new array each call
                 continue
             sky = sky_alone(renderer) if sky is None else sky

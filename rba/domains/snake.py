@@ -28,7 +28,7 @@ import mujoco
 import numpy as np
 
 from rba.domains.base import AttributeSpec, Domain, Rollout
-from rba.domains.mujoco_render import Camera, ThreadRenderers
+from rba.domains.mujoco_render import Camera, Sky, ThreadRenderers
 
 XML = Path(__file__).resolve().parent / "assets" / "snake.xml"
 LINKS = 14
@@ -182,8 +182,9 @@ class Snake(Domain):
     def __init__(self) -> None:
         self._model: mujoco.MjModel | None = None
         # no floor reflection: the snake lies flat on the floor, so it would be a hairline under the
-        # body, and drawing it costs ~2 ms of a ~5 ms frame (benchmarks/clip_cost.py)
-        self._renderers = ThreadRenderers(reflection=False)
+        # body, and drawing it costs ~2 ms of a ~5 ms frame; the camera looks down at the floor, never
+        # at the sky (benchmarks/clip_cost.py)
+        self._renderers = ThreadRenderers(reflection=False, sky=Sky.HIDDEN)
 
     def _physics(self) -> mujoco.MjModel:
         if self._model is None:

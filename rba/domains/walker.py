@@ -64,7 +64,7 @@ import mujoco
 import numpy as np
 
 from rba.domains.base import AttributeSpec, Domain, Rollout
-from rba.domains.mujoco_render import Camera, ThreadRenderers
+from rba.domains.mujoco_render import Camera, Sky, ThreadRenderers
 
 # ---------------------------------------------------------------- controller constants
 KP_HIP, KP_KNEE, KP_ANKLE = 600.0, 400.0, 100.0  # joint stiffness (N·m/rad)
@@ -768,7 +768,7 @@ class Walker(Domain):
     def __init__(self) -> None:
         self._physics: WalkerPhysics | None = None
         # the camera only slides along x, and three quarters of each frame are sky: drawn once a clip
-        self._renderers = ThreadRenderers(still_sky=True)
+        self._renderers = ThreadRenderers(sky=Sky.ONCE)
 
     def physics(self) -> WalkerPhysics:
         """The walker's physics, made on first use."""

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from rba.domains import get_domain
-from rba.domains.mujoco_render import ThreadRenderers
+from rba.domains.mujoco_render import Sky, ThreadRenderers
 
 
 @pytest.mark.parametrize("name", ["walker", "manipulator", "snake"])
@@ -35,7 +35,7 @@ def test_only_the_snake_turns_the_floor_reflection_off():
 def test_the_walkers_sky_pasted_in_is_the_sky_drawn_every_frame(monkeypatch):
     """The camera slides with the torso; the sky drawn once a clip must look as if drawn in every frame."""
     walker = get_domain("walker")
-    assert walker._renderers.still_sky
+    assert walker._renderers.sky is Sky.ONCE
     r = walker.rollout(walker.sample_params(np.random.default_rng(2)), seed=0)
     r.replay = r.replay[::8]  # the whole walk, a frame in eight: the camera slides the whole way
     pasted = list(walker.render(r, 96, 64))
@@ -43,4 +43,15 @@ def test_the_walkers_sky_pasted_in_is_the_sky_drawn_every_frame(monkeypatch):
     drawn = list(walker.render(r, 96, 64))
     assert len(pasted) == len(drawn) == len(r.replay)
     for f, g in zip(pasted, drawn, strict=True):
+        np.testing.assert_array_equal(f, g)
+
+
+def test_the_snake_never_sees_the_sky_it_does_not_draw(monkeypatch):
+    snake = get_domain("snake")
+    assert snake._renderers.sky is Sky.HIDDEN
+    r = snake.rollout(snake.sample_params(np.random.default_rng(3)), seed=0)
+    r.replay = r.replay[::10]
+    hidden = list(snake.render(r, 96, 64))
+    monkeypatch.setattr(snake, "_renderers", ThreadRenderers(reflection=False))
+    for f, g in zip(hidden, snake.render(r, 96, 64), strict=True):
         np.testing.assert_array_equal(f, g)
