@@ -114,10 +114,6 @@ class ClipCache:
                 render = self._submit(key, library, urgent)
             return render.done
 
-    def get(self, key: ClipKey, library: SkillLibrary) -> Path:
-        """The clip's file, rendering it first if needed."""
-        return self.request(key, library).result()
-
     def _submit(self, key: ClipKey, library: SkillLibrary, urgent: bool) -> _Render:
         job = RenderJob.of(key.domain, library.rollout(library.index_of(key.rollout_id)), key.width, key.height)
         render = _Render(self.compute.render(job, urgent), urgent)

@@ -1,14 +1,13 @@
 """Background work while people watch: a small pool that keeps only each key's latest job.
 
-A session submits one job per step (render the clips its possible next feedbacks would
-show). When the person answers before the job ran, the job is replaced, not queued behind:
-work for a clip nobody can see any more is wasted CPU on a 2-core machine.
+A session submits one job per step (work out the clips its possible next answers would show).
+When the person answers before the job ran, the job is replaced, not queued behind: a guess
+about a clip nobody can see any more is wasted CPU on a 2-core machine.
 """
 
 from __future__ import annotations
 
 import logging
-import os
 import threading
 import time
 from collections import OrderedDict
@@ -18,13 +17,9 @@ log = logging.getLogger(__name__)
 
 
 class Background:
-    """``workers`` daemon threads running the newest job per key, oldest key first.
+    """``workers`` daemon threads running the newest job per key, oldest key first."""
 
-    ``nice`` > 0 lowers the threads' CPU priority, so guesses never slow down what people wait for.
-    """
-
-    def __init__(self, workers: int = 1, name: str = "rba-prerender", nice: int = 0) -> None:
-        self.nice = nice
+    def __init__(self, workers: int = 1, name: str = "rba-think") -> None:
         self._cond = threading.Condition()
         self._pending: OrderedDict[str, Callable[[], None]] = OrderedDict()
         self._running = 0
@@ -70,11 +65,6 @@ class Background:
             t.join(max(deadline - time.monotonic(), 0))
 
     def _work(self) -> None:
-        if self.nice:  # Linux nices threads one by one; renderer threads and ffmpeg inherit it
-            try:
-                os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), self.nice)
-            except (AttributeError, OSError):
-                log.debug("could not lower the priority of %s", threading.current_thread().name)
         while True:
             with self._cond:
                 while not self._pending and not self._stopping:

@@ -185,7 +185,7 @@ def first_steps(svc: Services) -> list[tuple[ContextKey, str, dict]]:
                 ctx = svc.catalog.context(name, method, rep)
                 rollout_id, state = svc.transitions.first(ctx, method)
                 first = not starts  # the default domain's: urgent, and waited for; the others are guesses
-                clip = svc.clips.request(svc.clip_key(name, rollout_id), svc.catalog.library(name), urgent=first)
+                clip = svc.clips.request(*svc.prefetch.resolve(ClipRef(name, rollout_id)), urgent=first)
                 if first:
                     clip.result(FIRST_CLIP_WAIT_SECONDS)
             except Exception:

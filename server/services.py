@@ -95,9 +95,6 @@ class Services:
         """Where the app's files live (the catalog's: one layout for the whole app)."""
         return self.catalog.store
 
-    def clip_key(self, domain: str, rollout_id: str) -> ClipKey:
-        return self.clips.key(self.catalog.library(domain), rollout_id)
-
     def wait_idle(self, timeout: float) -> bool:
         """True once no background work is queued or running (tests and benchmarks use it)."""
         if self.warming is not None:

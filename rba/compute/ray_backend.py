@@ -11,6 +11,7 @@ from __future__ import annotations
 import logging
 import os
 import sys
+from collections import deque
 from collections.abc import Iterable, Iterator
 
 from rba.compute import tasks
@@ -55,11 +56,11 @@ class RayCompute(Compute):
 
     def simulate(self, jobs: Iterable[SimJob]) -> Iterator[Rollout]:
         """In order, keeping at most ``SIM_WINDOW`` tasks in flight (the object store holds their results)."""
-        pending = []
+        pending: deque = deque()
         for job in jobs:
             pending.append(self._simulate.remote(job.target, job.params, job.seed))
             if len(pending) >= SIM_WINDOW:
-                yield self._ray.get(pending.pop(0))
+                yield self._ray.get(pending.popleft())
         for ref in pending:
             yield self._ray.get(ref)
 

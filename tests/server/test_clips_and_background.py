@@ -30,7 +30,7 @@ def test_concurrent_requests_for_one_clip_render_it_once(toy_roots, tmp_path, lo
 
     def fetch() -> None:
         barrier.wait()
-        paths.append(cache.get(key, lib))
+        paths.append(cache.request(key, lib).result(60))
 
     threads = [threading.Thread(target=fetch) for _ in range(6)]
     for t in threads:
