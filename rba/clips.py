@@ -56,6 +56,8 @@ class _Render:
     urgent: bool
     done: Future = field(default_factory=Future)
     started: float = field(default_factory=time.perf_counter)
+    path: Path | None = None  # set once the clip is stored
+    error: BaseException | None = None  # storing it failed
 
 
 class ClipCache:
@@ -122,28 +124,45 @@ class ClipCache:
         return render
 
     def _finish(self, key: ClipKey, render: _Render, result: Future) -> None:
-        with self._lock:
-            if self._inflight.get(key) is render:
-                del self._inflight[key]
-        if not render.urgent:
-            self.store.release(key)
-        if result.cancelled():
-            render.done.cancel()
-            return
         try:
-            data = result.result()
-            self.store.write(key, lambda tmp: tmp.write_bytes(data))
-        except Exception as exc:  # the render's failure is the requester's: every waiter sees it
-            log.warning("render of %s/%s failed: %s", key.domain, key.rollout_id, exc)
-            render.done.set_exception(exc)
+            self._store_result(key, render, result)
+        finally:  # only now, with the file written, may a new request for the key miss the render in flight
+            with self._lock:
+                if self._inflight.get(key) is render:
+                    del self._inflight[key]
+            if not render.urgent:
+                self.store.release(key)
+        self._settle(key, render, result)
+
+    def _store_result(self, key: ClipKey, render: _Render, result: Future) -> None:
+        if result.cancelled() or result.exception() is not None:
             return
+        data = result.result()
+        try:
+            self.store.write(key, lambda tmp: tmp.write_bytes(data))
+        except Exception as exc:  # reported to every waiter by _settle
+            render.error = exc
+            return
+        render.path = self.store.path(key)
         seconds = time.perf_counter() - render.started
         with self._lock:
             self.renders += 1
             self.render_seconds += seconds
         log.info("rendered %s/%s (%d kB%s) in %.2f s", key.domain, key.rollout_id, len(data) // 1024,
                  "" if render.urgent else ", background", seconds)
-        render.done.set_result(self.store.path(key))
+
+    @staticmethod
+    def _settle(key: ClipKey, render: _Render, result: Future) -> None:
+        """Tell every waiter: the stored file, the render's failure, or cancelled."""
+        if result.cancelled():
+            render.done.cancel()
+            return
+        error = result.exception() or render.error
+        if error is not None:  # the render's failure is the requester's: every waiter sees it
+            log.warning("render of %s/%s failed: %s", key.domain, key.rollout_id, error)
+            render.done.set_exception(error)
+        else:
+            render.done.set_result(render.path)
 
     def fill(self, keys: Iterable[tuple[ClipKey, SkillLibrary]], window: int | None = None,
              stop: Callable[[], bool] = lambda: False, on_done: Callable[[ClipKey, bool], None] = lambda k, r: None,

@@ -44,6 +44,28 @@ def test_concurrent_requests_for_one_clip_render_it_once(toy_roots, tmp_path, lo
     assert not list(paths[0].parent.glob(".*.tmp"))
 
 
+def test_a_request_while_the_finished_clip_is_being_stored_joins_that_render(toy_roots, tmp_path):
+    """The render stays in flight until its file exists: a request in between must not render it again."""
+    data, _, _ = toy_roots
+    lib = SkillLibrary.load("toy", "serve", data)
+    compute = FakeCompute()
+    store = ClipStore(tmp_path / "clips")
+    cache = ClipCache(store, compute, 64, 48)
+    key = cache.key(lib, "serve-00003")
+    first = cache.request(key, lib, urgent=False)
+    joined: list = []
+    real_write = store.write
+
+    def write_and_ask_again(k, fill):  # the moment between the render's end and its file's existence
+        joined.append(cache.request(key, lib, urgent=True))
+        return real_write(k, fill)
+
+    store.write = write_and_ask_again
+    compute.submitted[0][1].set_result(b"mp4")
+    assert len(compute.submitted) == 1  # nothing new was submitted
+    assert joined[0] is first and first.result(1) == store.path(key) and cache.renders == 1
+
+
 def test_clip_keys_only_accept_library_ids(toy_roots, tmp_path):
     data, _, _ = toy_roots
     lib = SkillLibrary.load("toy", "serve", data)
