@@ -95,10 +95,12 @@ class ServerOptions:
     data_dir: Path | None = None
     models_dir: Path | None = None
     register: str | None = None  # e.g. the test suite's toy domain, "toy=tests.toy:Toy", for a quick smoke run
+    database_url: str | None = None  # default: a fresh SQLite file in the configuration's folder
 
 
 def server_env(opts: ServerOptions, workdir: Path, cache_dir: Path) -> dict[str, str]:
-    env = {**os.environ, "RBA_DATABASE_URL": f"sqlite:///{workdir / 'bench.db'}", "RBA_CACHE_DIR": str(cache_dir),
+    env = {**os.environ, "RBA_DATABASE_URL": opts.database_url or f"sqlite:///{workdir / 'bench.db'}",
+           "RBA_CACHE_DIR": str(cache_dir),
            "RBA_PRERENDER": str(opts.prerender).lower(), "RBA_WARM_START": str(opts.warm_start).lower(),
            "RBA_PRERENDER_LIBRARY": str(opts.prerender_library).lower(), "RBA_DEFAULT_DOMAIN": opts.domain,
            "RBA_LOG_LEVEL": "info", "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}  # info: renders are logged
