@@ -1,8 +1,10 @@
-"""The paper's Table 1 (normal precision) and Table 2 (high precision) for every domain and method.
+"""The paper's tables for every domain and method: high precision (the headline) and normal precision.
 
 For each registered domain with a library and trained models: every registered method with each
-representation it runs with (RBA-Global, RBA-Global-L, RBA-Local, RBA-Local-L, PbRL), 20 held-out
-targets each (ARCHITECTURE §5), beside the paper's numbers. Writes
+representation it runs with (RBA-Global, RBA-Global-L, RBA-Local, RBA-Local-L, PbRL), between two
+reference rows, Random (the floor: random serve clips) and Oracle (the ceiling the library allows:
+bisection on the true proxies), 20 held-out targets each (ARCHITECTURE §5), beside the paper's numbers.
+ε is a fraction of each proxy's robust range over the serve library (``Domain.epsilons``). Writes
 ``benchmarks/results/paper_tables.md`` (and ``.json``).
 
     python benchmarks/paper_tables.py                         # every domain, both precisions
@@ -33,8 +35,11 @@ from rba.storage import load_json, save_json, save_text
 
 log = logging.getLogger("paper_tables")
 RESULTS = Path(__file__).resolve().parent / "results"
-# The rows: every registered method with each representation it runs with, as (method, rep, label).
-METHODS = [(m.name, rep, m.label_for(rep)) for m in methods() for rep in m.run_reps]
+# The rows: the random floor, every registered method with each representation it runs with, the oracle
+# ceiling, as (method, rep, label).
+_ORDER = {"floor": 0, None: 1, "ceiling": 2}
+_ROWS = sorted(methods(include_reference=True), key=lambda m: _ORDER[m.reference])
+METHODS = [(m.name, rep, m.label_for(rep)) for m in _ROWS for rep in m.run_reps]
 LABELS = [label for _, _, label in METHODS]  # the tables' row order
 # The paper's Tables 1 and 2: (SR, AF, std of AF) per row of PAPER_LABELS; AF None where the paper has N/A.
 PAPER_LABELS = ("RBA-Global", "RBA-Global-L", "RBA-Local", "RBA-Local-L", "PbRL")
@@ -57,6 +62,9 @@ PAPER = {
 }
 
 PAPER_ROW = {"lane_change_image": "lane_change"}  # the paper's lane change observes images
+PRECISIONS = ("high", "normal")  # the tables' order: high precision is the headline
+TITLES = {"high": "Table 1 — high precision (the headline; the paper's Table 2)",
+          "normal": "Table 2 — normal precision (the paper's Table 1)"}
 
 
 def _cell(sr: float, af: float | None, sd: float | None) -> str:
@@ -90,12 +98,20 @@ def merged(rows, paths: list[Path]) -> list:
     """Rows of earlier runs' JSON (a later file's row replaces an earlier one's), then this run's rows."""
     kept: dict[tuple[str, str, str], tuple] = {}
     for path in paths:
-        for row in load_json(path):
+        for row in map(_with_user, load_json(path)):
             result = EvalResult(**{**{k: v for k, v in row.items() if k != "label"}, "trials": []})
             kept[(result.domain, row["label"], result.precision)] = (result.domain, row["label"], result)
     for domain, label, result in rows:
         kept[(domain, label, result.precision)] = (domain, label, result)
     return sorted(kept.values(), key=lambda x: (x[0], LABELS.index(x[1])))
+
+
+def _with_user(row: dict) -> dict:
+    """A stored row with its user spec: reports written before teacher kinds have ``noise`` (mistake's p)."""
+    if "noise" not in row:
+        return row
+    noise = row.pop("noise")
+    return {**row, "user": f"mistake:{noise:g}" if noise else "paper"}
 
 
 RESULT_FIELDS = ("success_rate", "avg_feedback", "std_feedback")
@@ -128,9 +144,8 @@ def markdown(rows, domains: list[str], precisions: list[str], targets: int, seed
     lines = ["# The paper's tables, measured", "",
              f"{targets} held-out targets per domain and method (seed {seed}), 500-feedback budget; AF over "
              "successful trials (PbRL: binary labels). Ours beside the paper's (SR / AF (std)).", ""]
-    for precision in precisions:
-        title = "Table 1 — normal precision" if precision == "normal" else "Table 2 — high precision"
-        lines += [f"## {title}", "", "| domain | method | ours | paper |", "|---|---|---|---|"]
+    for precision in sorted(precisions, key=PRECISIONS.index):
+        lines += [f"## {TITLES[precision]}", "", "| domain | method | ours | paper |", "|---|---|---|---|"]
         for domain, label, r in rows:
             if r.precision != precision:
                 continue
@@ -150,7 +165,7 @@ def markdown(rows, domains: list[str], precisions: list[str], targets: int, seed
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--domains", nargs="+", default=list(domain_names()), choices=domain_names())
-    ap.add_argument("--precisions", nargs="+", default=["normal", "high"], choices=["normal", "high"])
+    ap.add_argument("--precisions", nargs="+", default=list(PRECISIONS), choices=PRECISIONS)
     ap.add_argument("--methods", nargs="+", default=LABELS, choices=LABELS)
     ap.add_argument("--targets", type=int, default=20)
     ap.add_argument("--seed", type=int, default=0)
@@ -169,7 +184,7 @@ def main(argv: list[str] | None = None) -> None:
     def write(rows) -> str:  # after every row: a long run stopped early still leaves its measured rows
         rows = merged(rows, args.merge)
         seconds = sum(r.seconds for *_, r in rows)  # evaluation time of every row in the report
-        shown = [p for p in ("normal", "high") if p in args.precisions or any(r.precision == p for *_, r in rows)]
+        shown = [p for p in PRECISIONS if p in args.precisions or any(r.precision == p for *_, r in rows)]
         text = markdown(rows, sorted({d for d, *_ in rows}), shown, args.targets, args.seed, seconds)
         save_text(args.out, text)
         save_json(args.out.with_suffix(".json"), json_rows(rows))

@@ -33,7 +33,7 @@ def measure(domain: str, rep: str, ks: list[int | None]) -> list[dict]:
     ctx = load_context(domain, "global", rep)
     test = SkillLibrary.load(domain, "test")
     test_zeta = load_model(domain, "ranker", rep).model.score_library(test)
-    eps = {p: get_domain(domain).epsilons(p) for p in ("normal", "high")}
+    eps = {p: get_domain(domain).epsilons(ctx.serve.proxies, p) for p in ("normal", "high")}
     none = np.zeros(len(ctx.serve), dtype=bool)
     full = None
     rows = []

@@ -41,11 +41,13 @@ def _positive(text: str) -> int:
     return value
 
 
-def _noise(text: str) -> float:
-    value = float(text)
-    if not 0 <= value < 0.5:
-        raise argparse.ArgumentTypeError(f"must be in [0, 0.5), got {text}")
-    return value
+def _user(text: str):
+    from rba.interact.users import parse_user
+
+    try:
+        return parse_user(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def cmd_build(args) -> int:
@@ -86,13 +88,13 @@ def cmd_eval(args) -> int:
     if args.all_methods:
         from rba.methods import methods
 
-        runs = [(m.name, r) for m in methods() for r in m.run_reps]
-        results = [evaluate(args.domain, m, r, args.targets, args.seed, args.precision, args.noise) for m, r in runs]
+        runs = [(m.name, r) for m in methods(include_reference=True) for r in m.run_reps]
+        results = [evaluate(args.domain, m, r, args.targets, args.seed, args.precision, args.user) for m, r in runs]
         print(format_table(results))
         if args.json:
             save_json(Path(args.json), [r.to_json() for r in results])
         return 0
-    result = evaluate(args.domain, args.method, args.rep, args.targets, args.seed, args.precision, args.noise)
+    result = evaluate(args.domain, args.method, args.rep, args.targets, args.seed, args.precision, args.user)
     print(format_table([result]))
     if args.json:
         save_json(Path(args.json), result.to_json())
@@ -206,6 +208,7 @@ def _cache_command(sub) -> argparse.ArgumentParser:
 
 def _eval_command(sub) -> argparse.ArgumentParser:
     from rba.embed import REPRESENTATIONS
+    from rba.interact.users import USER_KINDS
     from rba.methods import method_names
 
     e = sub.add_parser("eval", help="run the paper's protocol with simulated users")
@@ -215,9 +218,12 @@ def _eval_command(sub) -> argparse.ArgumentParser:
     e.add_argument("--targets", type=_positive, default=20)
     e.add_argument("--seed", type=int, default=0)
     e.add_argument("--precision", choices=("normal", "high"), default="normal")
-    e.add_argument("--noise", type=_noise, default=0.0, help="probability of flipping each answer")
+    e.add_argument("--user", type=_user, default="paper", metavar="KIND[:param]",
+                   help=f"the simulated user: {', '.join(USER_KINDS)} (e.g. mistake:0.2; without a param the "
+                        "kind's default strength; see rba/interact/users.py)")
     e.add_argument("--all-methods", action="store_true",
-                   help="evaluate every method and representation (ignores --method/--rep); JSON is a list")
+                   help="evaluate every method and representation, the random and oracle reference rows too "
+                        "(ignores --method/--rep); JSON is a list")
     e.add_argument("--json", help="write the full result (trials included) here")
     e.set_defaults(func=cmd_eval)
     return e

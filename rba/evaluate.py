@@ -1,4 +1,9 @@
-"""The paper's protocol (ARCHITECTURE §5): simulated users chase held-out targets; SR and AF."""
+"""The paper's protocol (ARCHITECTURE §5): simulated users chase held-out targets; SR and AF.
+
+ε comes from the serve library's robust proxy range (``Domain.epsilons``); the user is any teacher kind of
+``rba.interact.users`` (``user="KIND[:param]"``). A trial ends when the user says it is satisfied and succeeds
+if the clip's true proxies are then within ε of the user's target, so a user who misjudges can end on a miss.
+"""
 
 from __future__ import annotations
 
@@ -11,12 +16,13 @@ import numpy as np
 
 from rba.domains import get_domain
 from rba.interact import SATISFIED, Agent, FeedbackKind, Preference, load_context, new_agent
-from rba.interact.users import PreferenceTeacher, SimulatedUser
+from rba.interact.users import SKIP, PreferenceTeacher, SimulatedUser, UserSpec, parse_user
 from rba.library import SkillLibrary
 
 log = logging.getLogger(__name__)
 
 MAX_FEEDBACK = 500  # attribute-level feedbacks before a trial is a failure (the paper's budget)
+MAX_ROUNDS = 1000  # rounds (answers, skips included) before a trial is a failure: a user who always skips
 
 
 @dataclass
@@ -24,6 +30,7 @@ class Trial:
     target: dict[str, float]
     success: bool
     feedback_count: int
+    rounds: int = 0  # clips judged (a skipped round shows the same clip again)
     shown: list[dict[str, float]] = field(default_factory=list)  # proxies of each shown rollout
     shown_ids: list[str] = field(default_factory=list)
 
@@ -34,7 +41,7 @@ class EvalResult:
     method: str
     rep: str
     precision: str
-    noise: float
+    user: str  # the simulated user's spec, e.g. "paper", "mistake:0.1"
     seed: int
     success_rate: float
     avg_feedback: float | None  # over successful trials
@@ -63,16 +70,20 @@ def run_trial(agent: Agent, user: SimulatedUser, serve: SkillLibrary, max_feedba
     """Show, listen, update until the user is satisfied or the feedback budget is spent."""
     trial = _new_trial(serve, user.target)
     rid = agent.first_query()
-    while True:
+    while trial.rounds < MAX_ROUNDS:
         i = _record_shown(trial, serve, rid)
+        trial.rounds += 1
         answer = user.respond(i)
         if answer == SATISFIED:
-            trial.success = True
+            trial.success = user.succeeded(i)
             return trial
+        if answer == SKIP:  # no answer: nothing to update on; the same clip is shown again
+            continue
         trial.feedback_count += len(answer)
         if trial.feedback_count >= max_feedback:
             return trial
         rid = agent.update(answer)
+    return trial
 
 
 def run_preference_trial(agent, teacher: PreferenceTeacher, serve: SkillLibrary,
@@ -87,6 +98,7 @@ def run_preference_trial(agent, teacher: PreferenceTeacher, serve: SkillLibrary,
     rid = agent.first_query()
     while True:
         i = _record_shown(trial, serve, rid)
+        trial.rounds += 1
         if teacher.satisfied_with(i):
             trial.success = True
             return trial
@@ -102,39 +114,40 @@ def run_preference_trial(agent, teacher: PreferenceTeacher, serve: SkillLibrary,
 class TrialLoop:
     """How a trial runs for one kind of feedback: who answers, and the show/answer/update loop."""
 
-    user: type[SimulatedUser]
+    user: type[SimulatedUser]  # the answers' kind; which teacher of that kind: ``make``
+    make: Callable[[UserSpec, np.ndarray, np.ndarray, SkillLibrary, int], SimulatedUser]
     run: Callable[..., Trial]  # (agent, user, serve, max_feedback) -> Trial
 
 
 TRIAL_LOOPS: dict[FeedbackKind, TrialLoop] = {
-    "attribute": TrialLoop(SimulatedUser, run_trial),
-    "preference": TrialLoop(PreferenceTeacher, run_preference_trial),
+    "attribute": TrialLoop(SimulatedUser, UserSpec.build, run_trial),
+    "preference": TrialLoop(PreferenceTeacher, PreferenceTeacher.for_spec, run_preference_trial),
 }
 
 
-def simulate(agent: Agent, target: np.ndarray, epsilon: np.ndarray, serve: SkillLibrary, noise: float = 0.0,
-             seed: int = 0, max_feedback: int = MAX_FEEDBACK) -> Trial:
-    """One trial of ``agent`` chasing ``target``, with the simulated user its feedback kind calls for."""
+def simulate(agent: Agent, target: np.ndarray, epsilon: np.ndarray, serve: SkillLibrary,
+             user: str | UserSpec = "paper", seed: int = 0, max_feedback: int = MAX_FEEDBACK) -> Trial:
+    """One trial of ``agent`` chasing ``target``, with the simulated ``user`` (``KIND[:param]``) it answers to."""
     loop = TRIAL_LOOPS[agent.feedback_kind]
-    user = loop.user(target, epsilon, serve.attribute_names, serve.proxies, noise, seed=seed)
-    return loop.run(agent, user, serve, max_feedback)
+    return loop.run(agent, loop.make(parse_user(user), target, epsilon, serve, seed), serve, max_feedback)
 
 
 def evaluate(domain_name: str, method: str, rep: str = "onehot", targets: int = 20, seed: int = 0,
-             precision: str = "normal", noise: float = 0.0, data_root=None, models_root=None,
+             precision: str = "normal", user: str | UserSpec = "paper", data_root=None, models_root=None,
              context=None) -> EvalResult:
+    spec = parse_user(user)
     domain = get_domain(domain_name)
-    eps = domain.epsilons(precision)
     test = SkillLibrary.load(domain_name, "test", data_root)
     context = context or load_context(domain_name, method, rep, data_root, models_root)
     serve = context.serve
+    eps = domain.epsilons(serve.proxies, precision)
     rng = np.random.default_rng(seed)
     chosen = rng.choice(len(test), size=min(targets, len(test)), replace=False)
     start = time.perf_counter()
-    trials = [simulate(new_agent(method, context), test.proxies[t], eps, serve, noise, seed * 1000 + n)
+    trials = [simulate(new_agent(method, context), test.proxies[t], eps, serve, spec, seed * 1000 + n)
               for n, t in enumerate(chosen)]
     fb = np.array([t.feedback_count for t in trials if t.success], dtype=float)
-    return EvalResult(domain_name, method, rep, precision, noise, seed,
+    return EvalResult(domain_name, method, rep, precision, str(spec), seed,
                       success_rate=float(np.mean([t.success for t in trials])),
                       avg_feedback=float(fb.mean()) if len(fb) else None,
                       std_feedback=float(fb.std()) if len(fb) else None,
@@ -143,9 +156,9 @@ def evaluate(domain_name: str, method: str, rep: str = "onehot", targets: int = 
 
 def format_table(results: list[EvalResult]) -> str:
     """A Markdown table of SR / AF (std), one row per result."""
-    rows = ["| domain | method | rep | precision | noise | SR | AF (std) |", "|---|---|---|---|---|---|---|"]
+    rows = ["| domain | method | rep | precision | user | SR | AF (std) |", "|---|---|---|---|---|---|---|"]
     for r in results:
         af = "–" if r.avg_feedback is None else f"{r.avg_feedback:.2f} ({r.std_feedback:.2f})"
-        cells = (r.domain, r.method, r.rep, r.precision, f"{r.noise:g}", f"{r.success_rate:.2f}", af)
+        cells = (r.domain, r.method, r.rep, r.precision, r.user, f"{r.success_rate:.2f}", af)
         rows.append("| " + " | ".join(cells) + " |")
     return "\n".join(rows)

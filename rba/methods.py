@@ -3,6 +3,9 @@
 A method is one frozen ``Method`` record, defined in the method's own module beside its agent:
 the agent class, how to load its shared context, the model files it needs, how to train them.
 The CLI, the evaluation, the server's catalog, jobs and API validation all iterate this registry.
+Reference rows (``reference="floor"`` / ``"ceiling"``: the random and oracle rows of the tables) are registered
+too, so ``rba eval`` and the tables run them, but ``methods()`` leaves them out unless asked: the web app
+never offers them.
 Records are imported lazily (listing names starts no torch). Adding a method = one module + one
 line in ``REGISTRY``.
 """
@@ -13,7 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, Literal, Protocol
 
 from rba.registry import Registry, import_object
 
@@ -50,6 +53,7 @@ class Method:
     trainer: Trainer | None  # None when there is nothing to train beforehand
     presets: tuple[str, ...]  # valid ``preset`` names of ``trainer``
     reps: tuple[str, ...]  # attribute representations it learns with; () when it has none
+    reference: Literal["floor", "ceiling"] | None = None  # a reference row of the tables, not a method people use
 
     @property
     def name(self) -> str:
@@ -78,6 +82,8 @@ REGISTRY = Registry("method", {
     "global": "rba.interact.global_agent:METHOD",
     "local": "rba.interact.local_agent:METHOD",
     "pbrl": "rba.interact.pbrl_agent:METHOD",
+    "random": "rba.interact.reference:RANDOM",
+    "oracle": "rba.interact.reference:ORACLE",
 }, UnknownMethodError, on_change=lambda: get_method.cache_clear())
 method_names = REGISTRY.names
 method_target = REGISTRY.target
@@ -94,9 +100,9 @@ def get_method(name: str) -> Method:
     return record
 
 
-def methods() -> tuple[Method, ...]:
-    """Every registered method's record, built-in ones first."""
-    return tuple(get_method(n) for n in method_names())
+def methods(include_reference: bool = False) -> tuple[Method, ...]:
+    """Every registered method's record, built-in ones first; the reference rows only if asked."""
+    return tuple(m for m in map(get_method, method_names()) if include_reference or m.reference is None)
 
 
 def trainable() -> tuple[Method, ...]:

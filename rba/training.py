@@ -290,7 +290,8 @@ def train_global(domain_name: str, rep: str, cfg: GlobalTrainConfig | None = Non
     (reward, gstats), reward_seconds = _timed(train_global_reward, pool.data, pool_zeta, cfg.reward,
                                               progress=_progress(f"global_reward[{rep}]", on_progress))
     scorer = LibraryScorer(reward, Ragged.from_numpy(inputs.serve.states, inputs.serve.state_offsets))
-    match = {p: argmax_match_rate(scorer, inputs.serve, test_zeta, inputs.test.proxies, inputs.domain.epsilons(p))
+    eps = {p: inputs.domain.epsilons(inputs.serve.proxies, p) for p in ("normal", "high")}
+    match = {p: argmax_match_rate(scorer, inputs.serve, test_zeta, inputs.test.proxies, eps[p])
              for p in ("normal", "high")}
     log.info("global_reward[%s] argmax within ε on test: %s", rep, match)
     train_zeta = pool_zeta[: len(inputs.train)]
@@ -308,7 +309,7 @@ def train_global(domain_name: str, rep: str, cfg: GlobalTrainConfig | None = Non
 def _local_metrics(model: LocalReward, inputs: _Inputs, cfg: LocalTrainConfig,
                    near_copy_radius: float) -> tuple[dict, dict]:
     """(ranking of test pairs among test rollouts, what the agent would do: argmax over serve per test edit)."""
-    eps = inputs.domain.epsilons()
+    eps = inputs.domain.epsilons(inputs.serve.proxies)
     test = inputs.test
     test_pairs = local_pairs(test.proxies, eps, inputs.domain.attribute_names, cfg.labels, max_pairs=len(test))
     test_scorer = LocalLibraryScorer(model, Ragged.from_numpy(test.states, test.state_offsets))
@@ -335,7 +336,8 @@ def train_local(domain_name: str, rep: str, cfg: LocalTrainConfig | None = None,
     declared = _declared(sources, lambda labels, name: any(c.attribute == name for c in labels.local_changes))
     inputs = _Inputs.load(domain_name, rep, data_root, declared.values())
     train = inputs.train
-    pairs = local_pairs(train.proxies, inputs.domain.epsilons(), inputs.domain.attribute_names, cfg.labels)
+    eps = inputs.domain.epsilons(inputs.serve.proxies)
+    pairs = local_pairs(train.proxies, eps, inputs.domain.attribute_names, cfg.labels)
     data = Ragged.from_numpy(train.states, train.state_offsets)  # rows of train = the first pool rows
     if sources:
         pool = _Pool(train, inputs.serve, sources)

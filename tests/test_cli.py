@@ -12,7 +12,12 @@ from rba.cli import main
     [
         (["build", "atlantis"], "unknown domain 'atlantis'; valid: walker"),
         (["eval", "--domain", "walker", "--method", "magic"], "invalid choice: 'magic'"),
-        (["eval", "--domain", "walker", "--noise", "0.7"], "must be in [0, 0.5)"),
+        (["eval", "--domain", "walker", "--user", "grumpy"],
+         "unknown user kind 'grumpy'; valid: paper, mistake, skip, equal, myopic, boundary, inconsistent"),
+        (["eval", "--domain", "walker", "--user", "mistake:0.7"],
+         "user kind 'mistake' takes a flip probability in [0, 0.5), got 0.7"),
+        (["eval", "--domain", "walker", "--user", "skip:often"], "user kind 'skip' takes a number"),
+        (["eval", "--domain", "walker", "--user", "paper:1"], "user kind 'paper' takes no parameter"),
         (["train", "walker", "--rep", "braille"], "invalid choice: 'braille'"),
     ],
 )

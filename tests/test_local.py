@@ -37,7 +37,7 @@ def test_pairs_are_minimal_changes_of_train_clips(toy_roots):
     data, _, _ = toy_roots
     train = SkillLibrary.load("toy", "train", data)
     domain = get_domain("toy")
-    eps = domain.epsilons()
+    eps = domain.epsilons(SkillLibrary.load("toy", "serve", data).proxies)
     cfg = LocalLabelConfig(per_attribute={"pace": (0.6, 1.2)})
     pairs = local_pairs(train.proxies, eps, domain.attribute_names, cfg)
     assert 0 < len(pairs) <= 200
@@ -90,7 +90,7 @@ def test_card_and_weights_load(local_roots):
 
 def test_feedback_moves_the_asked_attribute_and_keeps_the_other(ctx):
     agent = new_agent("local", ctx)
-    eps = get_domain("toy").epsilons()
+    eps = get_domain("toy").epsilons(ctx.serve.proxies)
     first = ctx.serve.index_of(agent.first_query())
     nxt = ctx.serve.index_of(agent.update([AttributeFeedback("amplitude", 1)]))
     delta = (ctx.serve.proxies[nxt] - ctx.serve.proxies[first]) / eps
@@ -99,7 +99,7 @@ def test_feedback_moves_the_asked_attribute_and_keeps_the_other(ctx):
 
 def test_several_attributes_in_one_round_are_chained(ctx):
     agent = new_agent("local", ctx)
-    eps = get_domain("toy").epsilons()
+    eps = get_domain("toy").epsilons(ctx.serve.proxies)
     first = ctx.serve.index_of(agent.first_query())
     nxt = ctx.serve.index_of(agent.update([AttributeFeedback("amplitude", -1), AttributeFeedback("pace", 1)]))
     delta = (ctx.serve.proxies[nxt] - ctx.serve.proxies[first]) / eps
@@ -149,8 +149,8 @@ def test_simulated_users_reach_targets(local_roots):
 
 def test_noisy_users_are_seeded_and_still_succeed(local_roots, ctx):
     data, models, _ = local_roots
-    runs = [evaluate("toy", "local", "onehot", targets=6, seed=3, noise=0.2, data_root=data, models_root=models,
-                     context=ctx) for _ in range(2)]
+    runs = [evaluate("toy", "local", "onehot", targets=6, seed=3, user="mistake:0.2", data_root=data,
+                     models_root=models, context=ctx) for _ in range(2)]
     assert [t.shown_ids for t in runs[0].trials] == [t.shown_ids for t in runs[1].trials]
     assert runs[0].success_rate >= 0.8
 

@@ -47,7 +47,7 @@ def trained(request, toy_roots, tmp_path_factory):
 
 def _unsatisfying_target(record: Method, ctx, test: SkillLibrary):
     """A test target whose first shown rollout does not satisfy the user (so the agent must update)."""
-    eps = get_domain("toy").epsilons()
+    eps = get_domain("toy").epsilons(ctx.serve.proxies)
     first = ctx.serve.index_of(new_agent(record.name, ctx).first_query())
     for target in test.proxies:
         user = TRIAL_LOOPS[record.feedback_kind].user(target, eps, ctx.serve.attribute_names, ctx.serve.proxies)
@@ -75,7 +75,7 @@ def test_tiny_preset_writes_the_model_files_the_record_names(trained):
 def test_state_roundtrips_through_json_and_continues_identically(trained):
     record, data, _, _, ctx = trained
     test = SkillLibrary.load("toy", "test", data)
-    target, eps = _unsatisfying_target(record, ctx, test), get_domain("toy").epsilons()
+    target, eps = _unsatisfying_target(record, ctx, test), get_domain("toy").epsilons(ctx.serve.proxies)
     agent = new_agent(record.name, ctx)
     fresh = agent.state_dict()
     simulate(agent, target, eps, ctx.serve, seed=3, max_feedback=2)  # a few rounds of feedback
@@ -106,7 +106,7 @@ def test_simulated_users_reach_targets(trained):
 
 
 def test_unknown_method_names_the_valid_ones():
-    with pytest.raises(UnknownMethodError, match="unknown method 'magic'; valid: global, local, pbrl"):
+    with pytest.raises(UnknownMethodError, match="unknown method 'magic'; valid: global, local, pbrl, random, oracle"):
         get_method("magic")
     with pytest.raises(ValueError, match="unknown method 'magic'"):
         restore_agent({"method": "magic"}, None)

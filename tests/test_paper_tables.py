@@ -14,7 +14,7 @@ spec.loader.exec_module(paper_tables)
 
 
 def _result(domain: str, precision: str, sr: float) -> EvalResult:
-    return EvalResult(domain, "global", "onehot", precision, 0.0, 0, sr, 2.0, 1.0, 3.0, [])
+    return EvalResult(domain, "global", "onehot", precision, "paper", 0, sr, 2.0, 1.0, 3.0, [])
 
 
 def _save(path, rows):

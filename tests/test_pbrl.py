@@ -23,7 +23,8 @@ def ctx(toy_roots):
 
 def make_teacher(ctx, row=0, noise=0.0):
     target = ctx.serve.proxies[row] + np.array([0.05, -0.05])
-    return PreferenceTeacher(target, get_domain("toy").epsilons(), ctx.attribute_names, ctx.serve.proxies, noise)
+    eps = get_domain("toy").epsilons(ctx.serve.proxies)
+    return PreferenceTeacher(target, eps, ctx.attribute_names, ctx.serve.proxies, noise)
 
 
 def test_ensemble_weights_roundtrip_and_check_size():

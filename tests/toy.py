@@ -16,8 +16,8 @@ T = 24  # states per rollout
 class Toy(Domain):
     name = "toy"
     attributes = (
-        AttributeSpec("amplitude", "How far the dot swings from side to side.", "m", 0.25, 0.04),
-        AttributeSpec("pace", "How quickly the dot oscillates back and forth.", "Hz", 0.4, 0.06),
+        AttributeSpec("amplitude", "How far the dot swings from side to side.", "m"),
+        AttributeSpec("pace", "How quickly the dot oscillates back and forth.", "Hz"),
     )
     state_dim = 4
     param_names = ("amplitude", "pace")

@@ -22,8 +22,13 @@ class AttributeSpec:
     name: str  # snake_case id, e.g. "step_size"
     description: str  # one sentence; the source of the language embedding
     unit: str  # unit of the proxy, e.g. "m"
-    epsilon: float  # success tolerance (splits the proxy range into 5-10 buckets)
-    high_precision_epsilon: float  # 5-10x finer (the paper's Table 2)
+
+
+# ε per precision, as a fraction of a proxy's robust range over the serve library (its 1st to 99th percentile):
+# "normal" splits the range into 7 buckets, "high" (the paper's Table 2) is 6x finer. Robust quantiles, because a
+# few outlying clips stretch the raw range (snake's doubled its ε).
+EPSILON_FRACTIONS = {"normal": 1 / 7, "high": 1 / 42}
+ROBUST_QUANTILES = (1.0, 99.0)  # percentiles of the serve library's proxies that bound the range ε divides
 
 
 @dataclass
@@ -77,9 +82,17 @@ class Domain(ABC):
                 return spec
         raise KeyError(f"unknown attribute {name!r} for domain {self.name!r}; valid: {', '.join(self.attribute_names)}")
 
-    def epsilons(self, precision: str = "normal") -> np.ndarray:
-        """Per-attribute success tolerance, float64[k]."""
-        if precision not in ("normal", "high"):
-            raise ValueError(f"unknown precision {precision!r}; valid: normal, high")
-        attr = "epsilon" if precision == "normal" else "high_precision_epsilon"
-        return np.array([getattr(a, attr) for a in self.attributes])
+    def epsilons(self, serve_proxies: np.ndarray, precision: str = "normal") -> np.ndarray:
+        """Per-attribute success tolerance, float64[k]: ``EPSILON_FRACTIONS[precision]`` × the robust range.
+
+        The one definition of ε (evaluation, simulated users, local labels): from the serve library's
+        proxies (float[N, k], columns in ``attributes`` order), so it follows the clips agents show.
+        """
+        if precision not in EPSILON_FRACTIONS:
+            raise ValueError(f"unknown precision {precision!r}; valid: {', '.join(EPSILON_FRACTIONS)}")
+        proxies = np.asarray(serve_proxies, dtype=np.float64)
+        if proxies.ndim != 2 or proxies.shape[1] != len(self.attributes) or len(proxies) < 2:
+            raise ValueError(f"ε needs the serve library's proxies as float[N >= 2, {len(self.attributes)}], "
+                             f"got shape {proxies.shape}")
+        low, high = np.percentile(proxies, ROBUST_QUANTILES, axis=0)
+        return EPSILON_FRACTIONS[precision] * (high - low)

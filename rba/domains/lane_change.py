@@ -77,9 +77,9 @@ class LaneChange(Domain):
     name = "lane_change"
     attributes = (
         AttributeSpec("sharpness", "How sharply the car swerves into the other lane: a quick, abrupt turn is sharp.",
-                      "rad/s", epsilon=0.2, high_precision_epsilon=0.03),
+                      "rad/s"),
         AttributeSpec("gap", "How much room the car leaves to the car behind it in the new lane when it starts "
-                      "changing lanes.", "m", epsilon=3.0, high_precision_epsilon=0.5),
+                      "changing lanes.", "m"),
     )
     state_dim = len(STATE_FEATURES)
     param_names = tuple(PARAM_RANGES)

@@ -128,9 +128,8 @@ def measure(raw: np.ndarray) -> tuple[np.ndarray, dict[str, float], bool, dict[s
 class Manipulator(Domain):
     name = "manipulator"
     attributes = (
-        AttributeSpec("speed", "How fast the arm lifts the ball.", "m/s", epsilon=0.2, high_precision_epsilon=0.03),
-        AttributeSpec("instability", "How shaky and jittery the arm's motion is.", "mm", epsilon=0.1,
-                      high_precision_epsilon=0.015),
+        AttributeSpec("speed", "How fast the arm lifts the ball.", "m/s"),
+        AttributeSpec("instability", "How shaky and jittery the arm's motion is.", "mm"),
     )
     state_dim = STACK * len(RAW_FEATURES) + 2 * (STACK - 3)
     param_names = tuple(PARAM_RANGES)

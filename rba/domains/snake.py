@@ -164,13 +164,10 @@ def measure(rec: SnakeRecording, period: float, dt: float, data: mujoco.MjData,
 class Snake(Domain):
     name = "snake"
     attributes = (
-        # ε: a seventh of each proxy's range over the library (ARCHITECTURE §4: 5–10 buckets); high precision 5× finer
-        AttributeSpec("bend_width", "How wide the snake's body bends sideways as it folds.", "m",
-                      epsilon=0.027, high_precision_epsilon=0.0054),
+        AttributeSpec("bend_width", "How wide the snake's body bends sideways as it folds.", "m"),
         AttributeSpec("compression", "How tightly the snake bunches its body together before stretching out.",
-                      "fraction of body length", epsilon=0.019, high_precision_epsilon=0.0038),
-        AttributeSpec("speed", "How fast the snake moves forward.", "m/s", epsilon=0.011,
-                      high_precision_epsilon=0.0022),
+                      "fraction of body length"),
+        AttributeSpec("speed", "How fast the snake moves forward.", "m/s"),
     )
     # joint angles, centre-of-mass velocity (m/s), head-tail distance / length, body width now (m), anchor phase;
     # the width (with 800 ζσ steps) lifted bend_width's ζσ held-out accuracy from 0.92 to 0.96: a sum over

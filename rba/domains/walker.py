@@ -750,15 +750,11 @@ class Walker(Domain):
             name="step_size",
             description="How long the walker's steps are: the distance between its feet when a foot lands.",
             unit="m",
-            epsilon=0.12,  # m; measured range ≈ 0.1-1.0 m -> ~7 buckets
-            high_precision_epsilon=0.02,  # m
         ),
         AttributeSpec(
             name="softness",
             description="How softly the walker puts its feet down: gentle, slow landings are soft, stomping is not.",
             unit="m/s",
-            epsilon=0.2,  # m/s; measured range ≈ -1.5..-0.1 m/s -> ~7 buckets
-            high_precision_epsilon=0.033,  # m/s
         ),
     )
     state_dim = len(STATE_FEATURES)

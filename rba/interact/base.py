@@ -13,6 +13,9 @@ from dataclasses import dataclass
 from typing import ClassVar, Literal, Protocol
 
 SATISFIED: Literal["satisfied"] = "satisfied"
+# Rounds a rollout that got feedback stays excluded from what an agent shows: no clip is excluded for good
+# by one answer (a user whose target drifts, or who misjudged, can come back to it).
+REJECT_MEMORY = 40
 
 
 @dataclass(frozen=True)

@@ -1,18 +1,19 @@
 """RBA-Global agent: a search per attribute in ζσ space (paper appendix), query = argmax rθ.
 
 The paper bisects an interval [lower, upper] per attribute. A single wrong answer then
-excludes the true target for good, so we run *probabilistic* bisection instead: a belief
-over a grid of ζ values per attribute, uniform over the ζ range seen in ``train`` (with a
-thin tail beyond it, so targets outside can still be reached). "More α" about a shown
-rollout with score z multiplies the belief above z by (1 − p) and below z by p, where p is
-the assumed error rate; the new target is the belief's median. With a small p this moves
-almost exactly like bisection (no extra feedback when users are right), and a wrong answer
-is outvoted by the next right ones instead of trapping the search.
+excludes the true target for good, so we run *probabilistic* bisection instead
+(``rba.interact.bisection``): a belief over a grid of ζ values per attribute, uniform over
+the ζ range seen in ``train`` (with a thin tail beyond it, so targets outside can still be
+reached); the new target is the belief's median. With a small error rate this moves almost
+exactly like bisection (no extra feedback when users are right), and a wrong answer is
+outvoted by the next right ones instead of trapping the search.
 
 Guard against the paper's failure mode (rθ returns the same behaviour for a nudged
 target): if the argmax is the rollout just shown, or does not move the asked attributes
 the asked way, the target is pushed further in the asked direction (doubling the step)
-until it does. Rollouts that already received non-satisfied feedback are not shown again.
+until it does. Rollouts that received non-satisfied feedback in the last ``REJECT_MEMORY``
+rounds are not shown again; older ones may be (a user whose target drifts can come back
+to one). A round the user skips is no update at all.
 """
 
 from __future__ import annotations
@@ -25,7 +26,8 @@ import numpy as np
 
 from rba.artifacts import load_model
 from rba.embed import REPRESENTATIONS
-from rba.interact.base import Agent, Feedback
+from rba.interact.base import REJECT_MEMORY, Agent, Feedback
+from rba.interact.bisection import posterior, quantile
 from rba.learn.common import Ragged
 from rba.learn.global_reward import LibraryScorer
 from rba.library import SkillLibrary
@@ -109,25 +111,18 @@ class GlobalAgent(Agent):
 
     def belief(self, a: int) -> np.ndarray:
         """Posterior over ``ctx.grid(a)`` given every answer about attribute ``a`` (normalised)."""
-        log_p = self.ctx.prior(a)
-        grid = self.ctx.grid(a)
-        right, wrong = np.log(1 - self.error_rate), np.log(self.error_rate)
-        for attr, z, h in self.answers:
-            if attr == a:
-                log_p = log_p + np.where(h * (grid - z) > 0, right, wrong)
-        p = np.exp(log_p - log_p.max())
-        return p / p.sum()
+        return posterior(self.ctx.grid(a), self.ctx.prior(a), ((z, h) for attr, z, h in self.answers if attr == a),
+                         self.error_rate)
 
     def _quantile(self, a: int, q: float) -> float:
-        cdf = np.cumsum(self.belief(a))
-        return float(np.interp(q, cdf, self.ctx.grid(a)))
+        return quantile(self.ctx.grid(a), self.belief(a), q)
 
     def _median(self, a: int) -> float:
         return self._quantile(a, 0.5)
 
     def _argmax(self) -> int:
         exclude = np.zeros(len(self.ctx.serve), dtype=bool)
-        exclude[self.rejected] = True
+        exclude[self.rejected[-REJECT_MEMORY:]] = True
         return self.ctx.scorer.argmax(self.target, exclude, self.ctx.candidates(self.target, exclude))
 
     def first_query(self) -> str:

@@ -8,9 +8,10 @@ other attributes unchanged, one edit does not undo another.
 
 Guard against the paper's failure mode (rθ returns the anchor or a near copy): rollouts whose
 anchor embedding φ lies within the model's near-copy radius of the current anchor are
-excluded, as is every rollout already shown. Excluding shown rollouts is safe even with a
-user who makes mistakes: mistakes flip "more" and "less" but never fake "not satisfied",
-so a rollout that got feedback is truly not the target.
+excluded, as is every rollout shown in the last ``REJECT_MEMORY`` rounds. Excluding shown
+rollouts is safe even with a user who makes mistakes: mistakes flip "more" and "less" but
+never fake "not satisfied", so a rollout that got feedback is truly not the target; only
+for that long, though, since a user whose target drifts can come back to one.
 
 Mistakes (``--noise``): the agent keeps no belief that a wrong answer could corrupt (unlike an
 interval that a binary search shrinks): a flipped answer costs one step away and one step
@@ -33,7 +34,7 @@ import torch
 
 from rba.artifacts import load_model
 from rba.embed import REPRESENTATIONS
-from rba.interact.base import Agent, Feedback
+from rba.interact.base import REJECT_MEMORY, Agent, Feedback
 from rba.learn.common import Ragged
 from rba.learn.local_reward import LocalLibraryScorer
 from rba.library import SkillLibrary
@@ -106,7 +107,8 @@ class LocalAgent(Agent):
         self.seen.append(self.shown)
         anchor = self.shown
         for fb in feedback:
-            anchor = self.ctx.edit(anchor, self.ctx.attribute_names.index(fb.attribute), fb.direction, self.seen)
+            anchor = self.ctx.edit(anchor, self.ctx.attribute_names.index(fb.attribute), fb.direction,
+                                   self.seen[-REJECT_MEMORY:])
         self.shown = anchor
         return self.ctx.serve.ids[anchor]
 

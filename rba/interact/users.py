@@ -1,10 +1,41 @@
-"""Simulated users: they look at the true proxies of what they are shown (agents never do)."""
+"""Simulated users: they look at the true proxies of what they are shown (agents never do).
+
+``SimulatedUser`` is the paper's user; the other kinds are B-Pref's teachers (Lee et al. 2021) adapted to
+attribute feedback, each with one strength parameter and a default (``USER_KINDS``). A spec ``KIND[:param]``
+(``rba eval --user``) is parsed in one place, ``parse_user``. Every kind is satisfied, and the trial ends, when
+it perceives every attribute within ε of its (current) target; the trial *succeeds* when the clip's true
+proxies are within ε of that target (``succeeded``), so a user who perceives wrongly can stop on a miss.
+
+- ``mistake:p`` (0.1) flips each direction with probability p.
+- ``skip:p`` (0.2) gives no answer this round with probability p (``SKIP``: the agent is not updated).
+- ``equal:k`` (2) comments only on attributes more than k·ε off; when all are within k·ε (but not ε) it
+  names just the worst one. Its silence no longer means "this attribute is right".
+- ``myopic:w`` (0.5) judges a clip by (1 − w) × its proxies + w × its proxies as the clip's last quarter shows
+  them. Proxies are clip-level (a rollout stores states, a replay and one value per attribute), so the
+  last-quarter proxies are a least-squares map, fitted over the serve library, from the mean and spread of
+  the last quarter's states to the proxies (``last_part_proxies``): where the end of a clip says little
+  about an attribute the map regresses to the mean, and the user misjudges.
+- ``boundary:s`` (0.5) says "more" with probability σ((target − value) / (s·ε)) about each attribute it
+  comments on (those outside ε): answers near the target are coin flips, far ones are sure.
+- ``inconsistent:s`` (0.1) moves its target by a normal step of s·ε per attribute after every round.
+"""
 
 from __future__ import annotations
+
+import itertools
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, ClassVar, Literal
 
 import numpy as np
 
 from rba.interact.base import SATISFIED, AttributeFeedback, Feedback
+
+if TYPE_CHECKING:
+    from rba.library import SkillLibrary
+
+SKIP: Literal["skip"] = "skip"  # a user's "no answer this round": the agent is not updated, the clip shown again
+Answer = Feedback | Literal["skip"]
 
 
 class SimulatedUser:
@@ -13,36 +44,222 @@ class SimulatedUser:
     ``noise`` is the probability of flipping each non-zero answer (B-Pref's "mistake" teacher).
     """
 
+    kind: ClassVar[str] = "paper"
+
     def __init__(self, target: np.ndarray, epsilon: np.ndarray, attribute_names: tuple[str, ...],
                  proxies: np.ndarray, noise: float = 0.0, seed: int = 0) -> None:
         if not 0.0 <= noise < 0.5:
             raise ValueError(f"noise must be in [0, 0.5), got {noise}")
-        self.target = np.asarray(target, dtype=np.float64)
+        self.target = np.array(target, dtype=np.float64)
         self.epsilon = np.asarray(epsilon, dtype=np.float64)
         self.attribute_names = attribute_names
         self.proxies = proxies  # float[N, k] of the library the agent shows from
         self.noise = noise
         self.rng = np.random.default_rng(seed)
 
+    @classmethod
+    def from_library(cls, strength: float | None, target: np.ndarray, epsilon: np.ndarray, serve: SkillLibrary,
+                     seed: int) -> SimulatedUser:
+        """The user of this kind at ``strength`` for a target, judging clips of ``serve``."""
+        return cls(target, epsilon, serve.attribute_names, serve.proxies, seed=seed)
+
     def signs(self, shown: np.ndarray) -> np.ndarray:
         """Noise-free answer per attribute: +1, −1 or 0."""
         diff = self.target - shown
         return np.where(diff > self.epsilon, 1, np.where(diff < -self.epsilon, -1, 0))
 
+    def perceived(self, rollout_index: int) -> np.ndarray:
+        """The proxies as this user sees them (the true ones unless the user misjudges)."""
+        return self.proxies[rollout_index]
+
     def satisfied_with(self, rollout_index: int) -> bool:
+        return not self.signs(self.perceived(rollout_index)).any()
+
+    def succeeded(self, rollout_index: int) -> bool:
+        """The protocol's success: the true proxies within ε of the user's target now."""
         return not self.signs(self.proxies[rollout_index]).any()
 
-    def respond(self, rollout_index: int) -> Feedback:
-        signs = self.signs(self.proxies[rollout_index])
-        if not signs.any():
+    def comments(self, shown: np.ndarray) -> np.ndarray:
+        """Which attributes the user speaks about, with the right direction (0: silent)."""
+        return self.signs(shown)
+
+    def direction(self, attribute: int, sign: int, shown: np.ndarray) -> int:
+        """The direction said for an attribute whose right direction is ``sign``."""
+        if self.noise and self.rng.random() < self.noise:
+            return -sign
+        return sign
+
+    def respond(self, rollout_index: int) -> Answer:
+        shown = self.perceived(rollout_index)
+        if not self.signs(shown).any():
             return SATISFIED
-        out = []
-        for name, s in zip(self.attribute_names, signs, strict=True):
-            if s:
-                if self.noise and self.rng.random() < self.noise:
-                    s = -s
-                out.append(AttributeFeedback(name, int(s)))
-        return out
+        return [AttributeFeedback(name, int(self.direction(a, int(s), shown)))
+                for a, (name, s) in enumerate(zip(self.attribute_names, self.comments(shown), strict=True)) if s]
+
+
+class _KindUser(SimulatedUser):
+    """A teacher kind with one strength parameter (its meaning is the subclass's)."""
+
+    def __init__(self, target: np.ndarray, epsilon: np.ndarray, attribute_names: tuple[str, ...],
+                 proxies: np.ndarray, strength: float, seed: int = 0) -> None:
+        super().__init__(target, epsilon, attribute_names, proxies, seed=seed)
+        self.strength = strength
+
+    @classmethod
+    def from_library(cls, strength, target, epsilon, serve, seed):
+        return cls(target, epsilon, serve.attribute_names, serve.proxies, strength, seed)
+
+
+class MistakeUser(_KindUser):
+    """Flips each direction with probability ``strength`` (the paper's ``noise``)."""
+
+    kind = "mistake"
+
+    def __init__(self, target, epsilon, attribute_names, proxies, strength: float, seed: int = 0) -> None:
+        super().__init__(target, epsilon, attribute_names, proxies, strength, seed)
+        self.noise = strength
+
+
+class SkipUser(_KindUser):
+    """Hesitates: no answer at all this round with probability ``strength``."""
+
+    kind = "skip"
+
+    def respond(self, rollout_index: int) -> Answer:
+        if self.rng.random() < self.strength:
+            return SKIP
+        return super().respond(rollout_index)
+
+
+class EqualUser(_KindUser):
+    """Silent about attributes within ``strength``·ε; names only the worst one when all are that close."""
+
+    kind = "equal"
+
+    def comments(self, shown: np.ndarray) -> np.ndarray:
+        signs = self.signs(shown)
+        off = np.abs(self.target - shown) / self.epsilon
+        far = off > self.strength
+        if far.any():
+            return np.where(far, signs, 0)
+        worst = int(np.argmax(np.where(signs != 0, off, -np.inf)))
+        return np.where(np.arange(len(signs)) == worst, signs, 0)
+
+
+class BoundaryUser(_KindUser):
+    """Says "more" with probability σ((target − value) / (``strength``·ε)) for each attribute outside ε."""
+
+    kind = "boundary"
+
+    def direction(self, attribute: int, sign: int, shown: np.ndarray) -> int:
+        z = (self.target[attribute] - shown[attribute]) / (self.strength * self.epsilon[attribute])
+        return 1 if self.rng.random() < 1.0 / (1.0 + np.exp(-z)) else -1
+
+
+class InconsistentUser(_KindUser):
+    """Its target drifts: after every round each attribute's target moves by N(0, (``strength``·ε)²)."""
+
+    kind = "inconsistent"
+
+    def respond(self, rollout_index: int) -> Answer:
+        answer = super().respond(rollout_index)
+        if answer != SATISFIED:
+            self.target = self.target + self.rng.normal(0.0, self.strength * self.epsilon)
+        return answer
+
+
+class MyopicUser(_KindUser):
+    """Judges mostly the end: (1 − ``strength``) × the proxies + ``strength`` × the last quarter's proxies."""
+
+    kind = "myopic"
+
+    def __init__(self, target, epsilon, attribute_names, proxies, strength: float, seed: int = 0,
+                 end_proxies: np.ndarray | None = None) -> None:
+        super().__init__(target, epsilon, attribute_names, proxies, strength, seed)
+        end = proxies if end_proxies is None else end_proxies
+        self.seen = (1.0 - strength) * np.asarray(proxies, dtype=np.float64) + strength * end
+
+    @classmethod
+    def from_library(cls, strength, target, epsilon, serve, seed):
+        end = last_part_proxies(serve.states, serve.state_offsets, serve.proxies)
+        return cls(target, epsilon, serve.attribute_names, serve.proxies, strength, seed, end)
+
+    def perceived(self, rollout_index: int) -> np.ndarray:
+        return self.seen[rollout_index]
+
+
+def last_part_proxies(states: np.ndarray, offsets: np.ndarray, proxies: np.ndarray, part: float = 0.25,
+                      ridge: float = 1e-3) -> np.ndarray:
+    """Each clip's proxies as its last ``part`` shows them, float64[N, k] (see the module docstring).
+
+    Features: mean and standard deviation of the last ``part`` of the clip's states, standardised over the
+    library; a ridge least-squares map to the proxies, fitted on the same library.
+    """
+    rows = []
+    for start, end in itertools.pairwise(offsets):
+        tail = np.asarray(states[start + int((end - start) * (1 - part)):end], dtype=np.float64)
+        rows.append(np.concatenate([tail.mean(0), tail.std(0)]))
+    x = np.array(rows)
+    x = (x - x.mean(0)) / np.maximum(x.std(0), 1e-9)
+    x = np.hstack([x, np.ones((len(x), 1))])
+    w = np.linalg.solve(x.T @ x + ridge * len(x) * np.eye(x.shape[1]), x.T @ np.asarray(proxies, np.float64))
+    return x @ w
+
+
+@dataclass(frozen=True)
+class UserKind:
+    """A teacher kind: its class, its default strength and what strengths are valid."""
+
+    cls: type[SimulatedUser]
+    default: float | None  # None: the kind takes no parameter
+    valid: Callable[[float], bool]
+    valid_text: str
+
+
+USER_KINDS: dict[str, UserKind] = {
+    "paper": UserKind(SimulatedUser, None, lambda _: False, "no parameter"),
+    "mistake": UserKind(MistakeUser, 0.1, lambda p: 0 <= p < 0.5, "a flip probability in [0, 0.5)"),
+    "skip": UserKind(SkipUser, 0.2, lambda p: 0 <= p < 1, "a skip probability in [0, 1)"),
+    "equal": UserKind(EqualUser, 2.0, lambda k: k >= 1, "k >= 1 (silent within k·ε)"),
+    "myopic": UserKind(MyopicUser, 0.5, lambda w: 0 <= w <= 1, "a weight of the clip's end in [0, 1]"),
+    "boundary": UserKind(BoundaryUser, 0.5, lambda s: s > 0, "a logistic width in ε, > 0"),
+    "inconsistent": UserKind(InconsistentUser, 0.1, lambda s: s >= 0, "a drift step in ε per round, >= 0"),
+}
+
+
+@dataclass(frozen=True)
+class UserSpec:
+    """A parsed ``KIND[:param]``: which simulated user, at what strength."""
+
+    kind: str
+    strength: float | None
+
+    def __str__(self) -> str:
+        return self.kind if self.strength is None else f"{self.kind}:{self.strength:g}"
+
+    def build(self, target: np.ndarray, epsilon: np.ndarray, serve: SkillLibrary, seed: int) -> SimulatedUser:
+        return USER_KINDS[self.kind].cls.from_library(self.strength, target, epsilon, serve, seed)
+
+
+def parse_user(spec: str | UserSpec) -> UserSpec:
+    """``KIND[:param]`` → ``UserSpec`` (the kind's default strength without a param); ValueError naming the valid."""
+    if isinstance(spec, UserSpec):
+        return spec
+    kind, sep, param = spec.strip().partition(":")
+    if kind not in USER_KINDS:
+        raise ValueError(f"unknown user kind {kind!r}; valid: {', '.join(USER_KINDS)} (as KIND or KIND:param)")
+    info = USER_KINDS[kind]
+    if not sep:
+        return UserSpec(kind, info.default)
+    if info.default is None:
+        raise ValueError(f"user kind {kind!r} takes no parameter, got {param!r}")
+    try:
+        value = float(param)
+    except ValueError:
+        raise ValueError(f"user kind {kind!r} takes a number ({info.valid_text}), got {param!r}") from None
+    if not np.isfinite(value) or not info.valid(value):
+        raise ValueError(f"user kind {kind!r} takes {info.valid_text}, got {param}")
+    return UserSpec(kind, value)
 
 
 class PreferenceTeacher(SimulatedUser):
@@ -51,7 +268,15 @@ class PreferenceTeacher(SimulatedUser):
     Closeness is the Euclidean distance of the proxies after dividing each attribute by its ε,
     so every attribute counts in units of the user's tolerance. Equal distances give 0.5
     ("equally good"); otherwise ``noise`` flips the answer (as for attribute feedback).
+    Of the teacher kinds it is only ``paper`` or ``mistake`` (``for_spec``).
     """
+
+    @classmethod
+    def for_spec(cls, spec: UserSpec, target: np.ndarray, epsilon: np.ndarray, serve: SkillLibrary,
+                 seed: int) -> PreferenceTeacher:
+        if spec.kind not in ("paper", "mistake"):
+            raise ValueError(f"A/B answers (PbRL) come from a paper or mistake[:p] teacher, not {spec.kind!r}")
+        return cls(target, epsilon, serve.attribute_names, serve.proxies, spec.strength or 0.0, seed)
 
     def distance(self, rollout_index: int) -> float:
         return float(np.linalg.norm((self.proxies[rollout_index] - self.target) / self.epsilon))
