@@ -95,7 +95,8 @@ def test_specs_parse_in_one_place_with_defaults():
 
 
 @pytest.mark.parametrize(("spec", "message"), [
-    ("grumpy", "unknown user kind 'grumpy'; valid: paper, mistake, skip, equal, myopic, boundary, inconsistent"),
+    ("grumpy", "unknown user kind 'grumpy'; valid: paper, mistake, skip, equal, myopic, boundary, inconsistent "
+     "(as KIND or KIND:param)"),
     ("paper:0.1", "user kind 'paper' takes no parameter, got '0.1'"),
     ("mistake:0.5", "user kind 'mistake' takes a flip probability in [0, 0.5), got 0.5"),
     ("skip:1", "user kind 'skip' takes a skip probability in [0, 1), got 1"),
@@ -157,11 +158,11 @@ def test_boundary_says_more_with_a_logistic_probability_in_epsilon_units():
 
 
 def test_inconsistent_targets_drift_by_steps_of_s_epsilon_after_unsatisfied_rounds():
-    u = user("inconsistent:0.1", seed=5)
+    u = user("inconsistent:0.1", [[100.0, 100.0]], seed=5)  # a clip far off: never satisfied
     steps = []
     for _ in range(3000):
         before = u.target.copy()
-        u.respond(4)
+        u.respond(0)
         steps.append((u.target - before) / EPS)
     assert np.allclose(np.std(steps, axis=0), 0.1, rtol=0.06) and np.allclose(np.mean(steps, axis=0), 0, atol=0.01)
     still = user("inconsistent:0.1", seed=5)
