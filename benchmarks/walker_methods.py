@@ -46,8 +46,8 @@ def _af(r: EvalResult) -> str:
     return "–" if r.avg_feedback is None else f"{r.avg_feedback:.2f} ({r.std_feedback:.2f})"
 
 
-def _paper(method: str, rep: str, noise: float) -> tuple[str, str]:
-    if noise or (method, rep) not in PAPER:
+def _paper(method: str, rep: str, user: str) -> tuple[str, str]:
+    if user != "paper" or (method, rep) not in PAPER:
         return "", ""
     sr, af, sd = PAPER[(method, rep)]
     return f"{sr:.2f}", f"{af:.2f} ({sd:.2f})"
@@ -111,7 +111,8 @@ def main(argv: list[str] | None = None) -> int:
             missing.append(f"{LABELS[(method, rep)]}: not measured ({exc})")
             continue
         for noise in [0.0, *(args.noise if method in args.noise_methods else [])]:
-            r = evaluate("walker", method, rep, args.targets, args.seed, noise=noise, context=ctx)
+            user = f"mistake:{noise:g}" if noise else "paper"
+            r = evaluate("walker", method, rep, args.targets, args.seed, user=user, context=ctx)
             log.info("%s %s noise %.2f: SR %.2f AF %s in %.0f s", method, rep, noise, r.success_rate, _af(r),
                      r.seconds)
             rows.append((LABELS[(method, rep)], r))
@@ -135,16 +136,16 @@ def main(argv: list[str] | None = None) -> int:
         "",
         f"{args.targets} held-out targets from `test` (seed {args.seed}), ε = the domain's normal precision, "
         "500-feedback budget. AF is averaged over successful trials; PbRL counts binary A/B labels, the "
-        "others attribute-level feedbacks. Noise p: each non-zero answer (or A/B label) is flipped with "
-        "probability p.",
+        "others attribute-level feedbacks. User mistake:p: each non-zero answer (or A/B label) is flipped "
+        "with probability p.",
         "",
-        "| method | rep | noise | SR | AF (std) | paper SR | paper AF (std) | seconds |",
+        "| method | rep | user | SR | AF (std) | paper SR | paper AF (std) | seconds |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for label, r in rows:
-        psr, paf = _paper(r.method, r.rep, r.noise)
+        psr, paf = _paper(r.method, r.rep, r.user)
         rep = r.rep if get_method(r.method).reps else "–"
-        lines.append(f"| {label} | {rep} | {r.noise:g} | {r.success_rate:.2f} | {_af(r)} | "
+        lines.append(f"| {label} | {rep} | {r.user} | {r.success_rate:.2f} | {_af(r)} | "
                      f"{psr} | {paf} | {r.seconds:.0f} |")
     notes = [n for n in (_held_out(m, r) for m, r in runs) if n] + width_notes + missing + args.note
     given = sys.argv[1:] if argv is None else argv
