@@ -28,6 +28,14 @@ def test_bad_arguments_exit_2(argv, message, capsys):
     assert message in capsys.readouterr().err
 
 
+def test_user_specs_parse_to_teacher_kinds():
+    from rba.cli import build_parser
+    from rba.interact.users import UserSpec
+
+    assert build_parser().parse_args(["eval", "--domain", "walker", "--user", "equal:3"]).user == UserSpec("equal", 3.0)
+    assert build_parser().parse_args(["eval", "--domain", "walker"]).user == UserSpec("paper", None)
+
+
 def test_unknown_rollout_id_exits_2(capsys, tmp_path, monkeypatch):
     monkeypatch.setenv("RBA_DATA_DIR", str(tmp_path))
     assert main(["render", "walker", "../../etc/passwd", str(tmp_path / "x.mp4")]) == 2

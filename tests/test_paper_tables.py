@@ -46,6 +46,17 @@ def test_report_only_combines_parallel_runs_later_file_wins(tmp_path):
     assert "## Table 1" in text and "## Table 2" in text  # a merged report shows every precision it has rows for
 
 
+def test_rows_stored_before_teacher_kinds_merge_with_their_user(tmp_path):
+    old = [{**row, "noise": 0.0 if row["domain"] == "walker" else 0.2}
+           for row in paper_tables.json_rows([("walker", "RBA-Global", _result("walker", "high", 0.5)),
+                                              ("snake", "RBA-Global", _result("snake", "high", 0.5))])]
+    for row in old:
+        del row["user"]
+    save_json(tmp_path / "old.json", old)
+    rows = paper_tables.merged([], [tmp_path / "old.json"])
+    assert {(d, r.user) for d, _, r in rows} == {("walker", "paper"), ("snake", "mistake:0.2")}
+
+
 def test_report_only_without_merge_says_what_is_missing(capsys):
     with pytest.raises(SystemExit):
         paper_tables.main(["--report-only"])

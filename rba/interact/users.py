@@ -116,8 +116,8 @@ class MistakeUser(_KindUser):
     kind = "mistake"
 
     def __init__(self, target, epsilon, attribute_names, proxies, strength: float, seed: int = 0) -> None:
-        super().__init__(target, epsilon, attribute_names, proxies, strength, seed)
-        self.noise = strength
+        SimulatedUser.__init__(self, target, epsilon, attribute_names, proxies, noise=strength, seed=seed)
+        self.strength = strength
 
 
 class SkipUser(_KindUser):
