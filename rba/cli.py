@@ -10,6 +10,10 @@ import json
 import logging
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from rba.interact.users import UserSpec
 
 log = logging.getLogger("rba")
 
@@ -41,7 +45,7 @@ def _positive(text: str) -> int:
     return value
 
 
-def _user(text: str):
+def _user(text: str) -> UserSpec:
     from rba.interact.users import parse_user
 
     try:

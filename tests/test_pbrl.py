@@ -146,5 +146,6 @@ def test_cli_evaluates_pbrl_and_all_methods(toy_roots, tmp_path, monkeypatch, ca
     out = tmp_path / "all.json"
     assert main(["eval", "--domain", "toy", "--all-methods", "--targets", "2", "--json", str(out)]) == 0
     table = capsys.readouterr().out
-    assert [r["method"] for r in json.loads(out.read_text())] == ["global", "local", "pbrl"]
-    assert all(f"| toy | {m} | onehot |" in table for m in ("global", "local", "pbrl"))
+    every = ["global", "local", "pbrl", "random", "oracle"]  # the reference rows too
+    assert [r["method"] for r in json.loads(out.read_text())] == every
+    assert all(f"| toy | {m} | onehot |" in table for m in every)
