@@ -35,7 +35,8 @@ def _sentence_model():
 def sentence_embeddings(sentences: list[str]) -> np.ndarray:
     """float32[n, 384], L2-normalised."""
     model = _sentence_model()
-    return np.asarray(model.encode(sentences, normalize_embeddings=True, convert_to_numpy=True), dtype=np.float32)
+    return np.asarray(model.encode(sentences, normalize_embeddings=True, convert_to_numpy=True,
+                                   show_progress_bar=False), dtype=np.float32)
 
 
 def attribute_embeddings(descriptions: list[str], rep: str) -> np.ndarray:
