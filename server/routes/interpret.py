@@ -47,7 +47,8 @@ class InterpretPublic(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True)
 
     feedback: list[InterpretedChoice] = Field(description="in the sentence's order; never empty")
-    confidence: float = Field(ge=0.0, le=1.0, description="the least certain part's score (≥ 0.4 when understood)")
+    confidence: float = Field(ge=0.0, le=1.0, description="the least certain clause's score: cosine similarity "
+                              "to the closest anchor phrase, plus a bonus for a cue word, at most 1")
 
     @classmethod
     def of(cls, understood: Understood) -> InterpretPublic:
