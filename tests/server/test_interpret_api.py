@@ -65,3 +65,9 @@ def test_bad_bodies_are_422s_that_say_what_is_wrong(client, body, message):
     r = post(client, "walker", body)
     assert r.status_code == 422
     assert r.json()["detail"].startswith(message), r.json()["detail"]
+
+
+def test_the_route_is_documented(client):
+    route = client.get("/openapi.json").json()["paths"]["/api/domains/{domain}/interpret"]["post"]
+    assert set(route["responses"]) >= {"200", "404", "422"}
+    assert route["requestBody"]["content"]["application/json"]["schema"]["$ref"].endswith("InterpretCreate")
