@@ -17,7 +17,7 @@ from __future__ import annotations
 import re
 import threading
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cache
 
 import numpy as np
@@ -188,8 +188,7 @@ class Interpreter:
             return a
         axis = more.mean(0) - less.mean(0)
         axis /= np.linalg.norm(axis) or 1.0
-        offset = float(axis @ (more.mean(0) + less.mean(0)) / 2)
-        return _Attribute(**{**a.__dict__, "axis": axis, "offset": offset})
+        return replace(a, axis=axis, offset=float(axis @ (more.mean(0) + less.mean(0)) / 2))
 
     @property
     def names(self) -> list[str]:

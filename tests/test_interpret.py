@@ -117,3 +117,20 @@ def test_an_attribute_without_anchors_is_still_matched_by_name(interpreters):
                         sentence_embeddings)
     assert plain.interpret("less step size").feedback == (("step_size", "less"),)
     assert plain.interpret("more softness").feedback == (("softness", "more"),)
+
+
+def test_one_encode_per_sentence_and_anchors_encoded_once(interpreters):
+    from rba.embed import sentence_embeddings
+
+    calls: list[list[str]] = []
+
+    def counting(texts: list[str]):
+        calls.append(texts)
+        return sentence_embeddings(texts)
+
+    walker = get_domain("walker")
+    interpreter = Interpreter.for_domain(walker, counting)
+    assert len(calls) == 1 and len(calls[0]) == sum(
+        1 + len(p.names) + len(p.more) + len(p.less) for p in walker.feedback_phrases.values())
+    interpreter.interpret("longer strides, softer landings and no stomping")
+    assert calls[1:] == [["longer strides", "softer landings", "stomping"]]
