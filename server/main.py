@@ -16,7 +16,7 @@ from fastapi.staticfiles import StaticFiles
 from rba.compute import Compute
 from server import errors
 from server.prerender import warm_up
-from server.routes import admin_datasets, admin_labels, admin_training, clips, domains, sessions
+from server.routes import admin_datasets, admin_labels, admin_training, clips, domains, interpret, sessions
 from server.services import Services
 from server.settings import Settings
 
@@ -51,8 +51,8 @@ def create_app(settings: Settings | None = None, compute: Compute | None = None)
                   description="Tune how an agent behaves by saying more / less of an attribute "
                               "(Relative Behavioral Attributes, ICLR 2023).")
     errors.install(app)
-    for router in (domains.router, sessions.router, clips.router, admin_labels.router, admin_datasets.router,
-                   admin_training.router):
+    for router in (domains.router, interpret.router, sessions.router, clips.router, admin_labels.router,
+                   admin_datasets.router, admin_training.router):
         app.include_router(router)
 
     @app.api_route("/api/{rest:path}", methods=["GET", "POST", "PUT", "PATCH", "DELETE"], include_in_schema=False)

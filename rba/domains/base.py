@@ -9,8 +9,9 @@ never read them.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
+from types import MappingProxyType
 
 import numpy as np
 
@@ -24,6 +25,22 @@ class AttributeSpec:
     unit: str  # unit of the proxy, e.g. "m"
     epsilon: float  # success tolerance (splits the proxy range into 5-10 buckets)
     high_precision_epsilon: float  # 5-10x finer (the paper's Table 2)
+
+
+@dataclass(frozen=True)
+class FeedbackPhrases:
+    """How people say more or less of one attribute in their own words (``rba.interpret``'s anchors).
+
+    ``more`` / ``less`` are short phrases that mean more / less of the attribute, written without
+    direction words ("more", "less", "not", "too": the interpreter reads those itself); words found on
+    one side only (after stemming) are that side's cue words, so write the two sides with the same
+    nouns ("land gently" / "land heavily"). ``names`` are ways to name the attribute itself
+    ("stride length"); the attribute's own name is always one.
+    """
+
+    more: tuple[str, ...]
+    less: tuple[str, ...]
+    names: tuple[str, ...] = ()
 
 
 @dataclass
@@ -54,6 +71,8 @@ class Domain(ABC):
     # (kind, rep) of a learned model the states come from (models/<name>/<kind>-<rep>.pt): loaded, never trained
     # here; `rba build` makes it when missing (rba.training.prepare_states)
     state_encoder: tuple[str, str] | None = None
+    # attribute name -> FeedbackPhrases: free-text feedback's anchors (an attribute without any is matched by name)
+    feedback_phrases: Mapping[str, FeedbackPhrases] = MappingProxyType({})
 
     @abstractmethod
     def sample_params(self, rng: np.random.Generator) -> dict[str, float]:
