@@ -108,8 +108,7 @@ def _train_job() -> None:
 
 
 def downgrade() -> None:
-    with op.batch_alter_table("rba_session") as batch:
-        batch.drop_column("model_set")
+    op.drop_column("rba_session", "model_set")
     for table in ("rba_train_job", "rba_model_version", "rba_label", "rba_dataset", "rba_attribute",
                   "rba_active_model"):
         op.drop_table(table)

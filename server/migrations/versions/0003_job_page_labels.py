@@ -21,5 +21,4 @@ def upgrade() -> None:
 
 
 def downgrade() -> None:
-    with op.batch_alter_table("rba_train_job") as batch:
-        batch.drop_column("include_page_labels")
+    op.drop_column("rba_train_job", "include_page_labels")

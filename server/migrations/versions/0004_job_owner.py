@@ -20,6 +20,5 @@ def upgrade() -> None:
 
 
 def downgrade() -> None:
-    with op.batch_alter_table("rba_train_job") as batch:
-        batch.drop_column("heartbeat_at")
-        batch.drop_column("owner")
+    op.drop_column("rba_train_job", "heartbeat_at")
+    op.drop_column("rba_train_job", "owner")
