@@ -37,7 +37,11 @@ def make_engine(url: str) -> Engine:
             cur.close()
     else:
         engine = create_engine(url, pool_pre_ping=True, pool_size=10, max_overflow=20)
-    _migrate(engine)
+    try:
+        _migrate(engine)
+    except Exception:
+        engine.dispose()  # a refused database keeps no pooled connections open
+        raise
     log.info("database ready: %s", parsed.render_as_string(hide_password=True))
     return engine
 

@@ -16,7 +16,7 @@ branch_labels = None
 depends_on = None
 
 
-def _time() -> sa.Column:
+def _created_at() -> sa.Column:
     return sa.Column("created_at", sa.DateTime(timezone=True), nullable=False)
 
 
@@ -34,7 +34,7 @@ def upgrade() -> None:
         sa.Column("domain", sa.String(length=64), nullable=False),
         sa.Column("name", sa.String(length=32), nullable=False),
         sa.Column("description", sa.String(length=300), nullable=False),
-        _time(),
+        _created_at(),
         sa.PrimaryKeyConstraint("id"),
         sa.UniqueConstraint("domain", "name", name="uq_attribute_domain_name"),
     )
@@ -47,7 +47,7 @@ def upgrade() -> None:
         sa.Column("trajectories", sa.Integer(), nullable=False),
         sa.Column("labels", sa.Integer(), nullable=False),
         sa.Column("new_attributes", sa.JSON(), nullable=False),
-        _time(),
+        _created_at(),
         sa.PrimaryKeyConstraint("id"),
     )
     op.create_index("ix_rba_dataset_domain", "rba_dataset", ["domain"])
@@ -58,7 +58,7 @@ def upgrade() -> None:
         sa.Column("kind", sa.String(length=16), nullable=False),
         sa.Column("attribute", sa.String(length=32), nullable=False),
         sa.Column("payload", sa.JSON(), nullable=False),
-        _time(),
+        _created_at(),
         sa.PrimaryKeyConstraint("id"),
     )
     op.create_index("ix_rba_label_domain", "rba_label", ["domain"])
@@ -71,7 +71,7 @@ def upgrade() -> None:
         sa.Column("job_id", sa.String(length=32), nullable=False),
         sa.Column("attributes", sa.JSON(), nullable=False),
         sa.Column("held_out", sa.JSON(), nullable=False),
-        _time(),
+        _created_at(),
         sa.PrimaryKeyConstraint("version"),
     )
     op.create_index("ix_rba_model_version_domain", "rba_model_version", ["domain"])
@@ -99,7 +99,7 @@ def _train_job() -> None:
         sa.Column("log_tail", sa.Text(), nullable=False),
         sa.Column("error", sa.Text(), nullable=True),
         sa.Column("version", sa.String(length=64), nullable=True),
-        _time(),
+        _created_at(),
         sa.Column("updated_at", sa.DateTime(timezone=True), nullable=False),
         sa.PrimaryKeyConstraint("id"),
         sa.UniqueConstraint("busy_domain"),
