@@ -7,7 +7,7 @@ from collections.abc import Callable, Iterator
 
 import pytest
 from fastapi.testclient import TestClient
-from sqlalchemy import create_engine
+from sqlalchemy import create_engine, text
 from sqlmodel import SQLModel
 
 from server.main import create_app
@@ -17,11 +17,13 @@ POSTGRES_URL = os.environ.get("RBA_TEST_POSTGRES_URL")
 
 
 def _reset_postgres(url: str) -> None:
-    """Drop the app's tables so every test starts from an empty database."""
-    from server import db  # noqa: F401  (registers every table)
+    """Drop the app's tables and the migrations' record, so every test starts from an empty database."""
+    from server import admin_models, models  # noqa: F401  (registers every table)
 
     engine = create_engine(url)
     SQLModel.metadata.drop_all(engine)
+    with engine.begin() as conn:
+        conn.execute(text("DROP TABLE IF EXISTS alembic_version"))
     engine.dispose()
 
 

@@ -12,9 +12,8 @@ import threading
 import time
 
 import pytest
-from sqlalchemy import inspect, text
 from sqlalchemy.exc import IntegrityError
-from sqlmodel import Session, create_engine
+from sqlmodel import Session
 
 from server.admin_models import JobState, TrainJob
 from server.db import make_engine
@@ -195,20 +194,3 @@ def test_heartbeat_must_be_well_inside_the_staleness_limit():
     with pytest.raises(ValueError, match=r"job_stale_seconds \(10\) must exceed twice job_heartbeat_seconds \(5\)"):
         Settings(job_heartbeat_seconds=5, job_stale_seconds=10)
 
-
-def test_old_databases_get_the_ownership_columns(tmp_path):
-    """A job table from before replicas (no owner, no heartbeat) gains both columns at start-up."""
-    url = f"sqlite:///{tmp_path / 'old.db'}"
-    old = create_engine(url)
-    with old.begin() as conn:
-        conn.execute(text("CREATE TABLE rba_train_job (id VARCHAR(32) PRIMARY KEY, domain VARCHAR(64) NOT NULL, "
-                          "method VARCHAR(32) NOT NULL, rep VARCHAR(32) NOT NULL, preset VARCHAR(16) NOT NULL, "
-                          "datasets JSON NOT NULL, stage VARCHAR(64) NOT NULL, step INTEGER NOT NULL, "
-                          "total INTEGER NOT NULL, loss FLOAT, held_out JSON, log_tail TEXT NOT NULL, error TEXT, "
-                          "version VARCHAR(64), busy_domain VARCHAR(64) UNIQUE, include_page_labels BOOLEAN NOT NULL, "
-                          "state VARCHAR(16) NOT NULL, created_at DATETIME NOT NULL, updated_at DATETIME NOT NULL)"))
-    old.dispose()
-    engine = make_engine(url)
-    columns = {c["name"] for c in inspect(engine).get_columns("rba_train_job")}
-    assert {"owner", "heartbeat_at"} <= columns
-    engine.dispose()
