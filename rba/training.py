@@ -9,7 +9,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import time
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Collection, Iterable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import TypeVar
@@ -173,7 +173,7 @@ class LabelSource:
     trajectories: dict[str, np.ndarray] = field(default_factory=dict)
     name: str = "labels"  # what errors call it, e.g. "dataset 3f2a..."
 
-    def check(self, library_ids: Mapping[str, int], state_dim: int) -> None:
+    def check(self, library_ids: Collection[str], state_dim: int) -> None:
         """ValueError naming this source unless every trajectory is [T, state_dim] and every clip its labels
         refer to is one of its trajectories or a library rollout (a stored dataset may have changed since
         it was checked)."""
