@@ -348,7 +348,9 @@ def start_server(settings, temp_root: Path, kill_at: str | None = None) -> tuple
            "RBA_UPLOAD_MAX_BYTES": str(64 * 2**20), "RBA_UPLOAD_MAX_UNCOMPRESSED": str(64 * 2**20),
            "RBA_COMPUTE_WORKERS": "1", "TMPDIR": str(temp_root), "PYTHONPATH": str(REPO)}
     args = [sys.executable, "-m", "tests.server.upload_server", str(port), *([kill_at] if kill_at else [])]
-    proc = subprocess.Popen(args, cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    log = temp_root.parent / f"server-{port}.log"
+    with log.open("wb") as out:
+        proc = subprocess.Popen(args, cwd=REPO, env=env, stdout=out, stderr=subprocess.STDOUT)
     url, deadline = f"http://127.0.0.1:{port}", time.monotonic() + 120  # a loaded CI machine imports slowly
     while time.monotonic() < deadline and proc.poll() is None:
         try:
@@ -357,7 +359,7 @@ def start_server(settings, temp_root: Path, kill_at: str | None = None) -> tuple
         except httpx.TransportError:
             time.sleep(0.1)
     proc.kill()
-    raise AssertionError(f"the server did not start: {proc.stdout.read().decode()[-2000:]}")
+    raise AssertionError(f"the server did not start: {log.read_text()[-2000:]}")
 
 
 def post_upload(url: str, npz: bytes, labels: bytes) -> httpx.Response:
