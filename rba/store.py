@@ -8,7 +8,7 @@ an object store without its callers changing.
 Layout (all absolute)::
 
     <data>/<domain>/<split>.{npz,json}           skill libraries
-    <data>/uploads/<domain>/<dataset>.{npz,json} uploaded datasets
+    <data>/uploads/<domain>/<dataset>.{npz,json} uploaded datasets (.<dataset>.lock while one is stored)
     <data>/rba.db                                the app's default SQLite database
     <models>/<domain>/<kind>-<rep>.{pt,json}     shipped models (weights + card)
     <models>/versions/<version>/<domain>/...     models a retraining job published
@@ -40,6 +40,7 @@ _SAFE = re.compile(r"^[a-z0-9_]{1,64}$")
 _HEX = re.compile(r"^[0-9a-f]{1,64}$")
 TEMP_GLOB = "*/.*.tmp"  # what ``write_atomic`` leaves behind when a process dies mid-write
 CLAIM_GLOB = "*/.*.claim"  # a guessed render in progress (``ClipStore.claim``)
+_UPLOAD_FILE = re.compile(r"^\.?([0-9a-f]{16,64})\.(?:npz|json|lock|(?:npz|json)\.[^/]+\.tmp)$")
 
 
 @dataclass(frozen=True)
@@ -84,7 +85,11 @@ class ModelFiles:
 
 @dataclass(frozen=True)
 class UploadFiles:
-    """One domain's uploaded datasets: ``<dataset>.npz`` (trajectories, optional) + ``<dataset>.json`` (labels)."""
+    """One domain's uploaded datasets: ``<dataset>.npz`` (trajectories, optional) + ``<dataset>.json`` (labels).
+
+    While a dataset is being stored its ``.<dataset>.lock`` exists, and ``write_atomic`` writes each
+    file first as ``.<dataset>.<ext>.<random>.tmp``.
+    """
 
     folder: Path
 
@@ -93,6 +98,22 @@ class UploadFiles:
 
     def labels(self, dataset_id: str) -> Path:
         return self.folder / f"{dataset_id}.json"
+
+    def lock(self, dataset_id: str) -> Path:
+        return self.folder / f".{dataset_id}.lock"
+
+    def stored(self, dataset_id: str) -> list[Path]:
+        """The dataset's files that exist."""
+        return [p for p in (self.trajectories(dataset_id), self.labels(dataset_id)) if p.exists()]
+
+    def temporaries(self, dataset_id: str) -> list[Path]:
+        """Half-written files of the dataset (a write cut short leaves them)."""
+        return sorted(self.folder.glob(f".{dataset_id}.*.tmp"))
+
+    def dataset_ids(self) -> set[str]:
+        """Every dataset with a file, a temporary or a lock here (other files are not the store's)."""
+        found = (_UPLOAD_FILE.match(p.name) for p in self.folder.iterdir()) if self.folder.is_dir() else ()
+        return {m.group(1) for m in found if m}
 
 
 class ClipStore:
@@ -195,7 +216,16 @@ class Store:
         shutil.rmtree(self.staging(job_id), ignore_errors=True)
 
     def uploads(self, domain: str) -> UploadFiles:
-        return UploadFiles(self.data_dir / "uploads" / domain)
+        return UploadFiles(self.uploads_dir / domain)
+
+    @property
+    def uploads_dir(self) -> Path:
+        return self.data_dir / "uploads"
+
+    def upload_folders(self) -> list[UploadFiles]:
+        """Every domain's upload folder that exists."""
+        root = self.uploads_dir
+        return [UploadFiles(p) for p in sorted(root.iterdir()) if p.is_dir()] if root.is_dir() else []
 
     @property
     def database_file(self) -> Path:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Collection, Iterable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import TypeVar
@@ -171,6 +171,21 @@ class LabelSource:
 
     labels: LabelSet
     trajectories: dict[str, np.ndarray] = field(default_factory=dict)
+    name: str = "labels"  # what errors call it, e.g. "dataset 3f2a..."
+
+    def check(self, library_ids: Collection[str], state_dim: int) -> None:
+        """ValueError naming this source unless every trajectory is [T, state_dim] and every clip its labels
+        refer to is one of its trajectories or a library rollout (a stored dataset may have changed since
+        it was checked)."""
+        for ref, traj in self.trajectories.items():
+            shape = np.shape(traj)
+            if len(shape) != 2 or shape[0] < 1 or shape[1] != state_dim:
+                raise ValueError(f"{self.name}: trajectory {ref!r} has shape {list(shape)}, expected [T, {state_dim}]")
+        missing = sorted(r for r in self.labels.references() if r not in self.trajectories and r not in library_ids)
+        if missing:
+            shown = ", ".join(repr(m) for m in missing[:5]) + (" ..." if len(missing) > 5 else "")
+            raise ValueError(f"{self.name}: its labels refer to {len(missing)} clip(s) that are neither its "
+                             f"trajectories nor train/serve rollouts: {shown}")
 
 
 class _Pool:
@@ -185,6 +200,7 @@ class _Pool:
         self.uploaded: list[dict[str, int]] = []
         n, rows = self.library_rows, len(train.states) + len(serve.states)
         for src in sources:
+            src.check(self.library_index, train.states.shape[1])
             names = {}
             for name, traj in src.trajectories.items():
                 names[name] = n
@@ -195,7 +211,9 @@ class _Pool:
         self.data = Ragged.from_numpy(np.concatenate(arrays), np.concatenate([*offsets, [rows]]))
 
     def index(self, source: int, ref: str) -> int:
-        return self.uploaded[source].get(ref, self.library_index.get(ref, -1))
+        """The row of a clip the source refers to (``LabelSource.check`` made sure there is one)."""
+        names = self.uploaded[source]
+        return names[ref] if ref in names else self.library_index[ref]
 
     def pairs(self, sources: list[LabelSource], attribute: str) -> list[list[tuple[int, int]]]:
         return [[(self.index(i, hi), self.index(i, lo)) for hi, lo in src.labels.pairs(attribute)]

@@ -32,9 +32,11 @@ from server.background import Background
 from server.catalog import Catalog
 from server.db import make_engine
 from server.jobs import JobRunner
+from server.labeldata import sweep_uploads
 from server.prefetch import Prefetcher
 from server.settings import Settings
 from server.transitions import Transitions
+from server.uploads import sweep_workspaces
 
 log = logging.getLogger(__name__)
 
@@ -78,6 +80,8 @@ class Services:
         torch.set_num_threads(settings.torch_threads)
         engine = make_engine(settings.db_url)
         catalog = Catalog(settings)
+        sweep_uploads(engine, catalog.store)  # what uploads cut short by a crash left (never a live one's)
+        sweep_workspaces()
         owns = compute is None
         compute = compute or make_compute(settings)
         clips = ClipCache(catalog.store.clips(), compute, settings.clip_width, settings.clip_height)

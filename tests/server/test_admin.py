@@ -400,7 +400,9 @@ def test_failed_job_changes_nothing_served(admin, settings):
     r = admin.post("/api/admin/train", headers=AUTH, json={"domain": "toy", "datasets": [ds["id"]], "preset": "tiny"})
     assert r.status_code == 202
     job = wait_job(admin, r.json()["id"])
-    assert job["state"] == "failed" and "FileNotFoundError" in job["error"] and job["version"] is None
+    assert job["state"] == "failed" and job["version"] is None
+    assert job["error"] == f"ValueError: dataset {ds['id']}: its file {ds['id']}.json is missing from " \
+                           f"{settings.data_dir / 'uploads' / 'toy'}"
     versions = settings.models_dir / "versions"
     assert not versions.exists() or not any(versions.iterdir())
     s = admin.post("/api/sessions", json={"domain": "toy", "method": "global", "rep": "onehot"}).json()
