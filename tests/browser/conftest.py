@@ -71,7 +71,8 @@ def axe_violations(page, impacts: tuple[str, ...] = ("serious", "critical")) -> 
     if not page.evaluate("() => Boolean(window.axe)"):
         page.add_script_tag(content=AXE.read_text(encoding="utf-8"))
     result = page.evaluate("""async () => {
-      const r = await axe.run(document, { runOnly: { type: 'tag', values: ['wcag2a', 'wcag2aa', 'wcag21a', 'wcag21aa'] } });
+      const tags = ['wcag2a', 'wcag2aa', 'wcag21a', 'wcag21aa'];
+      const r = await axe.run(document, { runOnly: { type: 'tag', values: tags } });
       return r.violations.map((v) => ({ id: v.id, impact: v.impact, help: v.help,
                                         targets: v.nodes.map((n) => `${n.target.join(' ')}: ${n.failureSummary}`) }));
     }""")

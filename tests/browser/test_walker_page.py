@@ -198,7 +198,8 @@ def test_feedback_in_your_own_words(url, browser):
     page.get_by_label("Or say it in your own words").fill("make it purple")
     page.get_by_role("button", name="Interpret").click()
     page.wait_for_selector("#words-error:not([hidden])")
-    assert page.locator("#words-error").inner_text() == "I didn't understand that; the attributes are: step size, softness"
+    assert page.locator("#words-error").inner_text() == ("I didn't understand that; "
+                                                         "the attributes are: step size, softness")
     page.get_by_label("Or say it in your own words").fill("land more gently")
     page.get_by_label("Or say it in your own words").press("Enter")
     page.wait_for_selector("#words-confirm:not([hidden])")
