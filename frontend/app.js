@@ -178,8 +178,8 @@ async function sendFeedback(payload, pressed) {
     return true;
   } catch (err) {
     stopWaiting();
-    if (err.status === 409) {
-      toast(err.message, "info");
+    if (err.status === 409) {  // the session moved on elsewhere (another tab): show what it shows now
+      toast("The session had moved on (another tab?); this is the clip it shows now.", "info");
       await reloadSession();
     } else {
       toast(err.message);
@@ -268,6 +268,7 @@ function load(url, rolloutId, label) {
   state.shownUrl = url;
   overlay(label);
   els.video.dataset.ready = "false";
+  delete els.video.dataset.played;
   els.video.dataset.rollout = rolloutId;
   els.video.src = url;
   els.video.load();
@@ -285,6 +286,7 @@ async function showCurrentClip(clip) {
     refreshControls();
     await waitForRender(clip, token);
     if (token !== state.clipToken) return;
+    if (state.viewing) { stopWaiting(); return; } // re-watching an old clip: the new one loads on "back to current"
   }
   load(clip.url, clip.rollout_id, "Loading the clip…");
 }
@@ -312,9 +314,10 @@ els.video.addEventListener("timeupdate", () => {
   const d = els.video.duration;
   const enough = Number.isFinite(d) ? Math.min(PLAYED_SECONDS, d * 0.9) : PLAYED_SECONDS;
   const id = els.video.dataset.rollout;
-  if (id && els.video.currentTime >= enough && !state.played.has(id)) {
+  if (!id || els.video.currentTime < enough) return;
+  els.video.dataset.played = id;
+  if (!state.played.has(id)) {
     state.played.add(id);
-    els.video.dataset.played = id;
     refreshControls();
   }
 });
@@ -335,6 +338,7 @@ function showSession(session, { fresh = false } = {}) {
     fillMethods();
     els.method.value = `${session.method}/${session.rep}`;
     buildControls(session);
+    state.played.clear(); // another session: its clip must be watched again, even one seen before
     state.viewing = null;
     els.replayBanner.hidden = true;
   }

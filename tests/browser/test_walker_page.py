@@ -22,6 +22,14 @@ PLAYING = """(previous) => {
 }"""
 PLAYED = """() => { const v = document.getElementById('video');
   return Boolean(v.dataset.played) && v.dataset.played === v.dataset.rollout; }"""
+WATCH = """() => {  // what a person saw while waiting: overlay texts, and (dimmed?, clip shown) pairs
+  window.seen = { texts: [], dimmed: [] };
+  const player = document.getElementById('player'), video = document.getElementById('video');
+  new MutationObserver(() => window.seen.texts.push(document.getElementById('overlay').innerText))
+    .observe(document.getElementById('overlay'), { subtree: true, childList: true, characterData: true });
+  new MutationObserver(() => window.seen.dimmed.push([player.classList.contains('waiting'), video.dataset.rollout]))
+    .observe(player, { attributes: true, attributeFilter: ['class'] });
+}"""
 
 pytestmark = pytest.mark.slow
 
@@ -64,6 +72,7 @@ def test_answers_unlock_once_the_clip_has_played_and_name_that_clip(url, browser
     page, errors = new_page(browser, url)
     posts = feedback_posts(page)
     more_step = page.get_by_role("button", name="more step size")
+    page.evaluate(WATCH)
     page.get_by_role("button", name="Start tuning").click()
     page.wait_for_function("() => document.getElementById('video').dataset.rollout", timeout=90_000)
     assert more_step.get_attribute("aria-disabled") == "true"  # before its first second, nothing can be answered
@@ -82,6 +91,10 @@ def test_answers_unlock_once_the_clip_has_played_and_name_that_clip(url, browser
     focused = page.evaluate("[document.activeElement.dataset.attr, document.activeElement.dataset.dir]")
     assert focused == ["step_size", "more"]  # focus stayed on the button, not on the body
     assert len(posts) == 1 and posts[0]["clip"] == first and posts[0]["step"] == 0
+    seen = page.evaluate("window.seen")
+    assert any("Rendering the clip" in t or "Waiting for a free renderer" in t for t in seen["texts"])  # the 1st
+    assert any("Choosing a new behaviour" in t for t in seen["texts"])
+    assert [True, first] in seen["dimmed"]  # the previous clip stayed, dimmed, while the next one came
     assert more_step.get_attribute("aria-disabled") == "true"  # the new clip has not played its second yet
     page.wait_for_function(PLAYED, timeout=30_000)
     assert more_step.get_attribute("aria-disabled") == "false"
