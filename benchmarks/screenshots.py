@@ -68,7 +68,8 @@ def _answer(page, name: str, previous: str) -> str:
 
 
 def user_page(browser, url: str, out: Path) -> list[Path]:
-    """The studio page on the walker: the laptop after two answers, the phone's welcome and after a tap."""
+    """The studio page on the walker (the laptop after two answers, the phone's welcome and after a tap) and the
+    snake (three attributes, so three path plots; the whole page)."""
     written = []
     page = browser.new_page(viewport=LAPTOP)
     page.goto(url)
@@ -83,6 +84,17 @@ def user_page(browser, url: str, out: Path) -> list[Path]:
     page.screenshot(path=str(written[-1]))
     page.close()
 
+    snake = browser.new_page(viewport=LAPTOP)  # three attributes: three path plots
+    snake.goto(url)
+    snake.wait_for_function("() => document.body.dataset.state === 'idle'")
+    snake.select_option("#domain", "snake")
+    snake.get_by_role("button", name="New session").click()
+    snake.wait_for_function(PLAYED, arg="", timeout=120_000)
+    _answer(snake, "more speed", snake.eval_on_selector("#video", "v => v.dataset.rollout"))
+    written.append(out / "screenshot-snake.png")
+    snake.screenshot(path=str(written[-1]), full_page=True)
+    snake.close()
+
     phone = browser.new_page(viewport=PHONE, has_touch=True, is_mobile=True)
     phone.goto(url)
     phone.wait_for_function("() => document.body.dataset.state === 'idle'")
@@ -95,6 +107,7 @@ def user_page(browser, url: str, out: Path) -> list[Path]:
     button.evaluate("b => b.scrollIntoView({ block: 'center' })")
     button.tap()
     phone.wait_for_function(PLAYED, arg=clip, timeout=120_000)
+    phone.wait_for_timeout(400)  # the unlocked buttons' colour transition
     written.append(out / "screenshot-walker-phone.png")
     phone.screenshot(path=str(written[-1]))
     phone.close()
