@@ -63,6 +63,11 @@ def create_app(settings: Settings | None = None, compute: Compute | None = None)
     def healthz() -> dict[str, str]:
         return {"status": "ok"}
 
+    @app.get("/favicon.ico", include_in_schema=False)
+    def favicon() -> FileResponse:
+        """Browsers ask for it whatever the page links: an SVG (every current browser reads one here)."""
+        return FileResponse(FRONTEND / "favicon.svg", media_type="image/svg+xml")
+
     @app.get("/", include_in_schema=False)
     def index() -> FileResponse:
         return FileResponse(FRONTEND / "index.html", headers={"Cache-Control": "no-cache"})

@@ -95,6 +95,9 @@ class FeedbackCreate(BaseModel):
     """Body of POST /api/sessions/{id}/feedback: attribute feedback, or ``satisfied: true``."""
 
     step: int = Field(ge=0, description="the session's current step (409 if it moved on)")
+    clip: str | None = Field(default=None, max_length=128,
+                             description="the rollout id of the clip this answers about (the session's "
+                                         "clip.rollout_id); 409 if the session shows another one")
     feedback: list[AttributeChoice] | None = Field(default=None, max_length=32)
     satisfied: bool = False
 
@@ -107,12 +110,22 @@ class FeedbackCreate(BaseModel):
         return [(c.attribute, c.direction) for c in self.feedback or ()]
 
 
+class ReadingPublic(BaseModel):
+    """Show ``sign * value`` under ``label``: how a person reads this attribute's measured value."""
+
+    label: str = Field(description="e.g. landing speed")
+    sign: int = Field(description="-1: the shown value is minus the measured one")
+    note: str = Field(description="which way is more of the attribute, e.g. lower is softer")
+
+
 class AttributePublic(BaseModel):
     name: str
     description: str
     unit: str
     low: float | None = Field(default=None, description="smallest measured value in the serve library")
     high: float | None = Field(default=None, description="largest measured value in the serve library")
+    decimals: int = Field(default=2, description="decimals that show a change a person can tell apart")
+    reading: ReadingPublic | None = Field(default=None, description="how to show the value, if not as it is")
 
 
 class MethodPublic(BaseModel):
@@ -148,6 +161,22 @@ class ClipPublic(BaseModel):
     ready: bool = Field(description="already rendered: the URL answers at once")
 
 
+class ClipStatusPublic(BaseModel):
+    """GET /api/clips/{domain}/{rollout_id}/status: how far a clip's render is."""
+
+    rollout_id: str
+    state: Literal["ready", "queued", "rendering", "absent"] = Field(
+        description="ready: stored; queued: waiting for a worker; rendering; absent: not asked for yet")
+    elapsed_seconds: float | None = Field(description="since the render was submitted")
+    typical_seconds: float | None = Field(description="mean render time of this domain's clips on this server so far")
+
+
+class TargetRange(BaseModel):
+    attribute: str
+    low: float = Field(description="measured value (the attribute's unit) at the interval's lower end")
+    high: float = Field(description="measured value at the upper end")
+
+
 class FeedbackPublic(BaseModel):
     step: int
     feedback: list[AttributeChoice] | None
@@ -168,6 +197,9 @@ class SessionPublic(SessionBase):
     clip: ClipPublic
     attributes: list[AttributePublic]
     history: list[FeedbackPublic]
+    target: list[TargetRange] | None = Field(
+        default=None, description="where the agent believes the target is (the middle half of its belief), "
+                                  "for agents that keep such a belief (RBA-Global)")
     created_at: dt.datetime
     updated_at: dt.datetime
 

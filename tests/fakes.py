@@ -32,7 +32,7 @@ class FakeCompute(Compute):
             self.submitted.append((urgent, future))
             self.jobs.append(job)
             self._cond.notify_all()
-        return Task(future, future.cancel)
+        return Task(future, future.cancel, future.running)  # a test starts it: set_running_or_notify_cancel
 
     def next_rollout(self, timeout: float) -> str:
         """Wait for the next job after those already seen by this method; its rollout id."""

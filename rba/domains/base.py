@@ -8,12 +8,26 @@ never read them.
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
 
 import numpy as np
+
+
+@dataclass(frozen=True)
+class Reading:
+    """How a person reads a proxy whose sign only serves the rule "the proxy grows with its attribute".
+
+    The page shows ``sign * proxy`` under ``label`` (walker softness is minus the landing speed: shown as
+    the landing speed, with ``note`` "lower is softer").
+    """
+
+    label: str  # e.g. "landing speed"
+    sign: int  # -1 or 1
+    note: str  # which way is more of the attribute, e.g. "lower is softer"
 
 
 @dataclass(frozen=True)
@@ -25,6 +39,12 @@ class AttributeSpec:
     unit: str  # unit of the proxy, e.g. "m"
     epsilon: float  # success tolerance (splits the proxy range into 5-10 buckets)
     high_precision_epsilon: float  # 5-10x finer (the paper's Table 2)
+    reading: Reading | None = None  # how the page shows the proxy, when not as it is
+
+    @property
+    def decimals(self) -> int:
+        """Decimals that show a change of ``high_precision_epsilon`` (snake speed needs 3, not 2)."""
+        return max(0, min(4, math.ceil(-math.log10(self.high_precision_epsilon))))
 
 
 @dataclass(frozen=True)

@@ -64,7 +64,7 @@ from typing import NamedTuple
 import mujoco
 import numpy as np
 
-from rba.domains.base import AttributeSpec, Domain, FeedbackPhrases, Rollout
+from rba.domains.base import AttributeSpec, Domain, FeedbackPhrases, Reading, Rollout
 from rba.domains.mujoco_render import Camera, Sky, ThreadRenderers
 
 # ---------------------------------------------------------------- controller constants
@@ -777,6 +777,7 @@ class Walker(Domain):
             unit="m/s",
             epsilon=0.2,  # m/s; measured range ≈ -1.5..-0.1 m/s -> ~7 buckets
             high_precision_epsilon=0.033,  # m/s
+            reading=Reading("landing speed", -1, "lower is softer"),
         ),
     )
     state_dim = len(STATE_FEATURES)

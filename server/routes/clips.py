@@ -1,4 +1,5 @@
-"""GET /api/clips/{domain}/{rollout_id}.mp4: a rollout of the serve library as H.264 video.
+"""GET /api/clips/{domain}/{rollout_id}.mp4: a rollout of the serve library as H.264 video (and ``/status``:
+how far its render is, for the page's progress while a person waits).
 
 The rollout id is looked up in the library (404 if absent) and never used as a path. The
 file is rendered on first request and cached; responses carry a content ETag and honour
@@ -17,6 +18,8 @@ from fastapi.responses import FileResponse
 from rba.library import LibraryNotFoundError
 from server.deps import ServicesDep
 from server.errors import not_found
+from server.models import ClipStatusPublic
+from server.views import clip_status
 
 router = APIRouter(prefix="/api/clips", tags=["clips"])
 
@@ -46,3 +49,11 @@ async def get_clip(domain: Annotated[str, Path(max_length=64)], rollout_id: Anno
 
 
 router.add_api_route("/{domain}/{rollout_id}.mp4", get_clip, methods=["HEAD"], include_in_schema=False)
+
+
+@router.get("/{domain}/{rollout_id}/status", response_model=ClipStatusPublic,
+            responses={404: {"description": "unknown domain or rollout id"}},
+            summary="How far a clip's render is: ready, queued, rendering (elapsed and typical seconds) or absent")
+def get_clip_status(domain: Annotated[str, Path(max_length=64)], rollout_id: Annotated[str, Path(max_length=128)],
+                    svc: ServicesDep) -> ClipStatusPublic:
+    return clip_status(svc, domain, rollout_id)

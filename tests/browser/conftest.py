@@ -60,3 +60,20 @@ def browser():
         b = p.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
         yield b
         b.close()
+
+
+AXE = Path(__file__).resolve().parent / "vendor" / "axe.min.js"  # axe-core 4.14.1 from npm (MPL-2.0, beside it)
+
+
+def axe_violations(page, impacts: tuple[str, ...] = ("serious", "critical")) -> list:
+    """Run the vendored axe-core on ``page`` (WCAG 2 A/AA rules); its violations of ``impacts``, each as
+    ``{"id", "impact", "help", "targets"}`` (each target with axe's reason) so a failing assert says what and where."""
+    if not page.evaluate("() => Boolean(window.axe)"):
+        page.add_script_tag(content=AXE.read_text(encoding="utf-8"))
+    result = page.evaluate("""async () => {
+      const tags = ['wcag2a', 'wcag2aa', 'wcag21a', 'wcag21aa'];
+      const r = await axe.run(document, { runOnly: { type: 'tag', values: tags } });
+      return r.violations.map((v) => ({ id: v.id, impact: v.impact, help: v.help,
+                                        targets: v.nodes.map((n) => `${n.target.join(' ')}: ${n.failureSummary}`) }));
+    }""")
+    return [v for v in result if v["impact"] in impacts]

@@ -17,6 +17,8 @@ def test_attributes_are_well_formed(domain):
         assert a.name.isidentifier() and a.name == a.name.lower()
         assert a.description.endswith(".") and a.unit
         assert 0 < a.high_precision_epsilon < a.epsilon
+        assert a.reading is None or (a.reading.sign in (-1, 1) and a.reading.label and a.reading.note)
+        assert 0 <= a.decimals <= 4 and 10.0 ** -a.decimals <= a.high_precision_epsilon  # a fine change shows
 
 
 def test_equal_seeds_give_equal_rollouts(domain):

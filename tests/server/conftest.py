@@ -65,5 +65,7 @@ def session(client) -> dict:
     return r.json()
 
 
-def more(attribute: str, step: int, direction: str = "more") -> dict:
-    return {"step": step, "feedback": [{"attribute": attribute, "direction": direction}]}
+def more(attribute: str, step: int, direction: str = "more", clip: str | None = None) -> dict:
+    """A feedback body; with ``clip``, it names the clip it answers about (the page always does)."""
+    body = {"step": step, "feedback": [{"attribute": attribute, "direction": direction}]}
+    return body if clip is None else {**body, "clip": clip}
