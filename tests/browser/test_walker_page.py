@@ -228,6 +228,23 @@ def test_feedback_in_your_own_words(url, browser):
     page.close()
 
 
+def test_feedback_in_your_own_words_through_the_real_model(url, browser):
+    """Unmocked: the server's sentence model reads a negated antonym, the page shows it, "yes" sends it."""
+    page, errors = new_page(browser, url)
+    posts = feedback_posts(page)
+    first = start(page)
+    page.wait_for_function(PLAYED, timeout=30_000)
+    page.get_by_label("Or say it in your own words").fill("stomp less")
+    page.get_by_role("button", name="Interpret").click()
+    page.wait_for_selector("#words-confirm:not([hidden])", timeout=60_000)  # the first sentence loads the model
+    assert page.locator("#words-understood").inner_text() == "▲ more softness — right?"
+    page.get_by_role("button", name="Yes, send it").click()
+    page.wait_for_function(PLAYING, arg=first, timeout=90_000)
+    assert posts == [{"step": 0, "clip": first, "feedback": [{"attribute": "softness", "direction": "more"}]}]
+    assert not errors, errors
+    page.close()
+
+
 def test_another_domain_in_the_page(live_server, browser, tmp_path):
     """Lane change through the same page: pick it, start, press "more sharpness", a new clip plays."""
     settings = Settings(data_dir=REPO / "data", models_dir=REPO / "models", database_url=f"sqlite:///{tmp_path}/rba.db",
