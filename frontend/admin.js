@@ -329,7 +329,7 @@ function scoreTable(v) {
       el("th", { scope: "col" }, v.active ? "this version (serving)" : "this version"),
       v.baseline ? el("th", { scope: "col" }, `serving now: ${v.baseline}`) : null)),
     el("tbody", {}, keys.map((k) => el("tr", { class: worse(k) && v.baseline ? "worse" : "" },
-      el("th", { scope: "row" }, k),
+      el("th", { scope: "row" }, pretty(k)),
       el("td", {}, k in v.scores ? number(v.scores[k]) : "—", worse(k) && v.baseline ? " ▼" : ""),
       v.baseline ? el("td", {}, k in v.baseline_scores ? number(v.baseline_scores[k]) : "—") : null))));
 }
@@ -342,7 +342,7 @@ function versionItem(v) {
         : el("button", { class: "btn btn-small btn-dark", type: "button", "data-version": v.version,
                          "aria-label": `Activate ${v.version}`, onclick: () => activate(v) }, "Activate")),
     scoreTable(v),
-    v.concerns.length ? el("p", { class: "concerns small" }, `⚠ ${v.concerns.join("; ")}`) : null);
+    v.concerns.length ? el("p", { class: "concerns small" }, `⚠ ${v.concerns.map(pretty).join("; ")}`) : null);
 }
 
 async function loadVersions() {
@@ -353,7 +353,7 @@ async function loadVersions() {
 /** Resolves true when the admin confirms activating ``v`` despite its concerns. */
 function confirmActivation(v) {
   $("confirm-title").textContent = `Activate ${v.version}? It may serve worse than ${v.baseline}`;
-  $("confirm-concerns").replaceChildren(...v.concerns.map((c) => el("li", {}, c)));
+  $("confirm-concerns").replaceChildren(...v.concerns.map((c) => el("li", {}, pretty(c))));
   $("confirm-table").replaceChildren(scoreTable(v));
   $("confirm").returnValue = "";
   $("confirm").showModal();

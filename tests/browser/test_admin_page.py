@@ -3,16 +3,21 @@ WCAG AA by axe-core, and the API docs without a network. Screenshots go to the t
 
 from __future__ import annotations
 
+import datetime as dt
 import io
 import json
 import re
+import shutil
 from pathlib import Path
 from urllib.parse import urlparse
 
 import httpx
 import numpy as np
 import pytest
+from sqlalchemy import create_engine
+from sqlmodel import Session
 
+from server.admin_models import ModelVersion, TrainJob
 from server.settings import Settings
 from tests.browser.conftest import axe_violations
 
@@ -181,3 +186,65 @@ def test_api_docs_render_offline(url, page, path, shown):
     assert [u for u in blocked if u != "https://cdn.redoc.ly/redoc/logo-mini.svg"] == []
     if path == "/docs":
         assert page.locator(".opblock").count() >= 15  # every operation listed
+
+
+def _worse_version(models, db_url: str) -> None:
+    """A published walker version that is worse on test and has an attribute no held-out pair measures."""
+    folder = models / "versions" / "walker-worse" / "walker"
+    folder.mkdir(parents=True)
+    for kind in ("ranker", "global_reward"):
+        for suffix in (".pt", ".json"):
+            shutil.copy(models / "walker" / f"{kind}-onehot{suffix}", folder)
+    ranker = json.loads((folder / "ranker-onehot.json").read_text())
+    ranker["attributes"].append({"name": "foot_lift", "description": "How high the feet lift.", "unit": "m"})
+    ranker["held_out"]["foot_lift"] = {"held_out_pair_accuracy": None, "held_out_pairs": 0}
+    (folder / "ranker-onehot.json").write_text(json.dumps(ranker))
+    reward = json.loads((folder / "global_reward-onehot.json").read_text())
+    reward["held_out"]["argmax_within_epsilon"] = 0.37
+    (folder / "global_reward-onehot.json").write_text(json.dumps(reward))
+    now = dt.datetime.now(dt.UTC)
+    engine = create_engine(db_url)
+    with Session(engine) as db:
+        db.add(ModelVersion(version="walker-worse", domain="walker", method="global", rep="onehot", job_id="0" * 32,
+                            attributes=["step_size", "softness", "foot_lift"], held_out={}))
+        db.add(TrainJob(domain="walker", method="global", rep="onehot", preset="default", datasets=[], state="running",
+                        stage="global_reward[onehot]", step=500, total=1000, created_at=now - dt.timedelta(seconds=100),
+                        updated_at=now, heartbeat_at=now))
+        db.commit()
+    engine.dispose()
+
+
+def test_activating_a_worse_version_asks_first_and_the_intro_follows(live_server, page, tmp_path):
+    models = tmp_path / "models"
+    shutil.copytree(REPO / "models", models, ignore=shutil.ignore_patterns("versions"))
+    db_url = f"sqlite:///{tmp_path}/rba.db"
+    url = live_server(Settings(data_dir=REPO / "data", models_dir=models, database_url=db_url, cache_dir=tmp_path / "c",
+                               warm_start=False, prerender=False, admin_token=TOKEN))
+    _worse_version(models, db_url)
+    unlock(page, url)
+    page.wait_for_function("() => document.querySelectorAll('#versions li').length === 2")
+    # one bar for the whole job: ζσ done (195 s of the shipped 978 s) and half of rθ, with an estimate
+    assert page.locator("#progress").get_attribute("aria-valuenow") == "60"
+    assert re.search(r"60 % done · about \d+ s left · global_reward\[onehot\] step 500/1000",
+                     page.locator("#job-detail").inner_text())
+    worse = page.locator("#versions li", has_text="walker-worse")
+    assert "serving now: builtin" in worse.inner_text()
+    assert page.eval_on_selector_all("#versions li:nth-child(2) tr.worse th", "t => t.map((x) => x.textContent)") == [
+        "pair accuracy · foot lift", "argmax within ε"]
+    page.get_by_role("button", name="Activate walker-worse").click()
+    dialog = page.locator("#confirm")
+    dialog.wait_for()
+    assert "argmax within ε: 0.370, below 0.925 of builtin" in dialog.inner_text()
+    assert "pair accuracy · foot lift: untested (no held-out pairs)" in dialog.inner_text()
+    page.screenshot(path=str(tmp_path / "admin-confirm.png"))
+    page.get_by_role("button", name="Keep the current one").click()
+    assert dialog.is_hidden()
+    assert page.evaluate("() => document.activeElement.textContent") == "Activate"  # back where it was
+    assert "✓ serving" in page.locator("#versions li:nth-child(1)").inner_text()  # builtin still serves
+
+    page.get_by_role("button", name="Activate walker-worse").click()
+    page.get_by_role("button", name="Activate anyway").click()
+    page.wait_for_function("() => document.querySelector('#versions li:nth-child(2) .serving') !== null")
+    assert "foot lift" in page.locator("#toast").inner_text()
+    page.goto(url)  # the user page's intro lists the active version's attributes
+    page.wait_for_function("() => document.body.innerText.includes('foot lift')", timeout=15_000)
