@@ -65,8 +65,8 @@ def scores(svc: Services, domain: str, method: str, rep: str, version: str) -> d
     for kind in kinds:
         held_out = (svc.catalog.card(domain, kind, rep, version) or {}).get("held_out") or {}
         out |= _pair_accuracies(held_out)
-        for _kind, keys, label in (h for h in HEADLINES if h[0] == kind):
-            value = _dig(held_out, keys)
+        for of, keys, label in HEADLINES:
+            value = _dig(held_out, keys) if of == kind else None
             if isinstance(value, int | float):
                 out[label] = float(value)
     return out
