@@ -12,6 +12,7 @@ per page; add a page to ``PAGES``.
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import socket
 import tempfile
@@ -29,6 +30,7 @@ RESULTS = REPO / "benchmarks" / "results"
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
                  "--disable-component-update", "--disable-sync", "--no-first-run"]
+ADMIN_TOKEN = "screenshots"
 LAPTOP = {"width": 1280, "height": 800}
 PHONE = {"width": 390, "height": 844}
 PLAYED = """(previous) => { const v = document.getElementById('video');
@@ -114,7 +116,36 @@ def user_page(browser, url: str, out: Path) -> list[Path]:
     return written
 
 
-PAGES: dict[str, Callable[[object, str, Path], list[Path]]] = {"user": user_page}
+BAD_LABELS = {"orderings": [{"attribute": "step_size", "clips": ["my_walk_1", "my_walk_2"]}]}  # clips it lacks
+
+
+def _admin_shot(browser, url: str, path: Path, viewport: dict) -> Path:
+    """The unlocked admin page once the pair has played and an upload was refused (the form lists the problems)."""
+    page = browser.new_page(viewport=viewport)
+    page.goto(f"{url}/admin")
+    page.fill("#token", ADMIN_TOKEN)
+    page.get_by_role("button", name="Unlock").click()
+    page.wait_for_function("() => document.getElementById('right-more').getAttribute('aria-disabled') === 'false'",
+                           timeout=120_000)
+    page.set_input_files("#upload-labels", {"name": "my-labels.json", "mimeType": "application/json",
+                                            "buffer": json.dumps(BAD_LABELS).encode()})
+    page.locator("#upload").click()
+    page.locator("#upload-result .refused").wait_for()
+    page.wait_for_function("() => document.querySelectorAll('#versions li').length > 0")
+    page.evaluate("() => { for (const v of document.querySelectorAll('#pair video')) v.currentTime = 1.5; }")
+    page.evaluate("() => window.scrollTo(0, 0)")  # a sticky top bar is drawn where the page was scrolled to
+    page.screenshot(path=str(path), full_page=True)
+    page.close()
+    return path
+
+
+def admin_page(browser, url: str, out: Path) -> list[Path]:
+    """The admin page at both widths."""
+    return [_admin_shot(browser, url, out / "screenshot-admin.png", LAPTOP),
+            _admin_shot(browser, url, out / "screenshot-admin-phone.png", PHONE)]
+
+
+PAGES: dict[str, Callable[[object, str, Path], list[Path]]] = {"user": user_page, "admin": admin_page}
 
 
 def main() -> None:
@@ -128,7 +159,7 @@ def main() -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="rba-shots-") as tmp, sync_playwright() as p:
         settings = Settings(data_dir=REPO / "data", models_dir=REPO / "models", database_url=f"sqlite:///{tmp}/rba.db",
-                            cache_dir=Path(tmp) / "clips", warm_start=False, prerender=True, admin_token="screenshots")
+                            cache_dir=Path(tmp) / "clips", warm_start=False, prerender=True, admin_token=ADMIN_TOKEN)
         browser = p.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
         try:
             with serve(settings) as url:

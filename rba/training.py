@@ -118,6 +118,11 @@ def argmax_match_rate(scorer: LibraryScorer, serve: SkillLibrary, target_zeta: n
     return float(np.mean(hits))
 
 
+def stage_name(kind: str, rep: str) -> str:
+    """The stage a trainer reports while it fits the ``kind`` model of ``rep`` (the server weighs stages by it)."""
+    return f"{kind}[{rep}]"
+
+
 def _progress(name: str, on_progress: StageProgress | None = None) -> Progress:
     def report(step: int, total: int, loss: float) -> None:
         log.info("%s step %d/%d loss %.4f", name, step, total, loss)
@@ -291,7 +296,7 @@ def train_global(domain_name: str, rep: str, cfg: GlobalTrainConfig | None = Non
     pool = _Pool(inputs.train, inputs.serve, sources)
     labels, held_out = _global_labels(inputs, pool, sources, cfg.ranker)
     (ranker, rstats), ranker_seconds = _timed(train_ranker, pool.data, labels, inputs.embed, cfg.ranker,
-                                              progress=_progress(f"ranker[{rep}]", on_progress))
+                                              progress=_progress(stage_name("ranker", rep), on_progress))
     rmetrics, test_zeta, pool_zeta = _ranker_metrics(ranker, inputs, pool, held_out)
     log.info("ranker[%s] held out: %s", rep, rmetrics)
     common = inputs.card(rep)
@@ -306,7 +311,7 @@ def train_global(domain_name: str, rep: str, cfg: GlobalTrainConfig | None = Non
                         "held_out": {"split": "test", "rollouts": len(inputs.test), **rmetrics}}, models_root)
     # rθ learns from ζσ labels only: every pooled trajectory (train, serve, uploaded), no proxies.
     (reward, gstats), reward_seconds = _timed(train_global_reward, pool.data, pool_zeta, cfg.reward,
-                                              progress=_progress(f"global_reward[{rep}]", on_progress))
+                                              progress=_progress(stage_name("global_reward", rep), on_progress))
     scorer = LibraryScorer(reward, Ragged.from_numpy(inputs.serve.states, inputs.serve.state_offsets))
     match = {p: argmax_match_rate(scorer, inputs.serve, test_zeta, inputs.test.proxies, inputs.domain.epsilons(p))
              for p in ("normal", "high")}
@@ -360,7 +365,7 @@ def train_local(domain_name: str, rep: str, cfg: LocalTrainConfig | None = None,
         pairs, data = pairs.concat(pool.local_pairs(sources, inputs.names)), pool.data
     log.info("local pairs: %s", pair_counts(pairs, inputs.names))
     (model, stats), seconds = _timed(train_local_reward, data, pairs, inputs.embed, cfg.reward,
-                                     progress=_progress(f"local_reward[{rep}]", on_progress))
+                                     progress=_progress(stage_name("local_reward", rep), on_progress))
     ranking, edits = _local_metrics(model, inputs, cfg, stats["near_copy_radius"])
     log.info("local_reward[%s] on test: %s; argmax over serve: %s", rep, ranking, edits)
     r = cfg.reward

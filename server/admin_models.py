@@ -232,6 +232,13 @@ class ModelVersion(ModelVersionBase, table=True):
 class VersionPublic(ModelVersionBase):
     active: bool
     created_at: dt.datetime | None = Field(description="none for the built-in models")
+    scores: dict[str, float | None] = Field(default_factory=dict, description=(
+        "headline held-out numbers from the model cards, higher is better; null: untested (no held-out pairs)"))
+    baseline: str | None = Field(default=None, description=(
+        "the version new sessions of this method/rep get now (null when it is this one)"))
+    baseline_scores: dict[str, float | None] = Field(default_factory=dict, description="the baseline's scores")
+    concerns: list[str] = Field(default_factory=list, description=(
+        "why activating this needs confirming: numbers below the baseline's, untested attributes"))
 
     _utc = field_validator("created_at")(lambda v: None if v is None else as_utc(v))
 
@@ -286,7 +293,10 @@ class TrainCreate(BaseModel):
 class JobPublic(TrainJobBase):
     id: str
     state: JobState
-    progress: float
+    progress: float = Field(description="share of the whole job done, 0-1 (stages weighted by how long the "
+                                        "shipped models took to fit); stage, step and total are the current stage's")
+    eta_seconds: float | None = Field(default=None, description="estimated seconds left (from the elapsed time); "
+                                                                "null when finished or too early to tell")
     created_at: dt.datetime
     updated_at: dt.datetime
 

@@ -62,6 +62,14 @@ class Catalog:
         card = load_json(models.card(domain, kind, rep))
         return list(card["attributes"])
 
+    def card(self, domain: str, kind: str, rep: str, version: str = BUILTIN_VERSION) -> dict | None:
+        """The model card of one artifact of ``version``; None when it has none (or it is unreadable)."""
+        try:
+            card = load_json(self.models(version).card(domain, kind, rep))
+        except (OSError, ValueError):
+            return None
+        return card if isinstance(card, dict) else None
+
     # -- availability ----------------------------------------------------------------------
     def has_library(self, domain: str) -> bool:
         return self.store.libraries.complete(domain, "serve")

@@ -16,7 +16,7 @@ from fastapi.staticfiles import StaticFiles
 from rba.compute import Compute
 from server import errors
 from server.prerender import warm_up
-from server.routes import admin_datasets, admin_labels, admin_training, clips, domains, interpret, sessions
+from server.routes import admin_datasets, admin_labels, admin_training, clips, docs, domains, interpret, sessions
 from server.services import Services
 from server.settings import Settings
 
@@ -47,10 +47,11 @@ def create_app(settings: Settings | None = None, compute: Compute | None = None)
         finally:
             svc.stop()
 
-    app = FastAPI(title="RBA Studio", version="0.1.0", lifespan=lifespan,
+    app = FastAPI(title="RBA Studio", version="0.1.0", lifespan=lifespan, docs_url=None, redoc_url=None,
                   description="Tune how an agent behaves by saying more / less of an attribute "
                               "(Relative Behavioral Attributes, ICLR 2023).")
     errors.install(app)
+    docs.install(app)  # /docs and /redoc on the app's own copies of their scripts: no CDN
     for router in (domains.router, interpret.router, sessions.router, clips.router, admin_labels.router,
                    admin_datasets.router, admin_training.router):
         app.include_router(router)

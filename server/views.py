@@ -159,10 +159,13 @@ def domains_public(svc: Services, db: Session) -> DomainsPublic:
         domain = svc.catalog.domain(name)
         pairs = dict.fromkeys(svc.catalog.available(name))  # the shipped models, then the active version's
         active = active_version(db, name)
-        if active != BUILTIN_VERSION:
-            pairs |= dict.fromkeys(svc.catalog.available(name, active))
+        specs = None  # the domain's own attributes, unless the active version's models learnt others
+        if active != BUILTIN_VERSION and (served := svc.catalog.available(name, active)):
+            pairs |= dict.fromkeys(served)
+            specs = svc.catalog.card_attributes(name, *served[0], active)
         available = [MethodPublic(method=m, rep=r) for m, r in pairs]
-        domains.append(DomainPublic(name=name, attributes=attributes_public(domain), frame_rate=domain.frame_rate,
+        domains.append(DomainPublic(name=name, attributes=attributes_public(domain, specs=specs),
+                                    frame_rate=domain.frame_rate,
                                     available=available, missing=svc.catalog.missing_reason(name)))
     return DomainsPublic(domains=domains, methods=list(attribute_methods()), reps=list(REPRESENTATIONS),
                          trainable=[TrainablePublic(method=m.name, label=m.label, presets=list(m.presets))

@@ -27,13 +27,14 @@ def start_training(body: TrainCreate, svc: ServicesDep, db: DbDep) -> JobPublic:
 
 
 @router.get("/jobs", response_model=list[JobPublic], summary="Training jobs, newest first")
-def list_jobs(db: DbDep, domain: str | None = None) -> list[JobPublic]:
-    return training.list_jobs(db, domain)
+def list_jobs(svc: ServicesDep, db: DbDep, domain: str | None = None) -> list[JobPublic]:
+    return training.list_jobs(svc, db, domain)
 
 
-@router.get("/jobs/{job_id}", response_model=JobPublic, summary="A job: state, stage, step, loss, held-out numbers")
-def read_job(job_id: JobId, db: DbDep) -> JobPublic:
-    return training.job_public(training.load_job(db, job_id))
+@router.get("/jobs/{job_id}", response_model=JobPublic,
+            summary="A job: state, stage, step, loss, progress, time left, held-out numbers")
+def read_job(job_id: JobId, svc: ServicesDep, db: DbDep) -> JobPublic:
+    return training.job_public(svc, training.load_job(db, job_id))
 
 
 @router.post("/jobs/{job_id}/cancel", response_model=JobPublic, summary="Stop a job; nothing it made is kept")
