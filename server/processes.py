@@ -120,21 +120,22 @@ class ProcessRecord:
             return None
 
     def kill(self, timeout: float = 5.0) -> bool:
-        """Kill the recorded process and its group if it still runs here; True if it was running."""
+        """Kill the recorded process and its group if it is still here; True if it was running (not a zombie)."""
         if self.host != socket.gethostname():
             return False
         try:
             proc = psutil.Process(self.pid)
             if abs(proc.create_time() - self.started) > START_TIME_SLACK:
                 return False  # the pid was reused
-            if os.getpgid(self.pid) == self.pid:
+            running = proc.status() != psutil.STATUS_ZOMBIE
+            if os.getpgid(self.pid) == self.pid:  # a zombie leader's group may still have live members
                 os.killpg(self.pid, signal.SIGKILL)
             else:
                 proc.kill()
         except (psutil.NoSuchProcess, ProcessLookupError):
             return False
         _wait_gone(proc, timeout)
-        return True
+        return running
 
 
 def _wait_gone(proc: psutil.Process, timeout: float) -> None:
