@@ -27,7 +27,7 @@ from tests.server.test_serve import REPO, free_port
 TOKEN = "crash-test-token"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
 SERVE = "from rba.domains import register; register('toy', 'tests.toy:Toy'); from server.main import run; run()"
-START_SECONDS = 40  # a busy 2-core machine imports torch slowly
+START_SECONDS = 120  # a limit, not the usual: a start takes ~5 s of CPU, far longer on a crowded machine
 
 
 class Server:
@@ -188,17 +188,15 @@ def test_kill_during_training_kills_the_job_and_a_restart_fails_it_and_sweeps(se
         r = c.post("/api/admin/train", headers=AUTH, json={"domain": "toy", "preset": "default"})
         assert r.status_code == 202, r.text
         job_id = r.json()["id"]
-        # past ζσ (saved into the staging folder), training rθ: the kill lands mid-run
-        job = wait_job(c, job_id, lambda j: j["stage"].startswith("global_reward") or j["state"] != "running", 90)
-        assert job["state"] == "running" and job["stage"].startswith("global_reward"), job
+        job = wait_job(c, job_id, lambda j: j["step"] > 0 or j["state"] != "queued", 120)
+        assert job["state"] == "running" and job["step"] > 0, job  # training: the kill lands mid-run
     children = server.descendants()
     assert any("spawn_main" in " ".join(p.cmdline()) for p in children), [p.cmdline() for p in children]
-    assert (versions / f".tmp-{job_id}" / "toy" / "ranker-onehot.pt").is_file()
     server.kill()
     left = gone(children, 5)
     assert not left, [(p.pid, p.cmdline()) for p in left]
 
-    (versions / ".tmp-0123456789abcdef").mkdir()  # a staging folder of a job the database never knew
+    (versions / ".tmp-0123456789abcdef").mkdir(parents=True)  # a staging folder of a job the database never knew
     server.start()
     with httpx.Client(base_url=server.url, timeout=10) as c:
         job = c.get(f"/api/admin/jobs/{job_id}", headers=AUTH).json()
