@@ -214,6 +214,16 @@ class Store:
         folder = self.data_dir / "jobs"
         return sorted(p.stem for p in folder.glob("*.json")) if folder.is_dir() else []
 
+    def sweep_job_records(self, older_than: float) -> int:
+        """Remove half-written process records a crash left (older than ``older_than`` seconds); how many."""
+        cutoff, removed = time.time() - older_than, 0
+        for tmp in (self.data_dir / "jobs").glob(".*.tmp"):
+            with contextlib.suppress(OSError):
+                if tmp.stat().st_mtime < cutoff:
+                    tmp.unlink()
+                    removed += 1
+        return removed
+
     def uploads(self, domain: str) -> UploadFiles:
         return UploadFiles(self.data_dir / "uploads" / domain)
 

@@ -45,6 +45,7 @@ from server.settings import Settings
 log = logging.getLogger(__name__)
 LOG_LINES = 40  # lines of the child's log kept in the job row
 STOP_SECONDS = 10.0  # how long a stopping server waits for its cancelled jobs' processes
+RECORD_WRITE_SECONDS = 60.0  # a process record's temporary file older than this was left by a crash
 
 
 def update_job(engine, job_id: str, *where, **changes) -> bool:
@@ -130,6 +131,7 @@ class JobRunner:
         for job_id in sorted((set(staged) | set(recorded)) - live):
             log.warning("job %s: no server runs it; removing what it left", job_id)
             self._remove_leftovers(job_id)
+        self.store.sweep_job_records(older_than=RECORD_WRITE_SECONDS)
 
     def _remove_leftovers(self, job_id: str) -> None:
         """Kill the job's recorded process (if it still runs on this machine), then remove its files."""
