@@ -56,6 +56,7 @@ class Server:
                     return
             except httpx.TransportError:
                 time.sleep(0.2)
+        self.stop()
         raise AssertionError(f"the server did not start in {START_SECONDS} s:\n{self.log.read_text()[-3000:]}")
 
     def descendants(self) -> list[psutil.Process]:
@@ -84,9 +85,11 @@ def server(toy_roots, tmp_path_factory) -> Iterator[Server]:
     shutil.copytree(data, root / "data")
     shutil.copytree(models, root / "models")
     s = Server(root)
-    s.start()
-    yield s
-    s.stop()
+    try:
+        s.start()
+        yield s
+    finally:
+        s.stop()
 
 
 def gone(procs: list[psutil.Process], timeout: float) -> list[psutil.Process]:
