@@ -13,6 +13,7 @@ Layout (all absolute)::
     <models>/<domain>/<kind>-<rep>.{pt,json}     shipped models (weights + card)
     <models>/versions/<version>/<domain>/...     models a retraining job published
     <models>/versions/.tmp-<job>/                what a running job writes (renamed when it succeeds)
+    <data>/jobs/<job>.json                       which process runs a job (a restart kills an orphan)
     <cache>/<domain>/<version>-<digest>-<w>x<h>.mp4  rendered clips (default <data>/cache/clips)
 """
 
@@ -38,6 +39,7 @@ if TYPE_CHECKING:
 T = TypeVar("T")
 _SAFE = re.compile(r"^[a-z0-9_]{1,64}$")
 _HEX = re.compile(r"^[0-9a-f]{1,64}$")
+STAGING_PREFIX = ".tmp-"  # a training job's folder under versions/ until it is published
 TEMP_GLOB = "*/.*.tmp"  # what ``write_atomic`` leaves behind when a process dies mid-write
 CLAIM_GLOB = "*/.*.claim"  # a guessed render in progress (``ClipStore.claim``)
 _UPLOAD_FILE = re.compile(r"^\.?([0-9a-f]{16,64})\.(?:npz|json|lock|(?:npz|json)\.[^/]+\.tmp)$")
@@ -207,13 +209,41 @@ class Store:
 
     def staging(self, job_id: str) -> Path:
         """Where a running job writes its models; only ``publish`` makes them a version."""
-        return self.versions_dir / f".tmp-{job_id}"
+        return self.versions_dir / f"{STAGING_PREFIX}{job_id}"
+
+    def staged_jobs(self) -> list[str]:
+        """The jobs that have a staging folder (running ones, or what a crash left)."""
+        found = self.versions_dir.glob(f"{STAGING_PREFIX}*") if self.versions_dir.is_dir() else []
+        return sorted(p.name.removeprefix(STAGING_PREFIX) for p in found if p.is_dir())
 
     def publish(self, job_id: str, version: str) -> None:
         os.replace(self.staging(job_id), self.versions_dir / version)
 
+    def unpublish(self, version: str) -> None:
+        """Remove a version whose job could not record it (nothing refers to it)."""
+        shutil.rmtree(self.versions_dir / version, ignore_errors=True)
+
     def discard(self, job_id: str) -> None:
         shutil.rmtree(self.staging(job_id), ignore_errors=True)
+
+    def job_record(self, job_id: str) -> Path:
+        """Which process runs the job (``server.processes.ProcessRecord``), while it runs."""
+        return self.data_dir / "jobs" / f"{job_id}.json"
+
+    def recorded_jobs(self) -> list[str]:
+        """The jobs that have a process record."""
+        folder = self.data_dir / "jobs"
+        return sorted(p.stem for p in folder.glob("*.json")) if folder.is_dir() else []
+
+    def sweep_job_records(self, older_than: float) -> int:
+        """Remove half-written process records a crash left (older than ``older_than`` seconds); how many."""
+        cutoff, removed = time.time() - older_than, 0
+        for tmp in (self.data_dir / "jobs").glob(".*.tmp"):
+            with contextlib.suppress(OSError):
+                if tmp.stat().st_mtime < cutoff:
+                    tmp.unlink()
+                    removed += 1
+        return removed
 
     def uploads(self, domain: str) -> UploadFiles:
         return UploadFiles(self.uploads_dir / domain)

@@ -4,7 +4,8 @@ Import direction (no cycles, function-level imports included), lowest first:
 
 1. tables, rules and tools: ``settings``, ``errors``, ``feedback``, ``models``, ``admin_models``,
    ``db`` (and its ``migrations``), ``uploads``, ``transitions``, ``background``, ``prefetch``, ``catalog``;
-   ``labeldata`` (stored label data) and ``jobs`` (training processes, which read ``labeldata``); the clip cache and the
+   ``labeldata`` (stored label data), ``processes`` (job processes that die with their server) and ``jobs``
+   (training processes, which read ``labeldata`` and use ``processes``); the clip cache and the
    per-key locks are the library's (``rba.clips``, ``rba.locks``), and so is the compute layer (``rba.compute``);
 2. this module, which holds those parts and imports nothing above it;
 3. operations that take a ``Services``: ``versions``, ``views``, ``prerender``, ``sessions``,
