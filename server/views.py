@@ -16,7 +16,6 @@ from rba.interact import SATISFIED
 from rba.library import LibraryNotFoundError
 from rba.methods import trainable
 from server.admin_models import BUILTIN_VERSION
-from server.catalog import attribute_methods
 from server.models import (
     AttributeChoice,
     AttributePublic,
@@ -30,6 +29,7 @@ from server.models import (
     SessionStatus,
     TrainablePublic,
     TuningSession,
+    attribute_methods,
 )
 from server.services import Services
 from server.versions import active_version
