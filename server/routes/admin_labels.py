@@ -37,6 +37,7 @@ def create_attribute(body: AttributeCreate, svc: ServicesDep, db: DbDep) -> Attr
 
 
 @router.post("/labels", status_code=201, response_model=LabelPublic,
+             responses=responses(404, said={404: "the domain has no skill library to label"}),
              summary="Save one label (an ordering, a comparison or a local change) as it is made")
 def create_label(body: LabelCreate, svc: ServicesDep, db: DbDep) -> LabelRecord:
     return labelling.add_label(svc, db, body)
