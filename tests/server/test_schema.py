@@ -23,25 +23,15 @@ from schemathesis.specs.openapi.checks import (
     status_code_conformance,
 )
 
-from rba.compute import Task
 from server.jobs import JobRunner
 from server.main import create_app
 from server.settings import Settings
-from tests.fakes import FakeCompute
+from tests.fakes import InstantCompute
 
 TOKEN = "schema-admin-token"
 CHECKS = [not_a_server_error, status_code_conformance, content_type_conformance, response_headers_conformance,
           response_schema_conformance, negative_data_rejection]
 EXAMPLES = settings(max_examples=12, deadline=None, database=None, suppress_health_check=list(HealthCheck))
-
-
-class InstantCompute(FakeCompute):
-    """Every render is done at once (a few bytes stand for the MP4): fuzzing never waits for a render."""
-
-    def render(self, job, urgent: bool = True) -> Task:
-        task = super().render(job, urgent)
-        task.future.set_result(b"\x00\x00\x00\x18ftypmp42 not a real clip")
-        return task
 
 
 @pytest.fixture(scope="module")
