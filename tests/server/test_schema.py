@@ -1,8 +1,9 @@
 """The OpenAPI document is true: schemathesis fuzzes the app in-process, with and without the admin token.
 
 Every response must be documented (status, content type, headers, body schema), no request may cause
-a 5xx, and data the document calls invalid must be refused. Bounded: a few examples per operation, on
-the toy pipeline; renders complete at once and training jobs are recorded, never started.
+a 5xx, data the document calls invalid must be refused, and a method a path does not take is a 405.
+Bounded: a few examples per operation, on the toy pipeline; renders complete at once and training jobs
+are recorded, never started.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from schemathesis.specs.openapi.checks import (
     response_headers_conformance,
     response_schema_conformance,
     status_code_conformance,
+    unsupported_method,
 )
 
 from server.jobs import JobRunner
@@ -30,7 +32,7 @@ from tests.fakes import InstantCompute
 
 TOKEN = "schema-admin-token"
 CHECKS = [not_a_server_error, status_code_conformance, content_type_conformance, response_headers_conformance,
-          response_schema_conformance, negative_data_rejection]
+          response_schema_conformance, negative_data_rejection, unsupported_method]
 EXAMPLES = settings(max_examples=12, deadline=None, database=None, suppress_health_check=list(HealthCheck))
 
 
