@@ -54,7 +54,8 @@ def create_app(settings: Settings | None = None, compute: Compute | None = None)
                   description="Tune how an agent behaves by saying more / less of an attribute "
                               "(Relative Behavioral Attributes, ICLR 2023).")
     errors.install(app)
-    # Outermost first: the admin token before anything reads a body, then the body cap (the upload has its own).
+    # The last added runs first: the admin token before anything reads a body, then the body cap (the upload
+    # streams under its own limit).
     upload = ("POST", admin_datasets.router.prefix)
     app.add_middleware(BodyLimit, limit=settings.json_max_bytes, exempt=frozenset({upload}))
     app.add_middleware(AdminGate, token=settings.admin_token,
