@@ -9,12 +9,15 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
 
-from fastapi import FastAPI, HTTPException
+from fastapi import FastAPI
 from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
 
 from rba.compute import Compute
 from server import errors
+from server.admin_models import DatasetUpload
+from server.auth import AdminGate, FailureLimiter
+from server.limits import BodyLimit
 from server.prerender import warm_up
 from server.routes import admin_datasets, admin_labels, admin_training, clips, docs, domains, interpret, sessions
 from server.services import Services
@@ -52,13 +55,16 @@ def create_app(settings: Settings | None = None, compute: Compute | None = None)
                               "(Relative Behavioral Attributes, ICLR 2023).")
     errors.install(app)
     docs.install(app)  # /docs and /redoc on the app's own copies of their scripts: no CDN
+    # The last added runs first: the admin token before anything reads a body, then the body cap (the upload
+    # streams under its own limit).
+    upload = ("POST", admin_datasets.router.prefix)
+    app.add_middleware(BodyLimit, limit=settings.json_max_bytes, exempt=frozenset({upload}))
+    app.add_middleware(AdminGate, token=settings.admin_token,
+                       failures=FailureLimiter(settings.admin_failures_per_minute))
     for router in (domains.router, interpret.router, sessions.router, clips.router, admin_labels.router,
                    admin_datasets.router, admin_training.router):
         app.include_router(router)
-
-    @app.api_route("/api/{rest:path}", methods=["GET", "POST", "PUT", "PATCH", "DELETE"], include_in_schema=False)
-    def unknown_api(rest: str) -> None:
-        raise HTTPException(404, f"no API route /api/{rest}; see /docs for the routes")
+    _document_upload_form(app)
 
     @app.get("/healthz", include_in_schema=False)
     def healthz() -> dict[str, str]:
@@ -80,6 +86,19 @@ def create_app(settings: Settings | None = None, compute: Compute | None = None)
 
     app.mount("/static", StaticFiles(directory=FRONTEND), name="static")
     return app
+
+
+def _document_upload_form(app: FastAPI) -> None:
+    """Add the upload's form (which its route parses itself) to the OpenAPI document when it is first made."""
+    make = app.openapi
+
+    def openapi() -> dict:
+        if app.openapi_schema is None:
+            schemas = make().setdefault("components", {}).setdefault("schemas", {})
+            schemas["DatasetUpload"] = DatasetUpload.model_json_schema(ref_template="#/components/schemas/{model}")
+        return app.openapi_schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
 
 
 def run(host: str | None = None, port: int | None = None, ray_address: str | None = None) -> None:

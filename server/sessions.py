@@ -18,7 +18,6 @@ from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session
 
 from rba.interact import SATISFIED, Feedback
-from server.admin_models import BUILTIN_VERSION
 from server.errors import conflict, invalid, not_found
 from server.feedback import parse_feedback
 from server.models import (
@@ -46,10 +45,7 @@ def load_session(db: Session, session_id: str) -> TuningSession:
 
 
 def create_session(svc: Services, db: Session, body: SessionCreate) -> SessionPublic:
-    if body.domain in svc.catalog.names():
-        version = serving_version(svc, db, body.domain, body.method, body.rep)
-    else:
-        version = BUILTIN_VERSION
+    version = serving_version(svc, db, body.domain, body.method, body.rep)
     svc.catalog.check_available(body.domain, body.method, body.rep, version)
     ctx = svc.catalog.context(body.domain, body.method, body.rep, version)
     rollout_id, state = svc.transitions.first(ctx, body.method)

@@ -19,7 +19,6 @@ from rba.interact import SATISFIED, restore_agent
 from rba.library import LibraryNotFoundError
 from rba.methods import trainable
 from server.admin_models import BUILTIN_VERSION
-from server.catalog import attribute_methods
 from server.errors import not_found
 from server.models import (
     AttributeChoice,
@@ -37,6 +36,7 @@ from server.models import (
     TargetRange,
     TrainablePublic,
     TuningSession,
+    attribute_methods,
 )
 from server.services import Services
 from server.versions import active_version

@@ -334,7 +334,7 @@ def test_train_request_errors(admin):
     r = admin.post("/api/admin/train", headers=AUTH, json={"domain": "toy", "datasets": ["missing"]})
     assert r.status_code == 422 and "no dataset 'missing' for toy; uploaded: none" in r.json()["detail"]
     r = admin.post("/api/admin/train", headers=AUTH, json={"domain": "toy", "method": "magic"})
-    assert r.status_code == 422 and "method: Input should be 'global' or 'local'" in r.json()["detail"]
+    assert r.status_code == 422 and "method: unknown method 'magic'; valid: global, local" in r.json()["detail"]
     r = admin.get("/api/admin/jobs/nope", headers=AUTH)
     assert r.status_code == 404 and "no training job 'nope'" in r.json()["detail"]
     assert admin.get("/api/admin/jobs", headers=AUTH).json() == []

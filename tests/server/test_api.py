@@ -220,7 +220,6 @@ def test_clip_is_an_mp4_with_etag_and_ranges(client, session):
     ("/api/clips/toy/..%5C..%5Cetc%5Cpasswd.mp4", r"unknown rollout id '..\\..\\etc\\passwd' in toy/serve"),
     ("/api/clips/toy/..%2F..%2Fetc%2Fpasswd.mp4", "no API route /api/clips/toy/../../etc/passwd.mp4"),
     ("/api/clips/toy/train-00001.mp4", "unknown rollout id 'train-00001' in toy/serve"),
-    ("/api/clips/atlantis/serve-00001.mp4", "unknown domain 'atlantis'; valid: walker, lane_change"),
     ("/api/clips/walker/serve-00001.mp4", "no serve library for 'walker'"),
 ])
 def test_unknown_clips_are_404(client, path, message):
@@ -241,7 +240,13 @@ def test_clip_status_says_ready_once_rendered_and_404s_unknown_clips(client, ses
     assert r.status_code == 404
     assert r.json()["detail"] == "unknown rollout id 'serve-99999' in toy/serve; ids look like serve-00000"
     r = client.get("/api/clips/atlantis/serve-00001/status")
-    assert r.status_code == 404 and "unknown domain 'atlantis'" in r.json()["detail"]
+    assert r.status_code == 422 and "domain: unknown domain 'atlantis'; valid: walker" in r.json()["detail"]
+
+
+def test_clip_of_an_unknown_domain_is_422_naming_the_domains(client):
+    r = client.get("/api/clips/atlantis/serve-00001.mp4")
+    assert r.status_code == 422
+    assert "domain: unknown domain 'atlantis'; valid: walker, lane_change" in r.json()["detail"]
 
 
 # -- the rest of the app -----------------------------------------------------------------------
