@@ -9,7 +9,7 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
 
-from fastapi import FastAPI
+from fastapi import Depends, FastAPI
 from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
 
@@ -17,6 +17,7 @@ from rba.compute import Compute
 from server import errors
 from server.admin_models import DatasetUpload
 from server.auth import AdminGate, FailureLimiter
+from server.deps import known_query
 from server.limits import BodyLimit
 from server.prerender import warm_up
 from server.routes import admin_datasets, admin_labels, admin_training, clips, docs, domains, interpret, sessions
@@ -51,6 +52,7 @@ def create_app(settings: Settings | None = None, compute: Compute | None = None)
             svc.stop()
 
     app = FastAPI(title="RBA Studio", version="0.1.0", lifespan=lifespan, docs_url=None, redoc_url=None,
+                  dependencies=[Depends(known_query)],
                   description="Tune how an agent behaves by saying more / less of an attribute "
                               "(Relative Behavioral Attributes, ICLR 2023).")
     errors.install(app)

@@ -10,6 +10,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 from rba.interpret import MAX_TEXT, Understood
 from server import interpreting
 from server.deps import ServicesDep
+from server.errors import responses
 
 router = APIRouter(prefix="/api/domains", tags=["interpret"])
 
@@ -56,8 +57,9 @@ class InterpretPublic(BaseModel):
                    confidence=round(understood.confidence, 3))
 
 
-ERRORS = {404: {"description": "unknown domain: the message lists the valid ones"},
-          422: {"description": "empty or too long text, or not understood: the message lists the attributes"}}
+ERRORS = responses(404, 413, 422, said={
+    404: "unknown domain: the message lists the valid ones",
+    422: "empty or too long text, or not understood: the message lists the attributes"})
 
 
 @router.post("/{domain}/interpret", response_model=InterpretPublic, responses=ERRORS,

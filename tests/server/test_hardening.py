@@ -174,6 +174,16 @@ def test_request_bodies_are_strict_and_name_the_valid_values(client, path, body,
 
 # -- the JSON cap ---------------------------------------------------------------------------------
 
+@pytest.mark.parametrize(("path", "headers", "message"), [
+    ("/api/domains?x=1", {}, "unknown query parameter(s) 'x'; valid: none"),
+    ("/api/admin/datasets?domian=toy", AUTH, "unknown query parameter(s) 'domian'; valid: domain"),
+])
+def test_unknown_query_parameters_are_422_naming_the_valid_ones(client, path, headers, message):
+    r = client.get(path, headers=headers)
+    assert r.status_code == 422 and r.json()["detail"] == message
+    assert client.get("/api/admin/datasets?domain=toy", headers=AUTH).status_code == 200
+
+
 def test_a_declared_body_over_the_cap_is_413_unread(client):
     status, body, consumed, _ = call(client, "POST", "/api/sessions",
                                      {"content-type": "application/json", "content-length": str(CAP + 1)},
