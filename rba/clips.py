@@ -55,7 +55,6 @@ class ClipStatus:
     state: str  # "ready" (stored), "queued" (waiting for a worker), "rendering", or "absent" (nobody asked yet)
     elapsed: float | None = None  # seconds since the render was submitted
     typical: float | None = None  # mean seconds of this domain's renders in this process (None before the first)
-    urgent: bool = False  # a person asked for it (else it is a guess)
 
 
 @dataclass
@@ -113,7 +112,7 @@ class ClipCache:
             return ClipStatus("ready" if self.store.exists(key) else "absent", typical=typical)
         running = render.task.running
         state = "rendering" if running is None or running() else "queued"
-        return ClipStatus(state, time.perf_counter() - render.started, typical, render.urgent)
+        return ClipStatus(state, time.perf_counter() - render.started, typical)
 
     def wait_idle(self, timeout: float) -> bool:
         """True once no render of this cache is in flight (tests and benchmarks use it)."""

@@ -18,16 +18,28 @@ def _atomic_target(path: Path) -> tuple[int, str]:
 
 
 def write_atomic(path: Path, write) -> None:
-    """Call ``write(tmp_path)`` then rename over ``path``: readers never see half a file."""
+    """Call ``write(tmp_path)`` then rename over ``path``: readers never see half a file. The bytes and the
+    rename reach the disk before this returns, so a row committed afterwards never names a file a power
+    cut took away."""
     fd, tmp = _atomic_target(path)
     os.close(fd)
     try:
         write(tmp)
         os.chmod(tmp, 0o644)  # mkstemp makes 0600; artifacts are meant to be read by others (e.g. a container)
+        _fsync(tmp)
         os.replace(tmp, path)
+        _fsync(path.parent)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def _fsync(path: Path | str) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
 
 def save_text(path: Path, text: str) -> None:

@@ -216,6 +216,11 @@ class Store:
         found = self.versions_dir.glob(f"{STAGING_PREFIX}*") if self.versions_dir.is_dir() else []
         return sorted(p.name.removeprefix(STAGING_PREFIX) for p in found if p.is_dir())
 
+    def published(self) -> list[str]:
+        """The version folders (published by a job; whether a row names each is the server's to know)."""
+        found = self.versions_dir.iterdir() if self.versions_dir.is_dir() else []
+        return sorted(p.name for p in found if p.is_dir() and not p.name.startswith(STAGING_PREFIX))
+
     def publish(self, job_id: str, version: str) -> None:
         os.replace(self.staging(job_id), self.versions_dir / version)
 

@@ -30,7 +30,7 @@ DbDep = Annotated[Session, Depends(get_db)]
 
 def known_query(request: Request) -> None:
     """Unknown query parameters are a 422, as unknown body fields are: a misspelt ``?domian=`` must not be
-    silently ignored (every route gets this through the app's dependencies)."""
+    silently ignored (every API router gets this where the app includes it)."""
     route = request.scope.get("route")
     if route is None or not request.query_params:
         return

@@ -8,7 +8,7 @@ from server.services import Services
 
 
 def interpret(svc: Services, domain: str, text: str) -> Understood:
-    """What ``text`` asks of ``domain``'s attributes; 404 for an unknown domain, 422 when nothing is close enough.
+    """What ``text`` asks of ``domain``'s attributes; 422 when nothing is close enough (the route checks the domain).
 
     The first call per domain loads the sentence model (once per process) and embeds the domain's anchors.
     """

@@ -26,6 +26,7 @@ import datetime as dt
 import logging
 import multiprocessing
 import os
+import re
 import socket
 import threading
 import time
@@ -43,6 +44,7 @@ from server.processes import Launcher, ProcessRecord, tie_to_parent
 from server.settings import Settings
 
 log = logging.getLogger(__name__)
+JOB_VERSION = re.compile(r".+-\d{8}-\d{6}-(?P<job>[0-9a-f]{6})")  # how a job names the version it publishes
 LOG_LINES = 40  # lines of the child's log kept in the job row
 STOP_SECONDS = 10.0  # how long a stopping server waits for its cancelled jobs' processes
 RECORD_WRITE_SECONDS = 60.0  # a process record's temporary file older than this was left by a crash
@@ -125,12 +127,18 @@ class JobRunner:
         The folders are listed before the live jobs are read: a job's row is written before its folder,
         so a job starting meanwhile is seen as live.
         """
-        staged, recorded = self.store.staged_jobs(), self.store.recorded_jobs()
+        staged, recorded, published = self.store.staged_jobs(), self.store.recorded_jobs(), self.store.published()
         with Session(self.engine) as db:
             live = set(db.exec(select(TrainJob.id).where(TrainJob.busy_domain.is_not(None))).all())  # type: ignore[union-attr]
+            versions = set(db.exec(select(ModelVersion.version)).all())
         for job_id in sorted((set(staged) | set(recorded)) - live):
             log.warning("job %s: no server runs it; removing what it left", job_id)
             self._remove_leftovers(job_id)
+        for version in published:  # renamed into place, then killed before its row was committed
+            made = JOB_VERSION.fullmatch(version)  # a job's name for it: folders put there by hand are not ours
+            if made and version not in versions and not any(job.startswith(made["job"]) for job in live):
+                log.warning("version %s: no row names it (its job died while recording it); removing it", version)
+                self.store.unpublish(version)
         self.store.sweep_job_records(older_than=RECORD_WRITE_SECONDS)
 
     def _remove_leftovers(self, job_id: str) -> None:
@@ -149,7 +157,7 @@ class JobRunner:
             try:
                 self.heartbeat()
                 self.reap()
-            except SQLAlchemyError:  # the database may be restarting: try again at the next beat
+            except Exception:  # the database may be restarting, a process may be gone: try again at the next beat
                 log.exception("training job heartbeat failed")
 
     def heartbeat(self) -> None:
@@ -182,7 +190,12 @@ class JobRunner:
         proc = ctx.Process(target=run_job, args=(job_id, self.owner, os.getpid(), self.settings.model_dump(mode="json"),
                                                  registry, method_registry),
                            name=f"rba-train-{job_id[:8]}", daemon=True)
-        self._launcher.start(proc)
+        try:
+            self._launcher.start(proc)
+        except Exception as exc:  # no process: release the domain at once rather than when the heartbeat goes stale
+            update_job(self.engine, job_id, state=JobState.failed.value,
+                       error=f"the training process could not start: {type(exc).__name__}: {exc}")
+            raise
         with self._lock:
             self._procs[job_id] = proc
         with contextlib.suppress(psutil.NoSuchProcess):  # it ended already: the watch below records how
@@ -300,7 +313,7 @@ def _train_and_publish(engine, store: Store, settings: Settings, job_id: str, mi
     metrics = methods.get_method(method).trainer(domain, rep, preset, data_root=store.data_dir,
                                                  models_root=store.staging(job_id), sources=sources,
                                                  on_progress=progress)
-    version = f"{domain}-{dt.datetime.now(dt.UTC):%Y%m%d-%H%M%S}-{job_id[:6]}"
+    version = f"{domain}-{dt.datetime.now(dt.UTC):%Y%m%d-%H%M%S}-{job_id[:6]}"  # matches JOB_VERSION
     store.publish(job_id, version)
     try:
         _record_success(engine, settings, job_id, mine, version, metrics, "\n".join(tail.lines))

@@ -52,7 +52,6 @@ def create_app(settings: Settings | None = None, compute: Compute | None = None)
             svc.stop()
 
     app = FastAPI(title="RBA Studio", version="0.1.0", lifespan=lifespan, docs_url=None, redoc_url=None,
-                  dependencies=[Depends(known_query)],
                   description="Tune how an agent behaves by saying more / less of an attribute "
                               "(Relative Behavioral Attributes, ICLR 2023).")
     errors.install(app)
@@ -65,7 +64,7 @@ def create_app(settings: Settings | None = None, compute: Compute | None = None)
                        failures=FailureLimiter(settings.admin_failures_per_minute))
     for router in (domains.router, interpret.router, sessions.router, clips.router, admin_labels.router,
                    admin_datasets.router, admin_training.router):
-        app.include_router(router)
+        app.include_router(router, dependencies=[Depends(known_query)])  # the API's, not the pages' (?utm_… is fine)
     _document_upload_form(app)
 
     @app.get("/healthz", include_in_schema=False)

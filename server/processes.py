@@ -134,6 +134,9 @@ class ProcessRecord:
                 proc.kill()
         except (psutil.NoSuchProcess, ProcessLookupError):
             return False
+        except (psutil.Error, OSError) as exc:  # not ours to kill (another user's pid): leave it, say so
+            log.warning("could not kill process %d: %s", self.pid, exc)
+            return False
         _wait_gone(proc, timeout)
         return running
 

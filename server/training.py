@@ -9,6 +9,7 @@ from __future__ import annotations
 import datetime as dt
 import statistics
 
+from fastapi import HTTPException
 from sqlmodel import Session, select
 
 from rba.methods import UnknownMethodError, get_method
@@ -99,7 +100,11 @@ def start_job(svc: Services, db: Session, body: TrainCreate) -> JobPublic:
 
     commit_or_conflict(db, busy)
     db.refresh(job)
-    svc.jobs.start(job.id)
+    try:
+        svc.jobs.start(job.id)  # on failure it marks the job failed, so the domain is free again
+    except Exception as exc:
+        raise HTTPException(503, f"the training process could not start ({type(exc).__name__}: {exc}); "
+                                 "the job is marked failed: try again") from exc
     return job_public(svc, job)
 
 

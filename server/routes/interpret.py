@@ -5,22 +5,20 @@ from __future__ import annotations
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Path
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, Field, field_validator
 
 from rba.interpret import MAX_TEXT, Understood
 from server import interpreting
 from server.deps import ServicesDep
 from server.errors import responses
+from server.models import STRICT_BODY, DomainName
 
 router = APIRouter(prefix="/api/domains", tags=["interpret"])
-
-DomainName = Annotated[str, Path(description="a domain name from GET /api/domains", max_length=64)]
-
 
 class InterpretCreate(BaseModel):
     """Body: the sentence a person typed."""
 
-    model_config = ConfigDict(extra="forbid", strict=True)
+    model_config = STRICT_BODY
 
     text: str = Field(description=f"feedback in your own words, at most {MAX_TEXT} characters",
                       examples=["land more gently", "bigger but softer steps"])
@@ -36,7 +34,7 @@ class InterpretCreate(BaseModel):
 
 
 class InterpretedChoice(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True)
+    model_config = STRICT_BODY
 
     attribute: str = Field(description="an attribute name of the domain, e.g. softness")
     direction: Literal["more", "less"]
@@ -45,7 +43,7 @@ class InterpretedChoice(BaseModel):
 class InterpretPublic(BaseModel):
     """What the sentence was understood as: send ``feedback`` as the session's feedback once confirmed."""
 
-    model_config = ConfigDict(extra="forbid", strict=True)
+    model_config = STRICT_BODY
 
     feedback: list[InterpretedChoice] = Field(description="in the sentence's order; never empty")
     confidence: float = Field(ge=0.0, le=1.0, description="the least certain clause's score: cosine similarity "
@@ -57,12 +55,11 @@ class InterpretPublic(BaseModel):
                    confidence=round(understood.confidence, 3))
 
 
-ERRORS = responses(404, 413, 422, said={
-    404: "unknown domain: the message lists the valid ones",
-    422: "empty or too long text, or not understood: the message lists the attributes"})
+ERRORS = responses(413, 422, said={
+    422: "unknown domain, empty or too long text, or not understood: the message lists the valid names"})
 
 
 @router.post("/{domain}/interpret", response_model=InterpretPublic, responses=ERRORS,
              summary="Map a sentence of feedback to more/less of the domain's attributes")
-def interpret(domain: DomainName, body: InterpretCreate, svc: ServicesDep) -> InterpretPublic:
+def interpret(domain: Annotated[DomainName, Path()], body: InterpretCreate, svc: ServicesDep) -> InterpretPublic:
     return InterpretPublic.of(interpreting.interpret(svc, domain, body.text))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import threading
 from collections.abc import Callable, Iterator
 
 import pytest
@@ -69,3 +70,23 @@ def more(attribute: str, step: int, direction: str = "more", clip: str | None = 
     """A feedback body; with ``clip``, it names the clip it answers about (the page always does)."""
     body = {"step": step, "feedback": [{"attribute": attribute, "direction": direction}]}
     return body if clip is None else {**body, "clip": clip}
+
+
+def make_engines_together(database_url: str, n: int) -> tuple[list, list[Exception]]:
+    """``n`` replicas' ``make_engine`` started at once (each in a thread): their engines and errors."""
+    from server.db import make_engine
+
+    engines, errors = [], []
+
+    def start() -> None:
+        try:
+            engines.append(make_engine(database_url))
+        except Exception as exc:
+            errors.append(exc)
+
+    threads = [threading.Thread(target=start) for _ in range(n)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60)
+    return engines, errors

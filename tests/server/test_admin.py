@@ -407,3 +407,20 @@ def test_failed_job_changes_nothing_served(admin, settings):
     assert not versions.exists() or not any(versions.iterdir())
     s = admin.post("/api/sessions", json={"domain": "toy", "method": "global", "rep": "onehot"}).json()
     assert s["model_set"] == "builtin"
+
+
+def test_a_training_process_that_cannot_start_is_503_and_frees_the_domain(admin, monkeypatch):
+    jobs = admin.app.state.services.jobs
+
+    def refuse(proc) -> None:
+        raise OSError("no more processes")
+
+    monkeypatch.setattr(jobs._launcher, "start", refuse)
+    r = admin.post("/api/admin/train", headers=AUTH, json={"domain": "toy", "preset": "tiny"})
+    assert r.status_code == 503
+    assert r.json()["detail"] == ("the training process could not start (OSError: no more processes); "
+                                  "the job is marked failed: try again")
+    [job] = admin.get("/api/admin/jobs", headers=AUTH).json()
+    assert job["state"] == "failed" and "could not start: OSError: no more processes" in job["error"]
+    again = admin.post("/api/admin/train", headers=AUTH, json={"domain": "toy", "preset": "tiny"})
+    assert again.status_code == 503  # not 409: the failed job holds the domain no more

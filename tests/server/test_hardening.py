@@ -182,6 +182,7 @@ def test_unknown_query_parameters_are_422_naming_the_valid_ones(client, path, he
     r = client.get(path, headers=headers)
     assert r.status_code == 422 and r.json()["detail"] == message
     assert client.get("/api/admin/datasets?domain=toy", headers=AUTH).status_code == 200
+    assert client.get("/?utm_source=mail").status_code == 200  # the pages take any query string
 
 
 def test_a_declared_body_over_the_cap_is_413_unread(client):

@@ -229,6 +229,21 @@ def test_a_restart_kills_what_its_previous_process_left_and_sweeps_what_no_live_
     assert a.store.recorded_jobs() == [elsewhere]
 
 
+def test_a_restart_removes_a_published_version_no_row_names_unless_its_job_is_live(replica):
+    """Killed between renaming its folder into place and committing its row, a job leaves a version nobody lists."""
+    a = replica("a")
+    live = add_job(a, "walker", "b#11ve11ve", beat_age=1)  # replica b, recording its version right now
+    for name in ("toy-20260101-000000-dead00", f"walker-20260101-000000-{live[:6]}", "toy-20260101-000000-beef00",
+                 "toy-by-hand"):
+        (a.store.versions_dir / name).mkdir(parents=True)
+    with Session(a.engine) as db:
+        db.add(ModelVersion(version="toy-20260101-000000-beef00", domain="toy", method="global", rep="onehot",
+                            attributes=["pace"], held_out={}, job_id="beef00"))
+        db.commit()
+    replica("a").recover()
+    assert a.store.published() == ["toy-20260101-000000-beef00", "toy-by-hand", f"walker-20260101-000000-{live[:6]}"]
+
+
 def test_a_record_whose_pid_was_reused_kills_nothing(replica, sleepers):
     a = replica("a")
     job = add_job(a, "toy", "a#0ld0ld00", beat_age=1)
@@ -265,7 +280,11 @@ def test_a_training_process_whose_job_was_taken_stops_by_itself(replica, toy_roo
     assert row(a, job).state == "running" and row(a, job).step > 0, row(a, job)
     assert update_job(a.engine, job, state=JobState.failed.value, error="taken by another replica")
     taken = row(a, job)
-    proc.join(180)  # its next report is 50 steps on: a second or two, unless the machine is crowded
+    # Its next report is 50 steps on: a second or two, unless the machine is crowded. The server's watch thread
+    # joins the process too, and whichever thread reaps it first sets the exit code: poll it, do not join.
+    deadline = time.monotonic() + 180
+    while proc.exitcode is None and time.monotonic() < deadline:
+        time.sleep(0.1)
     assert proc.exitcode == 0  # it returned: no one killed it
     after = row(a, job)
     assert (after.state, after.error, after.step, after.updated_at) == ("failed", "taken by another replica",

@@ -7,7 +7,6 @@ migrations: ``create_all`` of the tables of the time, then hand-written ALTERs.
 from __future__ import annotations
 
 import datetime as dt
-import threading
 from typing import Any
 
 import pytest
@@ -39,7 +38,7 @@ from server.db import make_engine
 from server.main import create_app
 from server.migrations.__main__ import main as migrations_cli
 from server.models import FeedbackEvent, TuningSession, as_utc
-from tests.server.conftest import more
+from tests.server.conftest import make_engines_together, more
 
 HEAD = ScriptDirectory.from_config(migrations.config()).get_current_head()
 TOKEN = "migrati0n-token"
@@ -208,19 +207,7 @@ def test_replicas_adopting_one_old_database_together_all_start(database_url):
     old = create_engine(database_url)
     SQLModel.metadata.create_all(old)
     old.dispose()
-    engines, errors = [], []
-
-    def start() -> None:
-        try:
-            engines.append(make_engine(database_url))
-        except Exception as exc:
-            errors.append(exc)
-
-    threads = [threading.Thread(target=start) for _ in range(3)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join(60)
+    engines, errors = make_engines_together(database_url, 3)
     assert errors == [] and len(engines) == 3
     with engines[0].connect() as conn:
         assert conn.execute(text("SELECT version_num FROM alembic_version")).all() == [(HEAD,)]
