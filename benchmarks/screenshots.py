@@ -14,15 +14,11 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import socket
 import tempfile
-import threading
-import time
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from pathlib import Path
 
-from server.main import create_app
+from server.main import serve_in_thread
 from server.settings import Settings
 
 REPO = Path(__file__).resolve().parents[1]
@@ -37,29 +33,6 @@ PLAYED = """(previous) => { const v = document.getElementById('video');
   return Boolean(v.dataset.played) && v.dataset.played === v.dataset.rollout && v.dataset.rollout !== previous; }"""
 
 log = logging.getLogger("screenshots")
-
-
-@contextmanager
-def serve(settings: Settings) -> Iterator[str]:
-    """The app on a free loopback port in a thread; its base URL until the block ends."""
-    import uvicorn
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    server = uvicorn.Server(uvicorn.Config(create_app(settings), host="127.0.0.1", port=port, log_level="warning"))
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 30
-    while not server.started:
-        if time.monotonic() > deadline or not thread.is_alive():
-            raise RuntimeError("the server did not start within 30 s")
-        time.sleep(0.05)
-    try:
-        yield f"http://127.0.0.1:{port}"
-    finally:
-        server.should_exit = True
-        thread.join(30)
 
 
 def _answer(page, name: str, previous: str) -> str:
@@ -162,7 +135,7 @@ def main() -> None:
                             cache_dir=Path(tmp) / "clips", warm_start=False, prerender=True, admin_token=ADMIN_TOKEN)
         browser = p.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
         try:
-            with serve(settings) as url:
+            with serve_in_thread(settings) as url:
                 for name in args.pages:
                     for path in PAGES[name](browser, url, args.out):
                         log.info("wrote %s", path)

@@ -8,7 +8,6 @@ from __future__ import annotations
 import io
 import json
 import pickle
-import shutil
 import time
 import zipfile
 from pathlib import Path
@@ -18,6 +17,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from server.main import create_app
+from tests.conftest import own_copy
 
 TOKEN = "s3cret-admin-token"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
@@ -27,9 +27,7 @@ STATE_DIM = 4  # the toy domain's
 @pytest.fixture
 def settings(make_settings, toy_roots, tmp_path, database_url):
     """Own copies of the toy models and data folders: jobs write versions and uploads there."""
-    data, models, _ = toy_roots
-    shutil.copytree(models, tmp_path / "models")
-    shutil.copytree(data, tmp_path / "data")
+    own_copy(toy_roots, tmp_path)
     return make_settings(admin_token=TOKEN, data_dir=tmp_path / "data", models_dir=tmp_path / "models",
                          upload_max_bytes=256 * 1024, upload_max_uncompressed=512 * 1024, database_url=database_url)
 

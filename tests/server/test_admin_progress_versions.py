@@ -13,6 +13,7 @@ from sqlmodel import Session
 
 from server.admin_models import ModelVersion, TrainJob
 from server.main import create_app
+from tests.conftest import own_copy
 
 TOKEN = "progress-token"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
@@ -28,9 +29,7 @@ def _edit_card(path, change) -> None:
 @pytest.fixture
 def settings(make_settings, toy_roots, tmp_path, database_url):
     """Own copies of the toy models (cards with known training seconds) and data."""
-    data, models, _ = toy_roots
-    shutil.copytree(models, tmp_path / "models")
-    shutil.copytree(data, tmp_path / "data")
+    own_copy(toy_roots, tmp_path)
     for kind, seconds in CARD_SECONDS.items():
         _edit_card(tmp_path / "models" / "toy" / f"{kind}-onehot.json",
                    lambda c, s=seconds: c["training"].update(seconds=s))

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import itertools
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -22,6 +21,7 @@ import httpx
 import psutil
 import pytest
 
+from tests.conftest import own_copy
 from tests.server.test_serve import REPO, free_port
 
 TOKEN = "crash-test-token"
@@ -80,10 +80,8 @@ class Server:
 @pytest.fixture(scope="module")
 def server(toy_roots, tmp_path_factory) -> Iterator[Server]:
     """One server for the module (each test kills and restarts it: a start costs seconds of CPU)."""
-    data, models, _ = toy_roots
     root = tmp_path_factory.mktemp("crash")
-    shutil.copytree(data, root / "data")
-    shutil.copytree(models, root / "models")
+    own_copy(toy_roots, root)
     s = Server(root)
     try:
         s.start()

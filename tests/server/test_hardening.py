@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import logging
-import shutil
 from collections.abc import Iterable, Iterator
 from typing import NamedTuple
 
@@ -17,6 +16,7 @@ from server.auth import FailureLimiter
 from server.main import create_app
 from server.models import attribute_methods
 from server.settings import Settings
+from tests.conftest import own_copy
 from tests.fakes import InstantCompute
 
 TOKEN = "hardening-token"
@@ -28,10 +28,8 @@ ERROR_KEYS = {"detail", "errors", "problems"}
 
 @pytest.fixture(scope="module")
 def client(toy_roots, tmp_path_factory) -> Iterator[TestClient]:
-    data, models, _ = toy_roots
     root = tmp_path_factory.mktemp("hardening")
-    shutil.copytree(data, root / "data")
-    shutil.copytree(models, root / "models")
+    own_copy(toy_roots, root)
     settings = Settings(data_dir=root / "data", models_dir=root / "models", cache_dir=root / "clips",
                         database_url=f"sqlite:///{root / 'rba.db'}", admin_token=TOKEN, warm_start=False,
                         prerender=False, prerender_library=False, json_max_bytes=CAP,

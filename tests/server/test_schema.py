@@ -9,7 +9,6 @@ are recorded, never started.
 from __future__ import annotations
 
 import os
-import shutil
 from collections.abc import Iterator
 
 import pytest
@@ -29,6 +28,7 @@ from schemathesis.specs.openapi.checks import (
 from server.jobs import JobRunner
 from server.main import create_app
 from server.settings import Settings
+from tests.conftest import own_copy
 from tests.fakes import InstantCompute
 
 TOKEN = "schema-admin-token"
@@ -42,10 +42,8 @@ EXAMPLES = settings(max_examples=int(os.environ.get("RBA_FUZZ_EXAMPLES", "12")),
 
 @pytest.fixture(scope="module")
 def api_schema(toy_roots, tmp_path_factory) -> Iterator[schemathesis.BaseSchema]:
-    data, models, _ = toy_roots
     root = tmp_path_factory.mktemp("schema")
-    shutil.copytree(data, root / "data")
-    shutil.copytree(models, root / "models")
+    own_copy(toy_roots, root)
     patch = pytest.MonkeyPatch()
     patch.setattr(JobRunner, "start", lambda self, job_id: None)  # the job row is made; no process starts
     app_settings = Settings(data_dir=root / "data", models_dir=root / "models", cache_dir=root / "clips",
