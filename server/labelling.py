@@ -17,7 +17,6 @@ from __future__ import annotations
 import hashlib
 import logging
 import random
-from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO
@@ -151,26 +150,13 @@ def clips_to_label(svc: Services, db: Session, domain: str, size: int, anchor: b
 
 # -- uploads --------------------------------------------------------------------------------------
 
-async def _limited(request: Request, limit: int) -> AsyncIterator[bytes]:
-    """The request body, stopped with 413 as soon as it passes ``limit`` bytes."""
-    received = 0
-    async for chunk in request.stream():
-        received += len(chunk)
-        if received > limit:
-            raise HTTPException(413, f"upload too large: over the limit of {limit} bytes (RBA_UPLOAD_MAX_BYTES)")
-        yield chunk
-
-
-async def read_upload_form(request: Request, limit: int) -> dict[str, UploadFile | str]:
-    declared = request.headers.get("content-length")
-    if declared and declared.isdigit() and int(declared) > limit:
-        raise HTTPException(413, f"upload too large: {declared} bytes, over the limit of {limit} bytes "
-                                 "(RBA_UPLOAD_MAX_BYTES)")
+async def read_upload_form(request: Request) -> dict[str, UploadFile | str]:
+    """The multipart form; its size is capped as it streams by ``server.limits.BodyLimit`` (RBA_UPLOAD_MAX_BYTES)."""
     if not request.headers.get("content-type", "").startswith("multipart/form-data"):
         raise invalid("send multipart/form-data with fields: domain, labels (a JSON file), "
                       "trajectories (an .npz file, optional)")
     try:
-        form = await MultiPartParser(request.headers, _limited(request, limit), max_files=2, max_fields=4).parse()
+        form = await MultiPartParser(request.headers, request.stream(), max_files=2, max_fields=4).parse()
     except MultiPartException as e:
         raise invalid(f"malformed multipart body: {e.message}") from e
     return dict(form.multi_items())

@@ -20,7 +20,7 @@ from server import errors
 from server.admin_models import DatasetUpload
 from server.auth import AdminGate, FailureLimiter
 from server.deps import known_query
-from server.limits import BodyLimit
+from server.limits import BodyLimit, Cap
 from server.prerender import warm_up
 from server.routes import admin_datasets, admin_labels, admin_training, clips, docs, domains, interpret, sessions
 from server.services import Services
@@ -60,8 +60,9 @@ def create_app(settings: Settings | None = None, compute: Compute | None = None)
     docs.install(app)  # /docs and /redoc on the app's own copies of their scripts: no CDN
     # The last added runs first: the admin token before anything reads a body, then the body cap (the upload
     # streams under its own limit).
-    upload = ("POST", admin_datasets.router.prefix)
-    app.add_middleware(BodyLimit, limit=settings.json_max_bytes, exempt=frozenset({upload}))
+    json_cap = Cap(settings.json_max_bytes, "RBA_JSON_MAX_BYTES", hint="; datasets go to POST /api/admin/datasets")
+    upload_cap = Cap(settings.upload_max_bytes, "RBA_UPLOAD_MAX_BYTES", what="upload")
+    app.add_middleware(BodyLimit, default=json_cap, routes={("POST", admin_datasets.router.prefix): upload_cap})
     app.add_middleware(AdminGate, token=settings.admin_token,
                        failures=FailureLimiter(settings.admin_failures_per_minute))
     for router in (domains.router, interpret.router, sessions.router, clips.router, admin_labels.router,

@@ -29,7 +29,7 @@ UPLOAD_FORM = {  # the route streams and parses the form itself (under RBA_UPLOA
                                                          422: "every problem found, in 'problems'"})},
              summary="Upload labelled behaviour (multipart: domain, labels = JSON file, trajectories = .npz)")
 async def upload_dataset(request: Request, svc: ServicesDep, db: DbDep):
-    form = await labelling.read_upload_form(request, svc.settings.upload_max_bytes)
+    form = await labelling.read_upload_form(request)
     try:
         dataset, new = await labelling.store_upload(svc, db, form)
     except labelling.UploadProblems as e:
