@@ -469,18 +469,24 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return args
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = parse_args(argv)
+def start_run(script: str, argv: list[str] | None) -> dict:
+    """Logging and SIGTERM for a benchmark that drives a server subprocess; its report's command, date, machine."""
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     logging.getLogger("httpx").setLevel(logging.WARNING)
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # unwind, so the server subprocess is stopped
+    return {"command": f"python benchmarks/{script} " + " ".join(argv if argv is not None else sys.argv[1:]),
+            "date": time.strftime("%Y-%m-%d %H:%M"),
+            "machine": f"{os.cpu_count()} cores, {platform.machine()}, Python {platform.python_version()}"}
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    run = start_run("api_load.py", argv)
     fill = fill_cache(options(args, True), args.cache_dir) if args.fill_cache else None
     modes = {"on": [True], "off": [False], "both": [True, False]}[args.prerender]
     results = [run_config(args, n, pre) for pre in modes for n in args.users]
     report = {
-        "command": "python benchmarks/api_load.py " + " ".join(argv if argv is not None else sys.argv[1:]),
-        "date": time.strftime("%Y-%m-%d %H:%M"),
-        "machine": f"{os.cpu_count()} cores, {platform.machine()}, Python {platform.python_version()}",
+        **run,
         "args": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
         "fill_cache": fill,
         "results": results,

@@ -47,7 +47,7 @@ REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"
 HOST = "127.0.0.1"  # the server's default host: loopback only
 GOALS = {"page_s": 5.0, "first_clip_s": 3.0}
-PAGE_ASSETS = ("/static/app.js", "/static/common.js", "/static/app.css")  # what index.html loads
+PAGE_ASSETS = ("/static/app.js", "/static/common.js", "/static/meters.js", "/static/app.css")  # what index.html loads
 
 log = logging.getLogger("cold_start")
 

@@ -23,9 +23,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
-import platform
 import shutil
-import signal
 import sys
 import tempfile
 import threading
@@ -35,7 +33,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from api_load import LiveServer, ServerOptions, UserLog, run_user, summarize
+from api_load import LiveServer, ServerOptions, UserLog, run_user, start_run, summarize
 from sqlalchemy import create_engine, text
 from sqlalchemy.engine import make_url
 
@@ -200,18 +198,14 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
-    logging.getLogger("httpx").setLevel(logging.WARNING)
-    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # unwind, so the server subprocess is stopped
+    run = start_run("soak.py", argv)
     results = []
     if args.db in ("sqlite", "both"):
         results.append(soak(args, "SQLite", None))
     if args.db in ("postgres", "both"):
         with throwaway_postgres(args.postgres_url) as url:
             results.append(soak(args, "PostgreSQL", url))
-    report = {"command": "python benchmarks/soak.py " + " ".join(argv if argv is not None else sys.argv[1:]),
-              "date": time.strftime("%Y-%m-%d %H:%M"),
-              "machine": f"{os.cpu_count()} cores, {platform.machine()}, Python {platform.python_version()}",
+    report = {**run,
               "args": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items() if k != "postgres_url"},
               "results": results}
     save_report(args.out, report, markdown(report))

@@ -1,9 +1,14 @@
-// RBA Studio admin page: label clips (saved one by one), retrain in the background, switch the served model.
-// Everything it shows comes from /api/admin routes, which need the admin token.
+// RBA Studio admin page: label clips (saved one by one), upload labelled clips, retrain in the background, switch
+// the served model. Everything it shows comes from /api/admin routes, which need the admin token.
 
 import { $, api, el, hideToast, pretty, toast } from "./common.js";
 
-const state = { token: sessionStorage.getItem("rba-admin-token") || "", clips: [], job: null, labels: 0, trainable: [] };
+const WATCH_SECONDS = 1;  // a clip counts as seen once it has played this long (or 90 % of a shorter clip)
+const ANSWERS = ["left-more", "skip", "right-more"];
+const state = {
+  token: sessionStorage.getItem("rba-admin-token") || "", clips: [], watched: new Set(), failed: false,
+  busy: false, job: null, jobState: "", labels: 0, trainable: [], versions: [],
+};
 
 /** The shared call with the admin token the /api/admin routes need. */
 const adminApi = (path, options = {}) =>
@@ -12,6 +17,7 @@ const adminApi = (path, options = {}) =>
 const domain = () => $("domain").value;
 const attribute = () => $("attribute").value;
 const local = () => $("mode").value === "local";
+const query = (params) => new URLSearchParams(params).toString();
 
 // ---------------------------------------------------------------- unlock
 async function unlock(event) {
@@ -27,6 +33,7 @@ async function unlock(event) {
   hideToast();  // a refused token's message is stale once the right one unlocks the page
   $("login").hidden = true;
   $("admin").hidden = false;
+  $("h-what").focus();  // the form that had focus is gone: keyboard users start at the first panel
   const { domains, trainable, reps } = await api("/api/domains");
   $("domain").replaceChildren(...domains.map((d) => el("option", { value: d.name }, d.name)));
   state.trainable = trainable;
@@ -42,66 +49,136 @@ function showPresets() {
   $("preset").replaceChildren(...(method ? method.presets : []).map((p) => el("option", { value: p }, p)));
 }
 
-async function loadDomain() {
-  const { attributes } = await adminApi(`/api/admin/attributes?domain=${encodeURIComponent(domain())}`);
+async function loadAttributes() {
+  const { attributes } = await adminApi(`/api/admin/attributes?${query({ domain: domain() })}`);
   const keep = attribute();
   $("attribute").replaceChildren(...attributes.map((a) =>
     el("option", { value: a.name, title: a.description }, `${pretty(a.name)}${a.added ? " (added)" : ""}`)));
   if (attributes.some((a) => a.name === keep)) $("attribute").value = keep;
-  await Promise.all([nextClips(), loadVersions(), loadLatestJob()]);
+}
+
+async function loadDomain() {
+  $("upload-domain").textContent = domain();
+  $("upload-result").replaceChildren();
+  await loadAttributes();
+  await Promise.all([nextClips(), loadDatasets(), loadVersions(), loadLatestJob()]);
 }
 
 // ---------------------------------------------------------------- labelling
-async function nextClips(skip = false) {
-  const q = new URLSearchParams({ domain: domain(), size: "2", anchor: String(local()) });
-  if (skip === true) q.set("seed", String(Math.floor(Math.random() * 1e9)));
-  const { clips } = await adminApi(`/api/admin/pairs?${q}`);
+/** Answers (and ← → ↓) work only about clips both seen: each played its first second. A clip that fails to load
+ * can still be skipped. aria-disabled rather than disabled, so a focused button keeps the focus. */
+function gate() {
+  const seen = state.clips.length === 2 && state.watched.size === 2 && !state.busy;
+  const canSkip = seen || (state.failed && !state.busy);
+  for (const id of ANSWERS) $(id).setAttribute("aria-disabled", String(!(id === "skip" ? canSkip : seen)));
+  const status = state.busy ? "Loading the next pair…"
+    : state.failed ? "A clip could not be played: skip to the next pair (↓)."
+      : seen ? "Both clips played: answer with the buttons or ← → ↓."
+        : "Watch both clips: the answers unlock once each has played its first second.";
+  if ($("watch-status").textContent !== status) $("watch-status").textContent = status;
+}
+
+const allowed = (id) => $(id).getAttribute("aria-disabled") !== "true";
+
+/** Mark clip ``i`` seen once it has played long enough, in the set of its own pair only: a replaced video still
+ * fires a last timeupdate as it is paused, which must not unlock the pair after it. */
+function watch(video, i, caption) {
+  const seen = state.watched;
+  const mark = () => {
+    const need = Math.min(WATCH_SECONDS, 0.9 * (Number.isFinite(video.duration) ? video.duration : Infinity));
+    if (seen !== state.watched || seen.has(i) || video.currentTime < need) return;
+    seen.add(i);
+    caption.append(el("span", { class: "seen" }, " · ✓ seen"));
+    gate();
+  };
+  video.addEventListener("timeupdate", mark);
+  video.addEventListener("error", () => { if (seen === state.watched) { state.failed = true; gate(); } });
+}
+
+function showPair(clips) {
+  for (const old of $("pair").querySelectorAll("video")) old.pause();
   state.clips = clips;
+  state.watched = new Set();
+  state.failed = false;
   const names = local() ? ["Anchor", "Candidate"] : ["Left", "Right"];
-  $("pair").replaceChildren(...clips.map((c, i) => el("figure", {},
-    el("video", { src: c.url, muted: "", loop: "", autoplay: "", playsinline: "", "aria-label": `${names[i]} clip` }),
-    el("figcaption", {}, `${names[i]} · ${c.rollout_id}`))));
+  $("pair").replaceChildren(...clips.map((c, i) => {
+    const caption = el("figcaption", {}, `${names[i]} · ${c.rollout_id}`);
+    const video = el("video", { src: c.url, muted: "", loop: "", autoplay: "", playsinline: "", controls: "",
+                                "aria-label": `${names[i]} clip (${c.rollout_id})` });
+    watch(video, i, caption);
+    return el("figure", {}, video, caption);
+  }));
   for (const v of $("pair").querySelectorAll("video")) { v.muted = true; v.play().catch(() => {}); }
+}
+
+function showQuestion() {
   const a = pretty(attribute());
   $("question").textContent = local()
     ? `Is the candidate the anchor with a little more or a little less ${a}, and otherwise the same?`
     : `Which clip shows more ${a}?`;
-  $("left-more").textContent = local() ? `A little less ${a}` : "◀ Left has more";
-  $("right-more").textContent = local() ? `A little more ${a}` : "Right has more ▶";
-  $("skip").textContent = local() ? "Not the same behaviour / next" : "Can’t tell / next";
+  // Only the label span changes: the key hints beside it stay.
+  $("left-more").querySelector(".label").textContent = local() ? `A little less ${a}` : "Left has more";
+  $("right-more").querySelector(".label").textContent = local() ? `A little more ${a}` : "Right has more";
+  $("skip").querySelector(".label").textContent = local() ? "Not the same behaviour / next" : "Can’t tell / next";
+}
+
+async function nextClips(skip = false) {
+  state.busy = true;
+  gate();
+  const q = { domain: domain(), size: "2", anchor: String(local()) };
+  if (skip === true) q.seed = String(Math.floor(Math.random() * 1e9));
+  try {
+    const { clips } = await adminApi(`/api/admin/pairs?${query(q)}`);
+    showPair(clips);
+    showQuestion();
+  } catch (e) {
+    toast(e.message);
+  } finally {
+    state.busy = false;
+    gate();
+  }
+}
+
+function labelBody(side) {
+  const [a, b] = state.clips.map((c) => c.rollout_id);
+  if (local()) {
+    return { domain: domain(), local_change: { attribute: attribute(), anchor: a, changed: b,
+      direction: side === "right" ? "more" : "less" } };
+  }
+  const [more, less] = side === "left" ? [a, b] : [b, a];
+  return { domain: domain(), comparison: { attribute: attribute(), more, less } };
 }
 
 async function answer(side) {
-  if (state.clips.length < 2) return;
-  const [a, b] = state.clips.map((c) => c.rollout_id);
-  let body;
-  if (local()) {
-    body = { domain: domain(), local_change: { attribute: attribute(), anchor: a, changed: b,
-      direction: side === "right" ? "more" : "less" } };
-  } else {
-    const [more, less] = side === "left" ? [a, b] : [b, a];
-    body = { domain: domain(), comparison: { attribute: attribute(), more, less } };
-  }
+  if (!allowed(`${side}-more`)) return;
+  state.busy = true;
+  gate();
   try {
-    await adminApi("/api/admin/labels", { method: "POST", body: JSON.stringify(body) });
+    await adminApi("/api/admin/labels", { method: "POST", body: JSON.stringify(labelBody(side)) });
     state.labels += 1;
     $("label-count").textContent = `· ${state.labels} saved this visit`;
   } catch (e) {
     toast(e.message);
+    state.busy = false;
+    gate();
     return;
   }
   await nextClips();
 }
 
+function skip() {
+  if (allowed("skip")) nextClips(true);
+}
+
 async function addAttribute(event) {
   event.preventDefault();
+  const name = $("attr-name").value.trim();
   try {
     await adminApi("/api/admin/attributes", { method: "POST", body: JSON.stringify({
-      domain: domain(), name: $("attr-name").value.trim(), description: $("attr-desc").value.trim() }) });
-    const name = $("attr-name").value.trim();
+      domain: domain(), name, description: $("attr-desc").value.trim() }) });
     $("attribute-form").reset();
     $("new-attribute").open = false;
-    await loadDomain();
+    await loadAttributes();
     $("attribute").value = name;
     await nextClips();
   } catch (e) {
@@ -109,41 +186,123 @@ async function addAttribute(event) {
   }
 }
 
-// ---------------------------------------------------------------- training and versions
+// ---------------------------------------------------------------- uploads
+const NPZ_PROBLEM = /^trajector(y|ies)\b/;  // the server starts every problem of the .npz so
+
+/** The server's problems, under the file each is about. */
+function showProblems(body, status, labelsName, npzName) {
+  const problems = Array.isArray(body?.problems) ? body.problems : null;
+  if (!problems) {
+    const detail = typeof body?.detail === "string" ? body.detail : `${status} (no details)`;
+    $("upload-result").replaceChildren(el("p", { class: "refused" }, `Refused: ${detail}`));
+    return;
+  }
+  const files = new Map([[labelsName, []], ...(npzName ? [[npzName, []]] : [])]);
+  for (const p of problems) files.get(npzName && NPZ_PROBLEM.test(p) ? npzName : labelsName).push(p);
+  $("upload-result").replaceChildren(
+    el("p", { class: "refused" }, `Refused: nothing was stored. ${problems.length} problem${problems.length > 1 ? "s" : ""}`
+      + " to fix, by file:"),
+    ...[...files].map(([name, found]) => el("div", { class: "file-problems" },
+      el("p", {}, el("strong", {}, name), found.length ? "" : " — no problems found"),
+      found.length ? el("ul", {}, found.map((p) => el("li", {}, p))) : null)));
+}
+
+function showUploaded(d, duplicate) {
+  const added = d.new_attributes.length ? `; new attributes: ${d.new_attributes.map(pretty).join(", ")}` : "";
+  $("upload-result").replaceChildren(el("p", { class: "stored" }, duplicate
+    ? `Already uploaded as dataset ${d.id}: nothing new stored.`
+    : `Stored dataset ${d.id}: ${d.labels} labels, ${d.trajectories} trajectories${added}.`));
+}
+
+async function upload(event) {
+  event.preventDefault();
+  const labels = $("upload-labels").files[0];
+  const npz = $("upload-npz").files[0];
+  const form = new FormData();
+  form.append("domain", domain());
+  form.append("labels", labels);
+  if (npz) form.append("trajectories", npz);
+  $("upload-result").replaceChildren(el("p", {}, "Checking the files…"));
+  let res;
+  let body = null;
+  try {  // not api(): the browser sets the multipart Content-Type (with its boundary) itself
+    res = await fetch("/api/admin/datasets", { method: "POST", body: form,
+                                               headers: { Authorization: `Bearer ${state.token}` } });
+    body = await res.json();
+  } catch {
+    if (!res) { showProblems({ detail: "the server cannot be reached. Is `rba serve` running?" }, 0); return; }
+  }
+  if (!res.ok) { showProblems(body, res.status, labels.name, npz?.name); return; }
+  showUploaded(body, res.status === 200);
+  $("upload-form").reset();
+  await Promise.all([loadAttributes(), loadDatasets()]);
+}
+
+async function loadDatasets() {
+  const datasets = await adminApi(`/api/admin/datasets?${query({ domain: domain() })}`);
+  $("datasets-none").hidden = datasets.length > 0;
+  $("datasets").replaceChildren(...datasets.map((d) => el("li", {}, el("label", {},
+    el("input", { type: "checkbox", value: d.id, checked: true }),
+    ` ${d.filename} · ${d.labels} labels · ${d.trajectories} trajectories`,
+    d.new_attributes.length ? ` · new: ${d.new_attributes.map(pretty).join(", ")}` : "",
+    " · use in training ", el("code", {}, d.id.slice(0, 8))))));
+}
+
+// ---------------------------------------------------------------- training
+const running = (job) => Boolean(job) && ["queued", "running"].includes(job.state);
+
+function duration(seconds) {
+  if (seconds < 90) return `${Math.max(1, Math.round(seconds))} s`;
+  if (seconds < 5400) return `${Math.round(seconds / 60)} min`;
+  return `${(seconds / 3600).toFixed(1)} h`;
+}
+
+/** One bar for the whole job (the server weighs its stages); announced only when the job's state changes. */
 function showJob(job) {
   state.job = job;
-  $("bar").style.width = `${Math.round(100 * (job?.progress || 0))}%`;
-  $("cancel").hidden = !job || !["queued", "running"].includes(job.state);
-  $("train").disabled = !$("cancel").hidden;
-  if (!job) { $("job-status").textContent = "No training job yet."; return; }
-  const loss = job.loss == null ? "" : `, loss ${job.loss.toFixed(4)}`;
-  const where = job.total ? ` ${job.stage} step ${job.step}/${job.total}${loss}` : "";
+  const pct = Math.round(100 * (job?.progress || 0));
+  $("bar").style.width = `${pct}%`;
+  $("progress").setAttribute("aria-valuenow", String(pct));
+  const cancelFocused = document.activeElement === $("cancel");
+  $("cancel").hidden = !running(job);
+  $("train").setAttribute("aria-disabled", String(running(job)));
+  if (cancelFocused && !running(job)) $("train").focus();  // a hidden button drops the focus to the body
+  if (!job) { $("job-status").textContent = "No training job yet."; $("job-detail").textContent = ""; return; }
   const result = job.version ? ` → version ${job.version}` : job.error ? ` — ${job.error}` : "";
-  $("job-status").textContent = `Job ${job.id.slice(0, 8)}: ${job.state}${where}${result}`;
+  const status = `Job ${job.id.slice(0, 8)} (${job.method}/${job.rep}, ${job.preset}): ${job.state}${result}`;
+  if (state.jobState !== status) { $("job-status").textContent = status; state.jobState = status; }
+  const eta = job.eta_seconds == null ? (running(job) ? " · estimating the time left…" : "")
+    : ` · about ${duration(job.eta_seconds)} left`;
+  const loss = job.loss == null ? "" : `, loss ${job.loss.toFixed(4)}`;
+  const where = job.total && running(job) ? ` · ${job.stage} step ${job.step}/${job.total}${loss}` : "";
+  $("job-detail").textContent = running(job) || job.state === "succeeded" ? `${pct} % done${eta}${where}` : "";
   $("job-log").hidden = !job.log_tail;
   $("job-log").textContent = job.log_tail;
 }
 
 async function pollJob() {
-  if (!state.job || !["queued", "running"].includes(state.job.state)) return;
+  if (!running(state.job)) return;
   try {
     showJob(await adminApi(`/api/admin/jobs/${state.job.id}`));
   } catch (e) {
     toast(e.message);
   }
-  if (["queued", "running"].includes(state.job.state)) setTimeout(pollJob, 1000);
+  if (running(state.job)) setTimeout(pollJob, 1000);
   else await loadVersions();
 }
 
 async function loadLatestJob() {
-  const jobs = await adminApi(`/api/admin/jobs?domain=${encodeURIComponent(domain())}`);
+  const jobs = await adminApi(`/api/admin/jobs?${query({ domain: domain() })}`);
   showJob(jobs[0] || null);
   pollJob();
 }
 
 async function train() {
+  if (!allowed("train")) return;
+  const datasets = [...$("datasets").querySelectorAll("input:checked")].map((c) => c.value);
   try {
-    const body = { domain: domain(), preset: $("preset").value, rep: $("rep").value, method: $("train-method").value };
+    const body = { domain: domain(), preset: $("preset").value, rep: $("rep").value, method: $("train-method").value,
+                   datasets };
     showJob(await adminApi("/api/admin/train", { method: "POST", body: JSON.stringify(body) }));
     pollJob();
   } catch (e) {
@@ -155,26 +314,67 @@ async function cancel() {
   try { showJob(await adminApi(`/api/admin/jobs/${state.job.id}/cancel`, { method: "POST" })); } catch (e) { toast(e.message); }
 }
 
-async function loadVersions() {
-  const versions = await adminApi(`/api/admin/models?domain=${encodeURIComponent(domain())}`);
-  $("versions").replaceChildren(...versions.map((v) => {
-    const held = v.held_out?.argmax_within_epsilon?.normal;
-    return el("li", {},
-      el("code", {}, v.version), `${v.method}/${v.rep} · ${v.attributes.map(pretty).join(", ")}`,
-      held === undefined ? "" : ` · argmax within ε ${held.toFixed(2)}`,
-      v.active ? el("strong", {}, " ✓ serving new sessions")
-        : el("button", { class: "btn btn-small btn-dark", type: "button", onclick: () => activate(v.version) }, "Activate"));
-  }));
+// ---------------------------------------------------------------- versions
+const number = (v) => (v == null ? "untested" : v.toFixed(3));
+
+/** The version's held-out numbers beside those of what new sessions of its method/rep get now. */
+function scoreTable(v) {
+  const keys = [...new Set([...Object.keys(v.scores), ...Object.keys(v.baseline_scores)])];
+  if (!keys.length) return el("p", { class: "small muted" }, "No held-out numbers in its model cards.");
+  const worse = (k) => v.scores[k] === null || (v.scores[k] != null && v.baseline_scores[k] != null
+    && v.scores[k] < v.baseline_scores[k]);
+  return el("table", { class: "scores" },
+    el("caption", { class: "sr-only" }, `Held-out numbers of ${v.version}${v.baseline ? ` and ${v.baseline}` : ""}`),
+    el("thead", {}, el("tr", {}, el("th", { scope: "col" }, "held out (higher is better)"),
+      el("th", { scope: "col" }, v.active ? "this version (serving)" : "this version"),
+      v.baseline ? el("th", { scope: "col" }, `serving now: ${v.baseline}`) : null)),
+    el("tbody", {}, keys.map((k) => el("tr", { class: worse(k) && v.baseline ? "worse" : "" },
+      el("th", { scope: "row" }, pretty(k)),
+      el("td", {}, k in v.scores ? number(v.scores[k]) : "—", worse(k) && v.baseline ? " ▼" : ""),
+      v.baseline ? el("td", {}, k in v.baseline_scores ? number(v.baseline_scores[k]) : "—") : null))));
 }
 
-async function activate(version) {
-  const q = version === "builtin" ? `?domain=${encodeURIComponent(domain())}` : "";
+function versionItem(v) {
+  return el("li", { class: v.active ? "version active" : "version" },
+    el("div", { class: "version-head" },
+      el("code", {}, v.version), ` ${v.method}/${v.rep} · ${v.attributes.map(pretty).join(", ")}`,
+      v.active ? el("strong", { class: "serving", tabindex: "-1" }, " ✓ serving new sessions")
+        : el("button", { class: "btn btn-small btn-dark", type: "button", "data-version": v.version,
+                         "aria-label": `Activate ${v.version}`, onclick: () => activate(v) }, "Activate")),
+    scoreTable(v),
+    v.concerns.length ? el("p", { class: "concerns small" }, `⚠ ${v.concerns.map(pretty).join("; ")}`) : null);
+}
+
+async function loadVersions() {
+  state.versions = await adminApi(`/api/admin/models?${query({ domain: domain() })}`);
+  $("versions").replaceChildren(...state.versions.map(versionItem));
+}
+
+/** Resolves true when the admin confirms activating ``v`` despite its concerns. */
+function confirmActivation(v) {
+  $("confirm-title").textContent = `Activate ${v.version}? It may serve worse than ${v.baseline}`;
+  $("confirm-concerns").replaceChildren(...v.concerns.map((c) => el("li", {}, pretty(c))));
+  $("confirm-table").replaceChildren(scoreTable(v));
+  $("confirm").returnValue = "";
+  $("confirm").showModal();
+  $("confirm").querySelector("[value=keep]").focus();  // the safe choice is the default
+  return new Promise((resolve) => {
+    $("confirm").addEventListener("close", () => resolve($("confirm").returnValue === "activate"), { once: true });
+  });
+}
+
+async function activate(v) {
+  const opener = document.activeElement;
+  if (v.concerns.length && !(await confirmActivation(v))) { opener?.focus(); return; }
+  const q = v.version === "builtin" ? `?${query({ domain: domain() })}` : "";
   try {
-    await adminApi(`/api/admin/models/${encodeURIComponent(version)}/activate${q}`, { method: "POST" });
+    const done = await adminApi(`/api/admin/models/${encodeURIComponent(v.version)}/activate${q}`, { method: "POST" });
+    toast(`New ${done.domain} sessions now get ${done.version}: ${done.attributes.map(pretty).join(", ")}.`, "info");
   } catch (e) {
     toast(e.message);
   }
   await loadVersions();
+  ($("versions").querySelector(".serving") || $("h-versions")).focus();  // its button is gone: focus stays near
 }
 
 // ---------------------------------------------------------------- wiring
@@ -184,15 +384,18 @@ $("attribute").addEventListener("change", nextClips);
 $("mode").addEventListener("change", nextClips);
 $("train-method").addEventListener("change", showPresets);
 $("attribute-form").addEventListener("submit", addAttribute);
+$("upload-form").addEventListener("submit", upload);
 $("left-more").addEventListener("click", () => answer("left"));
 $("right-more").addEventListener("click", () => answer("right"));
-$("skip").addEventListener("click", () => nextClips(true));
+$("skip").addEventListener("click", skip);
 $("train").addEventListener("click", train);
 $("cancel").addEventListener("click", cancel);
 document.addEventListener("keydown", (e) => {
-  if ($("admin").hidden || e.target.closest("input, select, textarea")) return;
-  if (e.key === "ArrowLeft") answer("left");
-  else if (e.key === "ArrowRight") answer("right");
-  else if (e.key === "ArrowDown") nextClips(true);
+  if ($("admin").hidden || $("confirm").open || e.target.closest("input, select, textarea, summary")) return;
+  const act = { ArrowLeft: () => answer("left"), ArrowRight: () => answer("right"), ArrowDown: skip }[e.key];
+  if (!act) return;
+  e.preventDefault();  // ↓ would scroll the page away from the clips
+  act();
 });
+gate();
 if (state.token) unlock();

@@ -1,64 +1,120 @@
 // RBA Studio page: start a session, watch its clip, answer "more / less <attribute>" or "this is it".
 // Plain ES module, no build step. Talks only to the REST API the scripted users use too.
+// An answer is only possible about a clip that has played for a second; it names that clip, so the server
+// refuses (409) an answer about a clip the session no longer shows.
 
 import { $, api, el, pretty, toast } from "./common.js";
+import { describe, renderMeters, renderPath } from "./meters.js";
 
 const els = {
   domain: $("domain"), method: $("method"), setup: $("setup"), start: $("start"),
-  video: $("video"), overlay: $("overlay"), overlayText: $("overlay-text"),
+  player: $("player"), video: $("video"), overlay: $("overlay"), overlayText: $("overlay-text"),
+  progress: $("progress"), progressFill: $("progress-fill"), progressText: $("progress-text"),
   welcome: $("welcome"), welcomeStart: $("welcome-start"), welcomeNote: $("welcome-note"),
   stepBadge: $("step-badge"), replayBanner: $("replay-banner"), replayText: $("replay-text"), replayBack: $("replay-back"),
-  measured: $("measured"), attributes: $("attributes"), satisfied: $("satisfied"),
+  measured: $("measured"), path: $("path"), pathPlots: $("path-plots"), announce: $("announce"),
+  attributes: $("attributes"), satisfied: $("satisfied"),
   controlsTitle: $("controls-title"), controlsHint: $("controls-hint"), sessionMeta: $("session-meta"),
   done: $("done"), doneTitle: $("done-title"), doneText: $("done-text"), again: $("again"),
   history: $("history"), historyEmpty: $("history-empty"), historyCount: $("history-count"), keyList: $("key-list"),
+  words: $("words"), wordsText: $("words-text"), wordsGo: $("words-go"), wordsConfirm: $("words-confirm"),
+  wordsUnderstood: $("words-understood"), wordsYes: $("words-yes"), wordsNo: $("words-no"), wordsError: $("words-error"),
 };
 
 const state = {
   domains: [],
+  labels: {}, // method -> display name ("RBA-Global")
   session: null,
   busy: false,
+  waiting: false, // a new clip is being chosen or rendered: the previous one stays, dimmed
   viewing: null, // a history entry being re-watched, or null for the current clip
   shownUrl: null,
+  played: new Set(), // rollout ids that have played for at least a second
+  announced: null,
+  clipToken: 0,
+  understood: null, // the feedback the text box's sentence was understood as, awaiting confirmation
 };
+
+const PLAYED_SECONDS = 1;
+const POLL_MS = 400;
+const SESSION_ID = /^[0-9a-f]{32}$/;
 
 // ---------------------------------------------------------------- small helpers
-const fmt = (v) => {
-  if (v === undefined || v === null || Number.isNaN(v)) return "–";
-  const a = Math.abs(v);
-  return a >= 100 ? v.toFixed(0) : a >= 10 ? v.toFixed(1) : v.toFixed(2);
-};
+const plural = (n, word) => `${n} ${word}${n === 1 ? "" : "s"}`;
+const rounds = (session) => session.history.filter((h) => !h.satisfied).length;
+const choiceText = (f) => `${f.direction === "more" ? "▲ more" : "▼ less"} ${pretty(f.attribute)}`;
 
 function overlay(text, kind = "loading") {
+  els.progress.hidden = true;
+  els.progressText.textContent = "";
   if (!text) { els.overlay.classList.add("hidden"); return; }
-  els.overlayText.textContent = text;
+  if (els.overlayText.textContent !== text) els.overlayText.textContent = text;
   els.overlay.classList.toggle("error", kind === "error");
   els.overlay.classList.remove("hidden");
 }
 
+function progress(fraction, text) {
+  els.progress.hidden = fraction === null;
+  if (fraction !== null) {
+    els.progressFill.style.width = `${Math.round(fraction * 100)}%`;
+    els.progress.setAttribute("aria-valuenow", String(Math.round(fraction * 100)));
+  }
+  els.progressText.textContent = text;
+}
+
+function showWelcome(on) {
+  els.welcome.hidden = !on;
+  els.player.classList.toggle("welcoming", on);
+  if (on) { overlay(null); document.body.dataset.state = "idle"; }
+}
+
+/** Answers are possible once the current clip has played for a second, the session is active and nothing is pending. */
+function canAnswer() {
+  const s = state.session;
+  return Boolean(s && s.status === "active" && !state.busy && !state.waiting && state.played.has(s.clip.rollout_id));
+}
+
+function lock(button, locked) {
+  button.setAttribute("aria-disabled", String(locked));
+  button.classList.toggle("locked", locked);
+}
+
+/** Lock or unlock the answer controls (aria-disabled, so a focused button keeps its focus). */
+function refreshControls() {
+  const s = state.session;
+  const open = canAnswer();
+  for (const b of els.attributes.querySelectorAll("button")) lock(b, !open);
+  lock(els.satisfied, !open);
+  lock(els.wordsYes, !open);
+  lock(els.start, state.busy);
+  document.body.dataset.state = state.busy || state.waiting ? "busy" : (s ? "ready" : "idle");
+  if (s && s.status === "active") {
+    els.controlsHint.textContent = open ? "Press more or less — or “This is it”."
+      : state.busy || state.waiting ? "Wait for the new clip…" : "Watch the clip: the buttons unlock after its first second.";
+  }
+}
+
 function setBusy(busy) {
   state.busy = busy;
-  document.body.dataset.state = busy ? "busy" : (state.session ? "ready" : "idle");
-  const active = state.session && state.session.status === "active";
-  for (const b of els.attributes.querySelectorAll("button")) b.disabled = busy || !active;
-  els.satisfied.disabled = busy || !active;
-  els.start.disabled = busy;
+  refreshControls();
 }
 
 // ---------------------------------------------------------------- domains and the setup form
 function selectedDomain() { return state.domains.find((d) => d.name === els.domain.value); }
 
+function methodLabel(m) {
+  const name = state.labels[m.method] || `${m.method.charAt(0).toUpperCase()}${m.method.slice(1)}`;
+  return m.rep === "onehot" ? name : `${name} · ${m.rep}`;
+}
+
 function fillMethods() {
   const d = selectedDomain();
   els.method.replaceChildren();
-  for (const m of d ? d.available : []) {
-    const label = `${m.method.charAt(0).toUpperCase()}${m.method.slice(1)} · ${m.rep === "onehot" ? "one-hot" : m.rep}`;
-    els.method.append(el("option", { value: `${m.method}/${m.rep}` }, label));
-  }
+  for (const m of d ? d.available : []) els.method.append(el("option", { value: `${m.method}/${m.rep}` }, methodLabel(m)));
   if (d && !d.available.length) els.method.append(el("option", { value: "", disabled: true }, "not trained yet"));
   const ok = Boolean(d && d.available.length);
-  els.start.disabled = !ok;
-  els.welcomeStart.disabled = !ok;
+  lock(els.start, !ok);
+  lock(els.welcomeStart, !ok);
   els.welcomeNote.textContent = ok ? `${pretty(d.name)}: ${d.attributes.map((a) => pretty(a.name)).join(", ")}`
     : (d && d.missing) || "";
 }
@@ -66,6 +122,7 @@ function fillMethods() {
 async function loadDomains() {
   const body = await api("/api/domains");
   state.domains = body.domains;
+  state.labels = Object.fromEntries(body.trainable.map((t) => [t.method, t.label]));
   els.domain.replaceChildren(...state.domains.map((d) => el("option", { value: d.name },
     pretty(d.name) + (d.available.length ? "" : " (not built)"))));
   const first = state.domains.find((d) => d.available.length) || state.domains[0];
@@ -77,20 +134,22 @@ els.domain.addEventListener("change", fillMethods);
 // ---------------------------------------------------------------- sessions
 async function startSession(event) {
   if (event) event.preventDefault();
+  if (state.busy) return;
   const d = selectedDomain();
   if (!d || !els.method.value) { toast(d && d.missing ? d.missing : "Pick a domain with trained models."); return; }
   const [method, rep] = els.method.value.split("/");
   setBusy(true);
-  els.welcome.hidden = true;
+  showWelcome(false);
   overlay("Starting a session…");
   try {
     const session = await api("/api/sessions", { method: "POST", body: JSON.stringify({ domain: d.name, method, rep }) });
     history.replaceState(null, "", `#session=${session.id}`);
     showSession(session, { fresh: true });
+    els.controlsTitle.focus();
   } catch (err) {
     overlay(err.message, "error");
     toast(err.message);
-    if (!state.session) els.welcome.hidden = false;
+    if (!state.session) showWelcome(true);
   } finally {
     setBusy(false);
   }
@@ -101,22 +160,31 @@ els.again.addEventListener("click", () => startSession());
 
 async function sendFeedback(payload, pressed) {
   const s = state.session;
-  if (!s || state.busy || s.status !== "active") return;
+  if (!s || s.status !== "active" || state.busy) return false;
+  if (!canAnswer()) {
+    toast(state.waiting ? "The new clip is on its way: answer once it has played."
+      : "Watch the clip first: answers unlock after its first second.", "info");
+    return false;
+  }
   backToCurrent();
   setBusy(true);
+  state.waiting = true;
+  els.player.classList.add("waiting");
   if (pressed) pressed.classList.add("pressed");
-  overlay(payload.satisfied ? "Saving your choice…" : "Finding a behaviour that fits…");
+  overlay(payload.satisfied ? "Saving your choice…" : "Choosing a new behaviour that fits…");
   try {
-    const next = await api(`/api/sessions/${s.id}/feedback`, { method: "POST", body: JSON.stringify({ step: s.step, ...payload }) });
-    showSession(next);
+    const body = { step: s.step, clip: s.clip.rollout_id, ...payload };
+    showSession(await api(`/api/sessions/${s.id}/feedback`, { method: "POST", body: JSON.stringify(body) }));
+    return true;
   } catch (err) {
-    if (err.status === 409) {
-      toast(`${err.message}`, "info");
+    stopWaiting();
+    if (err.status === 409) {  // the session moved on elsewhere (another tab): show what it shows now
+      toast("The session had moved on (another tab?); this is the clip it shows now.", "info");
       await reloadSession();
     } else {
       toast(err.message);
-      overlay(null);
     }
+    return false;
   } finally {
     if (pressed) pressed.classList.remove("pressed");
     setBusy(false);
@@ -132,60 +200,166 @@ async function reloadSession() {
   try { showSession(await api(`/api/sessions/${state.session.id}`)); } catch (err) { toast(err.message); }
 }
 
+function hashSessionId() {
+  const m = /^#session=(.*)$/.exec(location.hash);
+  return m ? decodeURIComponent(m[1]) : null;
+}
+
+function restoreHash() {
+  history.replaceState(null, "", state.session ? `#session=${state.session.id}` : location.pathname);
+}
+
+/** Load the session the address names; a clear message (and the welcome or current session) if it cannot be. */
 async function resumeFromUrl() {
-  const m = /session=([0-9a-f]{8,64})/.exec(location.hash);
-  if (!m) return false;
+  const id = hashSessionId();
+  if (id === null || (state.session && state.session.id === id)) return Boolean(state.session);
+  if (!SESSION_ID.test(id)) {
+    toast(`“${id.slice(0, 40)}” in the address is not a session id (32 hex digits, as in the links this page `
+      + "makes); start a new session.");
+    restoreHash();
+    return Boolean(state.session);
+  }
   overlay("Resuming your session…");
   try {
-    showSession(await api(`/api/sessions/${m[1]}`), { fresh: true });
+    showSession(await api(`/api/sessions/${id}`), { fresh: true });
     return true;
   } catch (err) {
-    history.replaceState(null, "", location.pathname);
-    toast(err.status === 404 ? "That session no longer exists; start a new one." : err.message);
-    return false;
+    toast(err.status === 404 ? `Session ${id} does not exist (any more); start a new one.` : err.message);
+    restoreHash();
+    if (state.session) overlay(null);
+    return Boolean(state.session);
+  }
+}
+window.addEventListener("hashchange", async () => {
+  if (!(await resumeFromUrl()) && !state.session) showWelcome(true);
+});
+
+// ---------------------------------------------------------------- the clip: wait for its render, then play it
+const statusUrl = (clip) => clip.url.replace(/\.mp4$/, "/status");
+
+function renderProgress(st) {
+  if (st.state === "queued") { overlay("Waiting for a free renderer…"); return; }
+  if (st.state !== "rendering") { overlay("Rendering the clip…"); return; }
+  overlay("Rendering the clip…");
+  const elapsed = st.elapsed_seconds ?? 0;
+  if (st.typical_seconds) {
+    const fraction = Math.min(0.95, elapsed / st.typical_seconds);
+    const left = Math.max(1, Math.round(st.typical_seconds - elapsed));
+    progress(fraction, `${Math.round(fraction * 100)} % · about ${plural(left, "second")} left`);
+  } else {
+    progress(null, `${elapsed.toFixed(0)} s so far`);
   }
 }
 
-// ---------------------------------------------------------------- rendering a session
-function play(url, label) {
-  if (state.shownUrl === url) { overlay(null); return; }
+/** Ask for the clip (HEAD: the server renders it, urgently) and show the render's status until it is stored. */
+async function waitForRender(clip, token) {
+  let rendered = false;
+  const head = fetch(clip.url, { method: "HEAD" }).catch(() => null).finally(() => { rendered = true; });
+  while (!rendered && token === state.clipToken) {
+    try {
+      const res = await fetch(statusUrl(clip));
+      if (res.ok && !rendered && token === state.clipToken) renderProgress(await res.json());
+    } catch { /* the HEAD request reports a dead server */ }
+    await Promise.race([head, new Promise((r) => { setTimeout(r, POLL_MS); })]);
+  }
+}
+
+function load(url, rolloutId, label) {
   state.shownUrl = url;
   overlay(label);
   els.video.dataset.ready = "false";
+  delete els.video.dataset.played;
+  els.video.dataset.rollout = rolloutId;
   els.video.src = url;
   els.video.load();
   const p = els.video.play();
   if (p && p.catch) p.catch(() => { /* autoplay blocked: the video still shows its first frame */ });
 }
 
-els.video.addEventListener("playing", () => { overlay(null); els.video.dataset.ready = "true"; });
-els.video.addEventListener("canplay", () => { overlay(null); els.video.dataset.ready = "true"; });
+/** Show the session's current clip: the previous one stays, dimmed, with the render's progress until it is ready. */
+async function showCurrentClip(clip) {
+  const token = ++state.clipToken;
+  if (state.shownUrl === clip.url) { stopWaiting(); return; }
+  if (!clip.ready) {
+    state.waiting = true;
+    els.player.classList.toggle("waiting", Boolean(state.shownUrl));
+    refreshControls();
+    await waitForRender(clip, token);
+    if (token !== state.clipToken) return;
+    if (state.viewing) { stopWaiting(); return; } // re-watching an old clip: the new one loads on "back to current"
+  }
+  load(clip.url, clip.rollout_id, "Loading the clip…");
+}
+
+function stopWaiting() {
+  state.waiting = false;
+  els.player.classList.remove("waiting");
+  overlay(null);
+  refreshControls();
+}
+
+function clipStarted() {
+  els.video.dataset.ready = "true";
+  const s = state.session;
+  if (state.viewing || !s || els.video.dataset.rollout !== s.clip.rollout_id) { overlay(null); return; }
+  stopWaiting();
+  if (state.announced !== s.clip.rollout_id) {
+    state.announced = s.clip.rollout_id;
+    els.announce.textContent = `Clip ${s.step + 1}: ${describe(s.attributes, s.clip)}`;
+  }
+}
+els.video.addEventListener("playing", clipStarted);
+els.video.addEventListener("canplay", clipStarted);
+els.video.addEventListener("timeupdate", () => {
+  const d = els.video.duration;
+  const enough = Number.isFinite(d) ? Math.min(PLAYED_SECONDS, d * 0.9) : PLAYED_SECONDS;
+  const id = els.video.dataset.rollout;
+  if (!id || els.video.currentTime < enough) return;
+  els.video.dataset.played = id;
+  if (!state.played.has(id)) {
+    state.played.add(id);
+    refreshControls();
+  }
+});
 els.video.addEventListener("error", () => {
   if (!state.shownUrl) return;
+  stopWaiting();
   overlay("The clip could not be loaded.", "error");
   toast("The clip could not be loaded; reload the page to try again.");
 });
 
+// ---------------------------------------------------------------- rendering a session
 function showSession(session, { fresh = false } = {}) {
   const previous = state.session;
   state.session = session;
-  els.welcome.hidden = true;
+  showWelcome(false);
   if (fresh || !previous || previous.id !== session.id) {
     els.domain.value = session.domain;
     fillMethods();
     els.method.value = `${session.method}/${session.rep}`;
     buildControls(session);
+    state.played.clear(); // another session: its clip must be watched again, even one seen before
+    state.viewing = null;
+    els.replayBanner.hidden = true;
   }
-  els.video.dataset.rollout = session.clip.rollout_id;
-  els.video.dataset.step = String(session.step);
-  if (!state.viewing) {
-    play(session.clip.url, session.clip.ready ? "Loading the clip…" : "Rendering the clip…");
-  }
+  if (!state.viewing) showCurrentClip(session.clip);
   renderStep(session);
-  renderMeasured(session.clip, session.attributes);
+  renderClipView(state.viewing ? state.viewing.rollout_before : session.clip);
   renderHistory(session);
   renderStatus(session);
-  setBusy(state.busy);
+  refreshControls();
+}
+
+function answerButton(a, n, dir) {
+  const name = pretty(a.name);
+  const more = dir === "more";
+  const key = more ? `${n}` : `⇧${n}`;
+  const b = el("button", { type: "button", class: `btn btn-${dir}`,
+    "aria-keyshortcuts": n <= 9 ? (more ? `${n}` : `Shift+${n}`) : null, dataset: { attr: a.name, dir } },
+  el("span", { "aria-hidden": "true" }, more ? "▲" : "▼"), more ? "More" : "Less",
+  el("span", { class: "visually-hidden" }, ` ${name}`), n <= 9 ? el("kbd", { "aria-hidden": "true" }, key) : null);
+  b.addEventListener("click", () => feedback(a.name, dir, b));
+  return b;
 }
 
 function buildControls(session) {
@@ -194,19 +368,10 @@ function buildControls(session) {
   session.attributes.forEach((a, i) => {
     const n = i + 1;
     const name = pretty(a.name);
-    const less = el("button", { type: "button", class: "btn btn-less", "aria-label": `less ${name}`,
-      title: `Less ${name} (Shift+${n})`, dataset: { attr: a.name, dir: "less" } },
-    el("span", { "aria-hidden": "true" }, "▼"), "Less", n <= 9 ? el("kbd", {}, `⇧${n}`) : null);
-    const more = el("button", { type: "button", class: "btn btn-more", "aria-label": `more ${name}`,
-      title: `More ${name} (${n})`, dataset: { attr: a.name, dir: "more" } },
-    el("span", { "aria-hidden": "true" }, "▲"), "More", n <= 9 ? el("kbd", {}, `${n}`) : null);
-    less.addEventListener("click", () => feedback(a.name, "less", less));
-    more.addEventListener("click", () => feedback(a.name, "more", more));
     els.attributes.append(el("div", { class: "attr", dataset: { attr: a.name } },
-      el("div", { class: "attr-head" }, el("span", { class: "attr-name" }, name),
-        el("span", { class: "attr-value", dataset: { valueOf: a.name } }, "")),
+      el("div", { class: "attr-head" }, el("span", { class: "attr-name" }, name)),
       el("p", { class: "attr-desc" }, a.description),
-      el("div", { class: "attr-buttons" }, less, more)));
+      el("div", { class: "attr-buttons" }, answerButton(a, n, "less"), answerButton(a, n, "more"))));
     if (n <= 9) {
       els.keyList.append(el("li", {}, el("kbd", {}, `${n}`), `more ${name}`, " · ", el("kbd", {}, `⇧${n}`), `less ${name}`));
     }
@@ -214,41 +379,31 @@ function buildControls(session) {
   els.keyList.append(el("li", {}, el("kbd", {}, "Enter"), "this is it"),
     el("li", {}, el("kbd", {}, "Space"), "pause / play"),
     el("li", {}, el("kbd", {}, "Esc"), "back to the current clip"));
+  resetWords();
 }
 
 function renderStep(session) {
   els.stepBadge.hidden = false;
-  const rounds = session.history.filter((h) => !h.satisfied).length;
-  els.stepBadge.textContent = session.status === "satisfied" ? `✓ Chosen after ${rounds} round${rounds === 1 ? "" : "s"}`
-    : `Clip ${session.step + 1} · ${session.clip.rollout_id}`;
+  els.stepBadge.textContent = session.status === "satisfied" ? `✓ Chosen after ${plural(rounds(session), "round")}`
+    : `Clip ${session.step + 1}`;
 }
 
-function renderMeasured(clip, attributes) {
-  els.measured.replaceChildren();
-  for (const a of attributes) {
-    const v = clip.measured[a.name];
-    const span = (a.high ?? 0) - (a.low ?? 0);
-    const pct = v === undefined || !(span > 0) ? 0 : Math.max(3, Math.min(100, ((v - a.low) / span) * 100));
-    els.measured.append(el("div", { class: "meter", title: `${pretty(a.name)} measured on this clip` },
-      el("div", { class: "meter-top" }, el("span", { class: "meter-name" }, pretty(a.name)),
-        el("span", { class: "meter-value" }, `${fmt(v)} ${a.unit}`)),
-      el("div", { class: "meter-bar" }, el("div", { class: "meter-fill", style: `width:${pct.toFixed(1)}%` }))));
-    const label = els.attributes.querySelector(`[data-value-of="${a.name}"]`);
-    if (label) label.textContent = `now ${fmt(v)} ${a.unit}`;
-  }
+function renderClipView(clip) {
+  renderMeters(els.measured, state.session, clip);
+  renderPath(els.path, els.pathPlots, state.session, clip);
 }
 
 function feedbackLabel(h) {
   if (h.satisfied) return [el("span", { class: "ok" }, "✓ this is it")];
-  return h.feedback.map((f, i) => el("span", { class: f.direction },
-    `${i ? ", " : ""}${f.direction === "more" ? "▲ more" : "▼ less"} ${pretty(f.attribute)}`));
+  return h.feedback.map((f, i) => el("span", { class: f.direction }, `${i ? ", " : ""}${choiceText(f)}`));
 }
 
 function renderHistory(session) {
   els.history.replaceChildren();
   const items = session.history;
   els.historyEmpty.hidden = items.length > 0;
-  els.historyCount.textContent = items.length ? `${items.length} answer${items.length === 1 ? "" : "s"}` : "";
+  const n = rounds(session);
+  els.historyCount.textContent = items.length ? `${plural(n, "round")} of feedback${n < items.length ? " · chosen" : ""}` : "";
   for (const h of items) {
     const isViewing = state.viewing && state.viewing.step === h.step;
     const thumb = el("video", { src: `${h.rollout_before.url}#t=1`, muted: true, playsinline: true, preload: "metadata",
@@ -268,19 +423,18 @@ function renderHistory(session) {
 
 function renderStatus(session) {
   const active = session.status === "active";
-  const answers = session.history.length;
-  els.sessionMeta.replaceChildren(`${answers} answer${answers === 1 ? "" : "s"} so far · ${session.method}/${session.rep}`
-    + " · model ", el("code", { title: "model version" }, session.model_version.slice(0, 12)));
+  els.sessionMeta.replaceChildren(
+    `Session ${session.id} · ${methodLabel(session)} (${session.method}/${session.rep}) · clip ${session.clip.rollout_id}`
+    + ` · model `, el("code", {}, session.model_version), ` (${session.model_set})`);
   els.satisfied.hidden = !active;
+  els.words.hidden = !active;
   els.done.hidden = active;
   els.controlsTitle.textContent = active ? "How should it change?" : session.status === "satisfied" ? "Done" : "Session closed";
-  els.controlsHint.textContent = active ? "Watch the clip, then press more or less — or “This is it”."
-    : "This session takes no more feedback.";
   if (!active) {
-    const rounds = session.history.filter((h) => !h.satisfied).length;
+    els.controlsHint.textContent = "This session takes no more feedback.";
     els.doneTitle.textContent = session.status === "satisfied" ? "You found it" : "Session abandoned";
     els.doneText.textContent = session.status === "satisfied"
-      ? `You settled on ${session.clip.rollout_id} after ${rounds} round${rounds === 1 ? "" : "s"} of feedback.`
+      ? `You chose clip ${session.step} after ${plural(rounds(session), "round")} of feedback.`
       : "Start a new session to tune again.";
   }
 }
@@ -289,8 +443,8 @@ function rewatch(h) {
   state.viewing = h;
   els.replayText.textContent = `Re-watching clip ${h.step + 1} — you said ${feedbackLabel(h).map((n) => n.textContent).join("")}`;
   els.replayBanner.hidden = false;
-  play(h.rollout_before.url, "Loading the clip…");
-  renderMeasured(h.rollout_before, state.session.attributes);
+  load(h.rollout_before.url, h.rollout_before.rollout_id, "Loading the clip…");
+  renderClipView(h.rollout_before);
   renderHistory(state.session);
 }
 
@@ -298,11 +452,50 @@ function backToCurrent() {
   if (!state.viewing || !state.session) return;
   state.viewing = null;
   els.replayBanner.hidden = true;
-  play(state.session.clip.url, "Loading the clip…");
-  renderMeasured(state.session.clip, state.session.attributes);
+  load(state.session.clip.url, state.session.clip.rollout_id, "Loading the clip…");
+  renderClipView(state.session.clip);
   renderHistory(state.session);
 }
 els.replayBack.addEventListener("click", backToCurrent);
+
+// ---------------------------------------------------------------- feedback in your own words
+function resetWords() {
+  state.understood = null;
+  els.wordsConfirm.hidden = true;
+  els.wordsError.hidden = true;
+}
+
+els.words.addEventListener("submit", async (e) => {
+  e.preventDefault();
+  const s = state.session;
+  const text = els.wordsText.value.trim();
+  if (!s || !text) return;
+  resetWords();
+  els.wordsGo.setAttribute("aria-busy", "true");
+  try {
+    const r = await api(`/api/domains/${encodeURIComponent(s.domain)}/interpret`,
+      { method: "POST", body: JSON.stringify({ text }) });
+    state.understood = r.feedback;
+    els.wordsUnderstood.textContent = `${r.feedback.map(choiceText).join(", ")} — right?`;
+    els.wordsConfirm.hidden = false;
+    els.wordsYes.focus();
+  } catch (err) {
+    els.wordsError.textContent = err.status === 404 ? "This server cannot read sentences yet; use the buttons."
+      : err.message;
+    els.wordsError.hidden = false;
+  } finally {
+    els.wordsGo.removeAttribute("aria-busy");
+  }
+});
+els.wordsYes.addEventListener("click", async () => {
+  if (!state.understood) return;
+  if (await sendFeedback({ feedback: state.understood }, els.wordsYes)) {
+    els.wordsText.value = "";
+    resetWords();
+    els.wordsText.focus();
+  }
+});
+els.wordsNo.addEventListener("click", () => { resetWords(); els.wordsText.focus(); });
 
 // ---------------------------------------------------------------- keyboard
 document.addEventListener("keydown", (e) => {
@@ -314,12 +507,12 @@ document.addEventListener("keydown", (e) => {
     if (!a) return;
     e.preventDefault();
     const dir = e.shiftKey ? "less" : "more";
-    const btn = els.attributes.querySelector(`[data-attr="${a.name}"][data-dir="${dir}"]`);
-    feedback(a.name, dir, btn);
-  } else if (e.key === "Enter" && s && s.status === "active" && !(e.target instanceof HTMLButtonElement)) {
+    feedback(a.name, dir, els.attributes.querySelector(`[data-attr="${a.name}"][data-dir="${dir}"]`));
+  } else if (e.key === "Enter" && s && s.status === "active" && !(e.target instanceof HTMLButtonElement)
+    && !(e.target instanceof HTMLElement && e.target.closest("summary, a"))) {
     e.preventDefault();
     sendFeedback({ satisfied: true }, els.satisfied);
-  } else if (e.key === " " && !(e.target instanceof HTMLButtonElement)) {
+  } else if (e.key === " " && !(e.target instanceof HTMLButtonElement) && !(e.target instanceof HTMLElement && e.target.closest("summary"))) {
     e.preventDefault();
     if (els.video.paused) els.video.play().catch(() => {}); else els.video.pause();
   } else if (e.key === "Escape") {
@@ -340,10 +533,5 @@ els.satisfied.addEventListener("click", () => sendFeedback({ satisfied: true }, 
     return;
   }
   setBusy(false);
-  const resumed = await resumeFromUrl();
-  if (!resumed) {
-    overlay(null);
-    els.welcome.hidden = false;
-    document.body.dataset.state = "idle";
-  }
+  if (!(await resumeFromUrl())) showWelcome(true);
 })();

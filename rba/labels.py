@@ -44,6 +44,7 @@ log = logging.getLogger(__name__)
 
 ATTRIBUTE_NAME = re.compile(r"^[a-z][a-z0-9_]{0,31}$")
 MAX_LABELS = 100_000  # label records per set
+MAX_PROBLEMS = 20  # problems listed one by one when a label set does not parse
 
 
 # --- pairwise labels (RBA-Global's ζσ) ---
@@ -339,8 +340,11 @@ class LabelSet(_Strict):
         try:
             return cls.model_validate(obj), []
         except ValidationError as e:
-            return None, [f"labels.{'.'.join(map(str, err['loc'])) or 'root'}: "
-                          f"{str(err['msg']).removeprefix('Value error, ')}" for err in e.errors()]
+            errors = e.errors()
+            lines = [f"labels.{'.'.join(map(str, err['loc'])) or 'root'}: "
+                     f"{str(err['msg']).removeprefix('Value error, ')}" for err in errors[:MAX_PROBLEMS]]
+            extra = len(errors) - MAX_PROBLEMS
+            return None, lines + ([f"labels: {extra} more problem(s) of the same kinds"] if extra > 0 else [])
 
     def references(self) -> set[str]:
         refs = {c for o in self.orderings for c in o.clips}

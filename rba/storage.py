@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -17,16 +18,28 @@ def _atomic_target(path: Path) -> tuple[int, str]:
 
 
 def write_atomic(path: Path, write) -> None:
-    """Call ``write(tmp_path)`` then rename over ``path``: readers never see half a file."""
+    """Call ``write(tmp_path)`` then rename over ``path``: readers never see half a file. The bytes and the
+    rename reach the disk before this returns, so a row committed afterwards never names a file a power
+    cut took away."""
     fd, tmp = _atomic_target(path)
     os.close(fd)
     try:
         write(tmp)
         os.chmod(tmp, 0o644)  # mkstemp makes 0600; artifacts are meant to be read by others (e.g. a container)
+        _fsync(tmp)
         os.replace(tmp, path)
+        _fsync(path.parent)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def _fsync(path: Path | str) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
 
 def save_text(path: Path, text: str) -> None:
@@ -56,17 +69,36 @@ def load_json(path: Path) -> Any:
 
 
 def save_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    """Write ``arrays`` as a compressed ``.npz``, one ``<name>.npy`` member per array, atomically.
+
+    The zip is written here rather than by ``np.savez_compressed(f, **arrays)``: names are data,
+    and passed as keyword arguments a name such as ``file`` or ``allow_pickle`` would be taken for
+    that function's own parameter. ``np.load`` reads the result as it reads ``np.savez``'s.
+    """
     def write(tmp: str) -> None:
-        with open(tmp, "wb") as f:
-            np.savez_compressed(f, **arrays)
+        with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED, allowZip64=True) as zf:
+            for name, value in arrays.items():
+                with zf.open(f"{name}.npy", "w", force_zip64=True) as member:
+                    np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)
 
     write_atomic(path, write)
 
 
 def load_npz(path: Path) -> dict[str, np.ndarray]:
-    """Load every array of an ``.npz``; object arrays are refused (never unpickle)."""
-    with np.load(path, allow_pickle=False) as z:
-        return {k: z[k] for k in z.files}
+    """Every array of an ``.npz`` by name; object arrays are refused (never unpickle).
+
+    Members are read by their exact names: ``np.load``'s lookup also accepts a name without its
+    ``.npy`` suffix, so there trajectories called ``x`` and ``x.npy`` would be one and the same.
+    """
+    out: dict[str, np.ndarray] = {}
+    with zipfile.ZipFile(path) as zf:
+        for info in zf.infolist():
+            name = info.filename.removesuffix(".npy")
+            if name == info.filename or name in out:
+                raise ValueError(f"{path.name}: member {info.filename!r} is not one uniquely named .npy array")
+            with zf.open(info) as member:
+                out[name] = np.lib.format.read_array(member, allow_pickle=False)
+    return out
 
 
 def save_torch(path: Path, state_dict: dict) -> None:

@@ -8,11 +8,12 @@ an object store without its callers changing.
 Layout (all absolute)::
 
     <data>/<domain>/<split>.{npz,json}           skill libraries
-    <data>/uploads/<domain>/<dataset>.{npz,json} uploaded datasets
+    <data>/uploads/<domain>/<dataset>.{npz,json} uploaded datasets (.<dataset>.lock while one is stored)
     <data>/rba.db                                the app's default SQLite database
     <models>/<domain>/<kind>-<rep>.{pt,json}     shipped models (weights + card)
     <models>/versions/<version>/<domain>/...     models a retraining job published
     <models>/versions/.tmp-<job>/                what a running job writes (renamed when it succeeds)
+    <data>/jobs/<job>.json                       which process runs a job (a restart kills an orphan)
     <cache>/<domain>/<version>-<digest>-<w>x<h>.mp4  rendered clips (default <data>/cache/clips)
 """
 
@@ -38,8 +39,10 @@ if TYPE_CHECKING:
 T = TypeVar("T")
 _SAFE = re.compile(r"^[a-z0-9_]{1,64}$")
 _HEX = re.compile(r"^[0-9a-f]{1,64}$")
+STAGING_PREFIX = ".tmp-"  # a training job's folder under versions/ until it is published
 TEMP_GLOB = "*/.*.tmp"  # what ``write_atomic`` leaves behind when a process dies mid-write
 CLAIM_GLOB = "*/.*.claim"  # a guessed render in progress (``ClipStore.claim``)
+_UPLOAD_FILE = re.compile(r"^\.?([0-9a-f]{16,64})\.(?:npz|json|lock|(?:npz|json)\.[^/]+\.tmp)$")
 
 
 @dataclass(frozen=True)
@@ -84,7 +87,11 @@ class ModelFiles:
 
 @dataclass(frozen=True)
 class UploadFiles:
-    """One domain's uploaded datasets: ``<dataset>.npz`` (trajectories, optional) + ``<dataset>.json`` (labels)."""
+    """One domain's uploaded datasets: ``<dataset>.npz`` (trajectories, optional) + ``<dataset>.json`` (labels).
+
+    While a dataset is being stored its ``.<dataset>.lock`` exists, and ``write_atomic`` writes each
+    file first as ``.<dataset>.<ext>.<random>.tmp``.
+    """
 
     folder: Path
 
@@ -93,6 +100,22 @@ class UploadFiles:
 
     def labels(self, dataset_id: str) -> Path:
         return self.folder / f"{dataset_id}.json"
+
+    def lock(self, dataset_id: str) -> Path:
+        return self.folder / f".{dataset_id}.lock"
+
+    def stored(self, dataset_id: str) -> list[Path]:
+        """The dataset's files that exist."""
+        return [p for p in (self.trajectories(dataset_id), self.labels(dataset_id)) if p.exists()]
+
+    def temporaries(self, dataset_id: str) -> list[Path]:
+        """Half-written files of the dataset (a write cut short leaves them)."""
+        return sorted(self.folder.glob(f".{dataset_id}.*.tmp"))
+
+    def dataset_ids(self) -> set[str]:
+        """Every dataset with a file, a temporary or a lock here (other files are not the store's)."""
+        found = (_UPLOAD_FILE.match(p.name) for p in self.folder.iterdir()) if self.folder.is_dir() else ()
+        return {m.group(1) for m in found if m}
 
 
 class ClipStore:
@@ -186,16 +209,58 @@ class Store:
 
     def staging(self, job_id: str) -> Path:
         """Where a running job writes its models; only ``publish`` makes them a version."""
-        return self.versions_dir / f".tmp-{job_id}"
+        return self.versions_dir / f"{STAGING_PREFIX}{job_id}"
+
+    def staged_jobs(self) -> list[str]:
+        """The jobs that have a staging folder (running ones, or what a crash left)."""
+        found = self.versions_dir.glob(f"{STAGING_PREFIX}*") if self.versions_dir.is_dir() else []
+        return sorted(p.name.removeprefix(STAGING_PREFIX) for p in found if p.is_dir())
+
+    def published(self) -> list[str]:
+        """The version folders (published by a job; whether a row names each is the server's to know)."""
+        found = self.versions_dir.iterdir() if self.versions_dir.is_dir() else []
+        return sorted(p.name for p in found if p.is_dir() and not p.name.startswith(STAGING_PREFIX))
 
     def publish(self, job_id: str, version: str) -> None:
         os.replace(self.staging(job_id), self.versions_dir / version)
 
+    def unpublish(self, version: str) -> None:
+        """Remove a version whose job could not record it (nothing refers to it)."""
+        shutil.rmtree(self.versions_dir / version, ignore_errors=True)
+
     def discard(self, job_id: str) -> None:
         shutil.rmtree(self.staging(job_id), ignore_errors=True)
 
+    def job_record(self, job_id: str) -> Path:
+        """Which process runs the job (``server.processes.ProcessRecord``), while it runs."""
+        return self.data_dir / "jobs" / f"{job_id}.json"
+
+    def recorded_jobs(self) -> list[str]:
+        """The jobs that have a process record."""
+        folder = self.data_dir / "jobs"
+        return sorted(p.stem for p in folder.glob("*.json")) if folder.is_dir() else []
+
+    def sweep_job_records(self, older_than: float) -> int:
+        """Remove half-written process records a crash left (older than ``older_than`` seconds); how many."""
+        cutoff, removed = time.time() - older_than, 0
+        for tmp in (self.data_dir / "jobs").glob(".*.tmp"):
+            with contextlib.suppress(OSError):
+                if tmp.stat().st_mtime < cutoff:
+                    tmp.unlink()
+                    removed += 1
+        return removed
+
     def uploads(self, domain: str) -> UploadFiles:
-        return UploadFiles(self.data_dir / "uploads" / domain)
+        return UploadFiles(self.uploads_dir / domain)
+
+    @property
+    def uploads_dir(self) -> Path:
+        return self.data_dir / "uploads"
+
+    def upload_folders(self) -> list[UploadFiles]:
+        """Every domain's upload folder that exists."""
+        root = self.uploads_dir
+        return [UploadFiles(p) for p in sorted(root.iterdir()) if p.is_dir()] if root.is_dir() else []
 
     @property
     def database_file(self) -> Path:

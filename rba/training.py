@@ -9,7 +9,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Collection, Iterable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import TypeVar
@@ -118,6 +118,11 @@ def argmax_match_rate(scorer: LibraryScorer, serve: SkillLibrary, target_zeta: n
     return float(np.mean(hits))
 
 
+def stage_name(kind: str, rep: str) -> str:
+    """The stage a trainer reports while it fits the ``kind`` model of ``rep`` (the server weighs stages by it)."""
+    return f"{kind}[{rep}]"
+
+
 def _progress(name: str, on_progress: StageProgress | None = None) -> Progress:
     def report(step: int, total: int, loss: float) -> None:
         log.info("%s step %d/%d loss %.4f", name, step, total, loss)
@@ -171,6 +176,21 @@ class LabelSource:
 
     labels: LabelSet
     trajectories: dict[str, np.ndarray] = field(default_factory=dict)
+    name: str = "labels"  # what errors call it, e.g. "dataset 3f2a..."
+
+    def check(self, library_ids: Collection[str], state_dim: int) -> None:
+        """ValueError naming this source unless every trajectory is [T, state_dim] and every clip its labels
+        refer to is one of its trajectories or a library rollout (a stored dataset may have changed since
+        it was checked)."""
+        for ref, traj in self.trajectories.items():
+            shape = np.shape(traj)
+            if len(shape) != 2 or shape[0] < 1 or shape[1] != state_dim:
+                raise ValueError(f"{self.name}: trajectory {ref!r} has shape {list(shape)}, expected [T, {state_dim}]")
+        missing = sorted(r for r in self.labels.references() if r not in self.trajectories and r not in library_ids)
+        if missing:
+            shown = ", ".join(repr(m) for m in missing[:5]) + (" ..." if len(missing) > 5 else "")
+            raise ValueError(f"{self.name}: its labels refer to {len(missing)} clip(s) that are neither its "
+                             f"trajectories nor train/serve rollouts: {shown}")
 
 
 class _Pool:
@@ -185,6 +205,7 @@ class _Pool:
         self.uploaded: list[dict[str, int]] = []
         n, rows = self.library_rows, len(train.states) + len(serve.states)
         for src in sources:
+            src.check(self.library_index, train.states.shape[1])
             names = {}
             for name, traj in src.trajectories.items():
                 names[name] = n
@@ -195,7 +216,9 @@ class _Pool:
         self.data = Ragged.from_numpy(np.concatenate(arrays), np.concatenate([*offsets, [rows]]))
 
     def index(self, source: int, ref: str) -> int:
-        return self.uploaded[source].get(ref, self.library_index.get(ref, -1))
+        """The row of a clip the source refers to (``LabelSource.check`` made sure there is one)."""
+        names = self.uploaded[source]
+        return names[ref] if ref in names else self.library_index[ref]
 
     def pairs(self, sources: list[LabelSource], attribute: str) -> list[list[tuple[int, int]]]:
         return [[(self.index(i, hi), self.index(i, lo)) for hi, lo in src.labels.pairs(attribute)]
@@ -273,7 +296,7 @@ def train_global(domain_name: str, rep: str, cfg: GlobalTrainConfig | None = Non
     pool = _Pool(inputs.train, inputs.serve, sources)
     labels, held_out = _global_labels(inputs, pool, sources, cfg.ranker)
     (ranker, rstats), ranker_seconds = _timed(train_ranker, pool.data, labels, inputs.embed, cfg.ranker,
-                                              progress=_progress(f"ranker[{rep}]", on_progress))
+                                              progress=_progress(stage_name("ranker", rep), on_progress))
     rmetrics, test_zeta, pool_zeta = _ranker_metrics(ranker, inputs, pool, held_out)
     log.info("ranker[%s] held out: %s", rep, rmetrics)
     common = inputs.card(rep)
@@ -288,7 +311,7 @@ def train_global(domain_name: str, rep: str, cfg: GlobalTrainConfig | None = Non
                         "held_out": {"split": "test", "rollouts": len(inputs.test), **rmetrics}}, models_root)
     # rθ learns from ζσ labels only: every pooled trajectory (train, serve, uploaded), no proxies.
     (reward, gstats), reward_seconds = _timed(train_global_reward, pool.data, pool_zeta, cfg.reward,
-                                              progress=_progress(f"global_reward[{rep}]", on_progress))
+                                              progress=_progress(stage_name("global_reward", rep), on_progress))
     scorer = LibraryScorer(reward, Ragged.from_numpy(inputs.serve.states, inputs.serve.state_offsets))
     eps = {p: inputs.domain.epsilons(inputs.serve.proxies, p) for p in ("normal", "high")}
     match = {p: argmax_match_rate(scorer, inputs.serve, test_zeta, inputs.test.proxies, eps[p])
@@ -344,7 +367,7 @@ def train_local(domain_name: str, rep: str, cfg: LocalTrainConfig | None = None,
         pairs, data = pairs.concat(pool.local_pairs(sources, inputs.names)), pool.data
     log.info("local pairs: %s", pair_counts(pairs, inputs.names))
     (model, stats), seconds = _timed(train_local_reward, data, pairs, inputs.embed, cfg.reward,
-                                     progress=_progress(f"local_reward[{rep}]", on_progress))
+                                     progress=_progress(stage_name("local_reward", rep), on_progress))
     ranking, edits = _local_metrics(model, inputs, cfg, stats["near_copy_radius"])
     log.info("local_reward[%s] on test: %s; argmax over serve: %s", rep, ranking, edits)
     r = cfg.reward

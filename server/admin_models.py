@@ -11,18 +11,16 @@ from __future__ import annotations
 import datetime as dt
 import enum
 import uuid
-from collections.abc import Callable
-from typing import Any, Literal
+from typing import Annotated, Any
 
-from pydantic import BaseModel, field_validator
+from pydantic import BaseModel, WithJsonSchema, field_validator
 from pydantic import Field as BodyField  # sqlmodel's Field is for tables
-from pydantic_core import PydanticCustomError
 from sqlalchemy import JSON, Column, DateTime, Text, UniqueConstraint
 from sqlmodel import Field, SQLModel
 
 from rba.labels import Comparison, LocalChange, NewAttribute, Ordering
 from rba.methods import train_presets, trainable
-from server.models import as_utc, utcnow
+from server.models import STRICT_BODY, DomainName, OneOf, RepName, as_utc, utcnow
 
 BUILTIN_VERSION = "builtin"  # the models shipped under models/<domain>/
 
@@ -79,7 +77,9 @@ class AttributeDef(AttributeDefBase, table=True):
 class AttributeCreate(NewAttribute):
     """Body of POST /api/admin/attributes (the library's rules for a new attribute's name and description)."""
 
-    domain: str
+    model_config = STRICT_BODY
+
+    domain: DomainName
 
 
 class AttributeDefPublic(SQLModel):
@@ -122,7 +122,9 @@ class LabelRecord(LabelBase, table=True):
 class LabelCreate(BaseModel):
     """Body of POST /api/admin/labels: exactly one of the three kinds, about library rollouts."""
 
-    domain: str
+    model_config = STRICT_BODY
+
+    domain: DomainName
     ordering: Ordering | None = None
     comparison: Comparison | None = None
     local_change: LocalChange | None = None
@@ -232,6 +234,13 @@ class ModelVersion(ModelVersionBase, table=True):
 class VersionPublic(ModelVersionBase):
     active: bool
     created_at: dt.datetime | None = Field(description="none for the built-in models")
+    scores: dict[str, float | None] = Field(default_factory=dict, description=(
+        "headline held-out numbers from the model cards, higher is better; null: untested (no held-out pairs)"))
+    baseline: str | None = Field(default=None, description=(
+        "the version new sessions of this method/rep get now (null when it is this one)"))
+    baseline_scores: dict[str, float | None] = Field(default_factory=dict, description="the baseline's scores")
+    concerns: list[str] = Field(default_factory=list, description=(
+        "why activating this needs confirming: numbers below the baseline's, untested attributes"))
 
     _utc = field_validator("created_at")(lambda v: None if v is None else as_utc(v))
 
@@ -246,25 +255,6 @@ class ActiveModel(SQLModel, table=True):
     updated_at: dt.datetime = _time_column()
 
 
-def _one_of(valid: tuple[str, ...]) -> str:
-    """Valid values worded as pydantic words a ``Literal``'s: 'a', 'b' or 'c'."""
-    quoted = [repr(v) for v in valid]
-    return quoted[-1] if len(quoted) == 1 else f"{', '.join(quoted[:-1])} or {quoted[-1]}"
-
-
-def _registry_choice(valid: Callable[[], tuple[str, ...]]) -> Callable[[Any], str]:
-    """A validator accepting what ``valid()`` lists now (methods may be registered at run time).
-
-    It fails like a ``Literal`` field (same error type and text), so the API's 422 stays as it was.
-    """
-    def check(value: Any) -> str:
-        if value not in valid():
-            raise PydanticCustomError("literal_error", "Input should be {expected}", {"expected": _one_of(valid())})
-        return value
-
-    return check
-
-
 def _trainable_names() -> tuple[str, ...]:
     return tuple(m.name for m in trainable())
 
@@ -272,22 +262,34 @@ def _trainable_names() -> tuple[str, ...]:
 class TrainCreate(BaseModel):
     """Body of POST /api/admin/train; ``method`` and ``preset`` are checked against the method registry."""
 
-    domain: str
-    datasets: list[str] = []
-    method: str = BodyField("global", json_schema_extra=lambda s: s.update(enum=list(_trainable_names())))
-    rep: Literal["onehot", "language"] = "onehot"
-    preset: str = BodyField("default", json_schema_extra=lambda s: s.update(enum=list(train_presets())))
-    include_page_labels: bool = True
+    model_config = STRICT_BODY
 
-    _method = field_validator("method", mode="before")(_registry_choice(_trainable_names))
-    _preset = field_validator("preset", mode="before")(_registry_choice(train_presets))
+    domain: DomainName
+    datasets: list[str] = BodyField(default=[], max_length=100, description="ids from GET /api/admin/datasets")
+    method: Annotated[str, OneOf("method", _trainable_names)] = "global"
+    rep: RepName = "onehot"
+    preset: Annotated[str, OneOf("preset", train_presets)] = "default"
+    include_page_labels: bool = True
 
 
 class JobPublic(TrainJobBase):
     id: str
     state: JobState
-    progress: float
+    progress: float = Field(description="share of the whole job done, 0-1 (stages weighted by how long the "
+                                        "shipped models took to fit); stage, step and total are the current stage's")
+    eta_seconds: float | None = Field(default=None, description="estimated seconds left (from the elapsed time); "
+                                                                "null when finished or too early to tell")
     created_at: dt.datetime
     updated_at: dt.datetime
 
     _utc = field_validator("created_at", "updated_at")(as_utc)
+
+
+class DatasetUpload(BaseModel):
+    """The form of POST /api/admin/datasets, for the OpenAPI document (the route parses the stream itself)."""
+
+    domain: DomainName
+    labels: bytes = BodyField(description="a JSON file: orderings, comparisons, local_changes, new_attributes")
+    trajectories: Annotated[bytes | None, WithJsonSchema({"type": "string", "format": "binary"})] = BodyField(
+        default=None, description="an .npz of float32 [T, state_dim] arrays, one per trajectory name",
+        json_schema_extra=lambda schema: schema.pop("default"))  # optional, not null: a form has no null

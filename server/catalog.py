@@ -12,23 +12,18 @@ import time
 from typing import Any
 
 from rba.domains import Domain, domain_names, get_domain
-from rba.embed import REPRESENTATIONS
 from rba.interact import load_context
 from rba.library import SkillLibrary
 from rba.locks import KeyedLocks
-from rba.methods import get_method, methods
+from rba.methods import get_method
 from rba.storage import load_json
 from rba.store import ModelFiles, Store
 from server.admin_models import BUILTIN_VERSION
 from server.errors import invalid, not_found
+from server.models import attribute_methods
 from server.settings import Settings
 
 log = logging.getLogger(__name__)
-
-def attribute_methods() -> tuple[str, ...]:
-    """Methods whose agents take more/less feedback (PbRL asks A/B questions: not served here)."""
-    return tuple(m.name for m in methods() if m.feedback_kind == "attribute")
-
 
 class Catalog:
     """Domains, availability, serve libraries and agent contexts of one server."""
@@ -62,6 +57,14 @@ class Catalog:
         card = load_json(models.card(domain, kind, rep))
         return list(card["attributes"])
 
+    def card(self, domain: str, kind: str, rep: str, version: str = BUILTIN_VERSION) -> dict | None:
+        """The model card of one artifact of ``version``; None when it has none (or it is unreadable)."""
+        try:
+            card = load_json(self.models(version).card(domain, kind, rep))
+        except (OSError, ValueError):
+            return None
+        return card if isinstance(card, dict) else None
+
     # -- availability ----------------------------------------------------------------------
     def has_library(self, domain: str) -> bool:
         return self.store.libraries.complete(domain, "serve")
@@ -86,13 +89,8 @@ class Catalog:
         return None
 
     def check_available(self, domain: str, method: str, rep: str, version: str = BUILTIN_VERSION) -> None:
-        """422 unless (method, rep) can serve ``domain``; the message lists what can."""
-        if domain not in domain_names():
-            raise invalid(f"unknown domain {domain!r}; valid: {', '.join(domain_names())}")
-        if method not in attribute_methods():
-            raise invalid(f"unknown method {method!r}; valid: {', '.join(attribute_methods())}")
-        if rep not in REPRESENTATIONS:
-            raise invalid(f"unknown rep {rep!r}; valid: {', '.join(REPRESENTATIONS)}")
+        """422 unless (method, rep) can serve ``domain`` (known names: ``SessionCreate`` checked them); the message
+        lists what can."""
         pairs = self.available(domain, version)
         if (method, rep) not in pairs:
             have = ", ".join(f"{m}/{r}" for m, r in pairs) or f"none ({self.missing_reason(domain)})"

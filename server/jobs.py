@@ -10,18 +10,29 @@ Several API replicas may share the database. Each job row names the server proce
 heartbeat went stale (their server died) or that it ran itself before a restart, never a live
 job of another replica. A job cancelled through another replica is stopped by its owner at the
 next heartbeat. The database's unique ``busy_domain`` keeps one job per domain across replicas.
+
+A job's process dies with its server (``server.processes``). A restart fails the jobs its previous
+process ran, kills their processes if they still run, and sweeps every staging folder and process
+record no live job owns. A process whose job was taken away (failed by a restart or another replica,
+cancelled) writes nothing more: every write of the child is conditional on its server still owning
+an unfinished job, and its models become a version only in the transaction that records its success.
 """
 
 from __future__ import annotations
 
 import collections
+import contextlib
 import datetime as dt
 import logging
 import multiprocessing
 import os
+import re
+import socket
 import threading
+import time
 import uuid
 
+import psutil
 from sqlalchemy import func, update
 from sqlalchemy.exc import SQLAlchemyError
 from sqlmodel import Session, select
@@ -29,25 +40,30 @@ from sqlmodel import Session, select
 from rba.store import Store
 from server.admin_models import FINISHED, JobState, ModelVersion, TrainJob
 from server.models import as_utc, utcnow
+from server.processes import Launcher, ProcessRecord, tie_to_parent
 from server.settings import Settings
 
 log = logging.getLogger(__name__)
+JOB_VERSION = re.compile(r".+-\d{8}-\d{6}-(?P<job>[0-9a-f]{6})")  # how a job names the version it publishes
 LOG_LINES = 40  # lines of the child's log kept in the job row
+STOP_SECONDS = 10.0  # how long a stopping server waits for its cancelled jobs' processes
+RECORD_WRITE_SECONDS = 60.0  # a process record's temporary file older than this was left by a crash
 
 
-def update_job(engine, job_id: str, **changes) -> None:
-    """One transaction per change; finished jobs release their domain."""
+def update_job(engine, job_id: str, *where, **changes) -> bool:
+    """Change an unfinished job in one statement, if ``where`` holds too; a finished state releases the domain.
+
+    False if nothing changed: the job is finished or gone, or ``where`` failed (another server took it).
+    """
+    values = {**changes, "updated_at": utcnow()}
+    if changes.get("state") in FINISHED:
+        values["busy_domain"] = None
     with Session(engine) as db:
-        job = db.get(TrainJob, job_id)
-        if job is None or job.state in FINISHED:
-            return
-        for k, v in changes.items():
-            setattr(job, k, v)
-        if job.state in FINISHED:
-            job.busy_domain = None
-        job.updated_at = utcnow()
-        db.add(job)
+        result = db.exec(update(TrainJob)
+                         .where(TrainJob.id == job_id, TrainJob.busy_domain.is_not(None), *where)  # type: ignore[union-attr]
+                         .values(**values))
         db.commit()
+    return result.rowcount == 1
 
 
 class JobRunner:
@@ -63,10 +79,13 @@ class JobRunner:
         self._stopped = False
         self._halt = threading.Event()
         self._keeper: threading.Thread | None = None
+        self._launcher = Launcher("rba-jobs-launcher")
 
     def recover(self) -> None:
-        """At start-up: fail the jobs no server runs any more, then keep this server's jobs alive (a thread)."""
+        """At start-up: fail the jobs no server runs any more, kill and sweep what they left, then keep this
+        server's jobs alive (a thread)."""
         self.reap(restarted=True)
+        self.sweep()
         self._keeper = threading.Thread(target=self._keep, name="rba-jobs-keeper", daemon=True)
         self._keeper.start()
 
@@ -75,7 +94,8 @@ class JobRunner:
 
         Gone means: no heartbeat for ``job_stale_seconds``, or (with ``restarted``) run by this
         replica's previous process. Each is failed by a conditional update, so a heartbeat that
-        lands first, or another replica reaping it too, makes it a no-op.
+        lands first, or another replica reaping it too, makes it a no-op. The reaper then kills the
+        job's process if it still runs on this machine, and removes its staging folder.
         """
         stale = self.settings.job_stale_seconds
         cutoff = utcnow() - dt.timedelta(seconds=stale)
@@ -95,20 +115,41 @@ class JobRunner:
                 error = f"the server running the job ({job.owner or 'unknown'}) stopped: no heartbeat for {stale:g} s"
             else:
                 continue
-            if self._fail_if(job.id, still, error):
+            if update_job(self.engine, job.id, still, state=JobState.failed.value, error=error):
                 log.warning("job %s: %s", job.id, error)
-                self.store.discard(job.id)
+                self._remove_leftovers(job.id)
                 reaped.append(job.id)
         return reaped
 
-    def _fail_if(self, job_id: str, condition, error: str) -> bool:
-        """Fail the job if it is unfinished and ``condition`` still holds, in one statement."""
+    def sweep(self) -> None:
+        """Kill recorded processes and remove staging folders of every job no server runs (a crash's leftovers).
+
+        The folders are listed before the live jobs are read: a job's row is written before its folder,
+        so a job starting meanwhile is seen as live.
+        """
+        staged, recorded, published = self.store.staged_jobs(), self.store.recorded_jobs(), self.store.published()
         with Session(self.engine) as db:
-            result = db.exec(update(TrainJob)
-                             .where(TrainJob.id == job_id, TrainJob.busy_domain.is_not(None), condition)  # type: ignore[union-attr]
-                             .values(state=JobState.failed.value, busy_domain=None, error=error, updated_at=utcnow()))
-            db.commit()
-        return result.rowcount == 1
+            live = set(db.exec(select(TrainJob.id).where(TrainJob.busy_domain.is_not(None))).all())  # type: ignore[union-attr]
+            versions = set(db.exec(select(ModelVersion.version)).all())
+        for job_id in sorted((set(staged) | set(recorded)) - live):
+            log.warning("job %s: no server runs it; removing what it left", job_id)
+            self._remove_leftovers(job_id)
+        for version in published:  # renamed into place, then killed before its row was committed
+            made = JOB_VERSION.fullmatch(version)  # a job's name for it: folders put there by hand are not ours
+            if made and version not in versions and not any(job.startswith(made["job"]) for job in live):
+                log.warning("version %s: no row names it (its job died while recording it); removing it", version)
+                self.store.unpublish(version)
+        self.store.sweep_job_records(older_than=RECORD_WRITE_SECONDS)
+
+    def _remove_leftovers(self, job_id: str) -> None:
+        """Kill the job's recorded process (if it still runs on this machine), then remove its files."""
+        path = self.store.job_record(job_id)
+        record = ProcessRecord.load(path)
+        if record is not None and record.kill():
+            log.warning("job %s: killed its process %d, left running by a server that stopped", job_id, record.pid)
+        if record is None or record.host == socket.gethostname():  # another host's record is that host's to act on
+            path.unlink(missing_ok=True)
+        self.store.discard(job_id)
 
     def _keep(self) -> None:
         """Every ``job_heartbeat_seconds``: mark this server's jobs alive, and reap those of dead replicas."""
@@ -116,7 +157,7 @@ class JobRunner:
             try:
                 self.heartbeat()
                 self.reap()
-            except SQLAlchemyError:  # the database may be restarting: try again at the next beat
+            except Exception:  # the database may be restarting, a process may be gone: try again at the next beat
                 log.exception("training job heartbeat failed")
 
     def heartbeat(self) -> None:
@@ -140,21 +181,30 @@ class JobRunner:
                 live[job_id].terminate()
 
     def start(self, job_id: str) -> None:
+        """Start the job's process (on the launcher's thread, see ``server.processes``), record it and watch it."""
         ctx = multiprocessing.get_context("spawn")
         from rba.domains import domain_targets
         from rba.methods import method_targets
 
         registry, method_registry = domain_targets(), method_targets()  # plugins registered at run time too
-        proc = ctx.Process(target=run_job, args=(job_id, self.settings.model_dump(mode="json"), registry,
-                                                 method_registry),
+        proc = ctx.Process(target=run_job, args=(job_id, self.owner, os.getpid(), self.settings.model_dump(mode="json"),
+                                                 registry, method_registry),
                            name=f"rba-train-{job_id[:8]}", daemon=True)
-        proc.start()
+        try:
+            self._launcher.start(proc)
+        except Exception as exc:  # no process: release the domain at once rather than when the heartbeat goes stale
+            update_job(self.engine, job_id, state=JobState.failed.value,
+                       error=f"the training process could not start: {type(exc).__name__}: {exc}")
+            raise
         with self._lock:
             self._procs[job_id] = proc
+        with contextlib.suppress(psutil.NoSuchProcess):  # it ended already: the watch below records how
+            ProcessRecord.of(proc.pid).save(self.store.job_record(job_id))
         threading.Thread(target=self._watch, args=(job_id, proc), name=f"rba-watch-{job_id[:8]}", daemon=True).start()
 
     def _watch(self, job_id: str, proc) -> None:
         proc.join()
+        self.store.job_record(job_id).unlink(missing_ok=True)
         with self._lock:
             self._procs.pop(job_id, None)
             if self._stopped:  # the server is shutting down (and may have closed its database)
@@ -180,15 +230,20 @@ class JobRunner:
             proc.join(timeout)
 
     def stop(self) -> None:
+        """Cancel this server's jobs and wait (briefly) for their processes; the launcher's end kills the rest."""
         self._halt.set()
         if self._keeper is not None:
             self._keeper.join(timeout=10)
         with self._lock:
-            ids = list(self._procs)
-        for job_id in ids:
+            procs = dict(self._procs)
+        for job_id in procs:
             self.cancel(job_id)
+        deadline = time.monotonic() + STOP_SECONDS
+        for proc in procs.values():
+            proc.join(max(0.0, deadline - time.monotonic()))
         with self._lock:
             self._stopped = True
+        self._launcher.close()
 
 
 class _Tail(logging.Handler):
@@ -201,8 +256,14 @@ class _Tail(logging.Handler):
         self.lines.append(self.format(record))
 
 
-def run_job(job_id: str, settings_json: dict, registry: dict[str, str], method_registry: dict[str, str]) -> None:
-    """The child process: train from the job's label sources, then publish the version."""
+class JobLost(RuntimeError):
+    """The job was taken from this process (failed by a restart or another replica, or cancelled)."""
+
+
+def run_job(job_id: str, owner: str, parent_pid: int, settings_json: dict, registry: dict[str, str],
+            method_registry: dict[str, str]) -> None:
+    """The child process: train from the job's label sources, then publish the version, while ``owner`` owns it."""
+    tie_to_parent(parent_pid)
     os.environ.setdefault("MUJOCO_GL", "egl")
     from rba import methods
     from rba.domains import register
@@ -212,48 +273,70 @@ def run_job(job_id: str, settings_json: dict, registry: dict[str, str], method_r
     for name, target in method_registry.items():
         methods.register(name, target)
     from server.db import make_engine
-    from server.labeldata import job_sources
 
     settings = Settings(**settings_json)
     tail = _Tail()
     logging.basicConfig(level=logging.INFO, handlers=[tail])
     engine = make_engine(settings.db_url)
     store = Store.from_settings(settings)
-    tmp = store.staging(job_id)
-    update_job(engine, job_id, state=JobState.running.value, stage="loading")
-
-    def progress(stage: str, step: int, total: int, loss: float) -> None:
-        update_job(engine, job_id, stage=stage, step=step, total=total, loss=float(loss),
-                   log_tail="\n".join(tail.lines))
-
+    mine = TrainJob.owner == owner
     try:
-        with Session(engine) as db:
-            job = db.get(TrainJob, job_id)
-            domain, method, rep, preset = job.domain, job.method, job.rep, job.preset
-            sources = job_sources(db, store.uploads(domain), domain, list(job.datasets), job.include_page_labels)
+        if not update_job(engine, job_id, mine, state=JobState.running.value, stage="loading"):
+            raise JobLost(job_id)
+        _train_and_publish(engine, store, settings, job_id, mine, tail)
+    except JobLost:
+        logging.getLogger(__name__).warning("job %s was taken from this process: it stops, writing nothing", job_id)
         store.discard(job_id)
-        metrics = methods.get_method(method).trainer(domain, rep, preset, data_root=store.data_dir,
-                                                     models_root=tmp, sources=sources, on_progress=progress)
-        version = f"{domain}-{dt.datetime.now(dt.UTC):%Y%m%d-%H%M%S}-{job_id[:6]}"
-        with Session(engine) as db:
-            job = db.get(TrainJob, job_id)
-            if job is None or job.state in FINISHED:  # cancelled meanwhile: publish nothing
-                store.discard(job_id)
-                return
-            store.publish(job_id, version)
-            from server.catalog import Catalog
-
-            names = [a["name"] for a in Catalog(settings).card_attributes(domain, method, rep, version)]
-            db.add(ModelVersion(version=version, domain=domain, method=method, rep=rep, job_id=job_id,
-                                attributes=names, held_out=metrics))
-            job.state, job.busy_domain, job.version = JobState.succeeded.value, None, version
-            job.held_out, job.stage, job.step = metrics, "done", job.total
-            job.log_tail = "\n".join(tail.lines)
-            job.updated_at = utcnow()
-            db.add(job)
-            db.commit()
     except Exception as e:
         logging.getLogger(__name__).exception("job %s failed", job_id)
         store.discard(job_id)
-        update_job(engine, job_id, state=JobState.failed.value, error=f"{type(e).__name__}: {e}",
+        update_job(engine, job_id, mine, state=JobState.failed.value, error=f"{type(e).__name__}: {e}",
                    log_tail="\n".join(tail.lines))
+
+
+def _train_and_publish(engine, store: Store, settings: Settings, job_id: str, mine, tail: _Tail) -> None:
+    """Train into the staging folder, then rename it to the version's name and record both, or raise."""
+    from server.labeldata import job_sources
+
+    def progress(stage: str, step: int, total: int, loss: float) -> None:
+        if not update_job(engine, job_id, mine, stage=stage, step=step, total=total, loss=float(loss),
+                          log_tail="\n".join(tail.lines)):
+            raise JobLost(job_id)
+
+    with Session(engine) as db:
+        job = db.get(TrainJob, job_id)
+        domain, method, rep, preset = job.domain, job.method, job.rep, job.preset
+        sources = job_sources(db, store.uploads(domain), domain, list(job.datasets), job.include_page_labels)
+    store.discard(job_id)
+    from rba import methods
+
+    metrics = methods.get_method(method).trainer(domain, rep, preset, data_root=store.data_dir,
+                                                 models_root=store.staging(job_id), sources=sources,
+                                                 on_progress=progress)
+    version = f"{domain}-{dt.datetime.now(dt.UTC):%Y%m%d-%H%M%S}-{job_id[:6]}"  # matches JOB_VERSION
+    store.publish(job_id, version)
+    try:
+        _record_success(engine, settings, job_id, mine, version, metrics, "\n".join(tail.lines))
+    except BaseException:
+        store.unpublish(version)
+        raise
+
+
+def _record_success(engine, settings: Settings, job_id: str, mine, version: str, metrics: dict,
+                    log_tail: str) -> None:
+    """The job's success and its version in one transaction, only while this process still owns the job."""
+    from server.catalog import Catalog
+
+    with Session(engine) as db:
+        job = db.get(TrainJob, job_id)
+        result = db.exec(update(TrainJob)
+                         .where(TrainJob.id == job_id, TrainJob.busy_domain.is_not(None), mine)  # type: ignore[union-attr]
+                         .values(state=JobState.succeeded.value, busy_domain=None, version=version, held_out=metrics,
+                                 stage="done", step=TrainJob.total, log_tail=log_tail, updated_at=utcnow()))
+        if job is None or result.rowcount != 1:  # cancelled or taken meanwhile: publish nothing
+            db.rollback()
+            raise JobLost(job_id)
+        names = [a["name"] for a in Catalog(settings).card_attributes(job.domain, job.method, job.rep, version)]
+        db.add(ModelVersion(version=version, domain=job.domain, method=job.method, rep=job.rep, job_id=job_id,
+                            attributes=names, held_out=metrics))
+        db.commit()

@@ -1,8 +1,11 @@
 """Admin operations on labels: attributes, page labels, uploaded datasets, and clips to label.
 
-Uploads are checked completely before anything is written; then the two files are stored
-atomically under ``data/uploads/<domain>/<content hash>.{npz,json}`` and recorded in one
-transaction. The uploader's file name is kept for display only: paths come from the hash.
+Uploads are checked completely (in a workspace folder) before anything is written; then, under
+the dataset's lock, the two files are stored atomically under
+``data/uploads/<domain>/<content hash>.{npz,json}`` and recorded in one transaction, last: a
+crash at any point leaves the whole dataset or leftovers that start-up removes
+(``server.labeldata.sweep_uploads``, ``server.uploads.sweep_workspaces``). The uploader's file
+name is kept for display only: paths come from the hash.
 
 Import direction: above ``server.services``, ``server.labeldata`` (the stored label data it shares
 with training jobs), ``server.views`` and ``server.uploads`` (the checks); only routes and
@@ -14,16 +17,15 @@ from __future__ import annotations
 import hashlib
 import logging
 import random
-import shutil
-import tempfile
-from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 from fastapi import HTTPException, Request
 from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session, select
+from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import UploadFile
 from starlette.formparsers import MultiPartException, MultiPartParser
 
@@ -31,6 +33,7 @@ from rba.domains import Domain
 from rba.labels import LabelSet
 from rba.library import SkillLibrary
 from rba.storage import save_npz, save_text
+from rba.store import UploadFiles
 from server.admin_models import (
     AttributeAddedPublic,
     AttributeDef,
@@ -48,7 +51,7 @@ from server.errors import conflict, invalid
 from server.labeldata import LABEL_GROUPS, declared_attributes
 from server.services import Services
 from server.settings import Settings
-from server.uploads import UploadLimits, check_labels, check_npz
+from server.uploads import UploadLimits, check_labels, check_npz, claimed, workspace
 from server.views import clip_url
 
 log = logging.getLogger(__name__)
@@ -147,26 +150,13 @@ def clips_to_label(svc: Services, db: Session, domain: str, size: int, anchor: b
 
 # -- uploads --------------------------------------------------------------------------------------
 
-async def _limited(request: Request, limit: int) -> AsyncIterator[bytes]:
-    """The request body, stopped with 413 as soon as it passes ``limit`` bytes."""
-    received = 0
-    async for chunk in request.stream():
-        received += len(chunk)
-        if received > limit:
-            raise HTTPException(413, f"upload too large: over the limit of {limit} bytes (RBA_UPLOAD_MAX_BYTES)")
-        yield chunk
-
-
-async def read_upload_form(request: Request, limit: int) -> dict[str, UploadFile | str]:
-    declared = request.headers.get("content-length")
-    if declared and declared.isdigit() and int(declared) > limit:
-        raise HTTPException(413, f"upload too large: {declared} bytes, over the limit of {limit} bytes "
-                                 "(RBA_UPLOAD_MAX_BYTES)")
+async def read_upload_form(request: Request) -> dict[str, UploadFile | str]:
+    """The multipart form; its size is capped as it streams by ``server.limits.BodyLimit`` (RBA_UPLOAD_MAX_BYTES)."""
     if not request.headers.get("content-type", "").startswith("multipart/form-data"):
         raise invalid("send multipart/form-data with fields: domain, labels (a JSON file), "
                       "trajectories (an .npz file, optional)")
     try:
-        form = await MultiPartParser(request.headers, _limited(request, limit), max_files=2, max_fields=4).parse()
+        form = await MultiPartParser(request.headers, request.stream(), max_files=2, max_fields=4).parse()
     except MultiPartException as e:
         raise invalid(f"malformed multipart body: {e.message}") from e
     return dict(form.multi_items())
@@ -182,14 +172,14 @@ class CheckedUpload:
 
     filename: str  # the uploader's, for display only
     trajectories: dict[str, np.ndarray] = field(default_factory=dict)
-    npz_bytes: bytes = b""
+    npz_digest: bytes = hashlib.sha256(b"").digest()  # of the .npz as uploaded
     labels: LabelSet | None = None
     labels_json: bytes = b""  # canonical: what is stored and hashed
     problems: list[str] = field(default_factory=list)
 
     def dataset_id(self, domain: str) -> str:
         """The content hash the dataset is stored and recorded under."""
-        digest = hashlib.sha256(domain.encode() + b"\0" + hashlib.sha256(self.npz_bytes).digest() + self.labels_json)
+        digest = hashlib.sha256(domain.encode() + b"\0" + self.npz_digest + self.labels_json)
         return digest.hexdigest()[:32]
 
 
@@ -206,26 +196,36 @@ def _form_files(svc: Services, form: dict) -> tuple[Domain, UploadFile, UploadFi
     return domain, labels_file, npz_file
 
 
-async def _read_files(labels_file: UploadFile, npz_file: UploadFile | None, state_dim: int,
-                      limits: UploadLimits) -> CheckedUpload:
-    """Both files read and checked on their own (the .npz through a temporary file of our naming)."""
+def _copy(src: BinaryIO, path: Path) -> tuple[int, bytes]:
+    """Copy ``src`` to ``path``; returns its size and SHA-256."""
+    h, size = hashlib.sha256(), 0
+    with path.open("wb") as out:
+        while chunk := src.read(1 << 20):
+            h.update(chunk)
+            out.write(chunk)
+            size += len(chunk)
+    return size, h.digest()
+
+
+def _read_files(labels_file: UploadFile, npz_file: UploadFile | None, state_dim: int,
+                limits: UploadLimits) -> CheckedUpload:
+    """Both files read and checked on their own (the .npz through a file of our naming in a workspace)."""
     filename = (getattr(labels_file, "filename", None) or "labels.json")[:200]
     if npz_file is not None:
         filename = (npz_file.filename or "trajectories.npz")[:200]
     upload = CheckedUpload(filename)
-    with tempfile.TemporaryDirectory(prefix="rba-upload-") as tmp:
-        npz_path = Path(tmp) / "upload.npz"  # our name, never the uploader's
-        if npz_file is not None:
-            with npz_path.open("wb") as out:
-                shutil.copyfileobj(npz_file.file, out)
-            upload.npz_bytes = npz_path.read_bytes()
-            if not upload.npz_bytes:
+    if npz_file is not None:
+        with workspace() as folder:
+            npz_path = folder / "upload.npz"  # our name, never the uploader's
+            size, upload.npz_digest = _copy(npz_file.file, npz_path)
+            if not size:
                 upload.problems.append("trajectories: the file is empty")
             else:
                 upload.trajectories, found = check_npz(npz_path, state_dim, limits)
                 upload.problems += found
-        upload.labels, upload.labels_json, found = check_labels(await labels_file.read(), limits.max_bytes)
-        upload.problems += found
+    upload.labels, upload.labels_json, found = check_labels(labels_file.file.read(limits.max_bytes + 1),
+                                                            limits.max_bytes)
+    upload.problems += found
     return upload
 
 
@@ -264,23 +264,55 @@ def _record_upload(db: Session, domain: str, dataset_id: str, upload: CheckedUpl
     return DatasetPublic.model_validate(row), True
 
 
-async def store_upload(svc: Services, db: Session, form: dict) -> tuple[DatasetPublic, bool]:
-    """Check everything, then store; returns the dataset and whether it was new."""
-    domain, labels_file, npz_file = _form_files(svc, form)
-    upload = await _read_files(labels_file, npz_file, domain.state_dim, _limits(svc.settings))
+def _save_files(uploads: UploadFiles, dataset_id: str, upload: CheckedUpload) -> None:
+    """Both files, each written under a temporary name and renamed; none of them if either fails."""
+    try:
+        if upload.trajectories:
+            save_npz(uploads.trajectories(dataset_id), upload.trajectories)
+        save_text(uploads.labels(dataset_id), upload.labels_json.decode())
+    except BaseException:
+        for path in uploads.stored(dataset_id):  # no row refers to them yet
+            path.unlink(missing_ok=True)
+        raise
+
+
+def _store(svc: Services, db: Session, domain: str, dataset_id: str,
+           upload: CheckedUpload) -> tuple[DatasetPublic, bool]:
+    """Files first, the row last, under the dataset's lock: until the row is committed nothing refers to
+    the files, and what a crash leaves the start-up sweep removes (``server.labeldata.sweep_uploads``)."""
+    uploads = svc.store.uploads(domain)
+    with claimed(uploads.lock(dataset_id)):  # waits while another request stores the same dataset
+        db.rollback()  # a fresh snapshot: see the twin that may have been stored while we waited
+        existing = db.get(Dataset, dataset_id)
+        if existing is not None:
+            return DatasetPublic.model_validate(existing, update={"duplicate": True}), False
+        _save_files(uploads, dataset_id, upload)
+        return _record_upload(db, domain, dataset_id, upload)
+
+
+def _check_and_store(svc: Services, db: Session, domain: Domain, labels_file: UploadFile,
+                     npz_file: UploadFile | None) -> tuple[DatasetPublic, bool]:
+    upload = _read_files(labels_file, npz_file, domain.state_dim, _limits(svc.settings))
     if upload.labels is not None:
         upload.problems += _label_problems(svc, db, domain, upload)
     if upload.problems:
         raise UploadProblems(upload.problems)
-    dataset_id = upload.dataset_id(domain.name)
-    existing = db.get(Dataset, dataset_id)
-    if existing is not None:
-        return DatasetPublic.model_validate(existing, update={"duplicate": True}), False
-    uploads = svc.store.uploads(domain.name)
-    if upload.trajectories:
-        save_npz(uploads.trajectories(dataset_id), upload.trajectories)
-    save_text(uploads.labels(dataset_id), upload.labels_json.decode())
-    return _record_upload(db, domain.name, dataset_id, upload)
+    return _store(svc, db, domain.name, upload.dataset_id(domain.name), upload)
+
+
+async def store_upload(svc: Services, db: Session, form: dict) -> tuple[DatasetPublic, bool]:
+    """Check everything, then store; returns the dataset and whether it was new.
+
+    In a worker thread: reading, checking and compressing a large upload takes seconds, which the
+    event loop must not wait for, and storing may wait for a twin upload's lock.
+    """
+    domain, labels_file, npz_file = _form_files(svc, form)
+    try:
+        return await run_in_threadpool(_check_and_store, svc, db, domain, labels_file, npz_file)
+    finally:
+        for f in (labels_file, npz_file):
+            if f is not None:
+                await f.close()
 
 
 def list_datasets(db: Session, domain: str) -> list[DatasetPublic]:

@@ -4,19 +4,25 @@ from __future__ import annotations
 
 import logging
 import os
+import socket
 import threading
-from collections.abc import AsyncIterator
-from contextlib import asynccontextmanager
+import time
+from collections.abc import AsyncIterator, Iterator
+from contextlib import asynccontextmanager, contextmanager
 from pathlib import Path
 
-from fastapi import FastAPI, HTTPException
+from fastapi import Depends, FastAPI
 from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
 
 from rba.compute import Compute
 from server import errors
+from server.admin_models import DatasetUpload
+from server.auth import AdminGate, FailureLimiter
+from server.deps import known_query
+from server.limits import BodyLimit, Cap
 from server.prerender import warm_up
-from server.routes import admin_datasets, admin_labels, admin_training, clips, domains, sessions
+from server.routes import admin_datasets, admin_labels, admin_training, clips, docs, domains, interpret, sessions
 from server.services import Services
 from server.settings import Settings
 
@@ -47,21 +53,31 @@ def create_app(settings: Settings | None = None, compute: Compute | None = None)
         finally:
             svc.stop()
 
-    app = FastAPI(title="RBA Studio", version="0.1.0", lifespan=lifespan,
+    app = FastAPI(title="RBA Studio", version="0.1.0", lifespan=lifespan, docs_url=None, redoc_url=None,
                   description="Tune how an agent behaves by saying more / less of an attribute "
                               "(Relative Behavioral Attributes, ICLR 2023).")
     errors.install(app)
-    for router in (domains.router, sessions.router, clips.router, admin_labels.router, admin_datasets.router,
-                   admin_training.router):
-        app.include_router(router)
-
-    @app.api_route("/api/{rest:path}", methods=["GET", "POST", "PUT", "PATCH", "DELETE"], include_in_schema=False)
-    def unknown_api(rest: str) -> None:
-        raise HTTPException(404, f"no API route /api/{rest}; see /docs for the routes")
+    docs.install(app)  # /docs and /redoc on the app's own copies of their scripts: no CDN
+    # The last added runs first: the admin token before anything reads a body, then the body cap (the upload
+    # streams under its own limit).
+    json_cap = Cap(settings.json_max_bytes, "RBA_JSON_MAX_BYTES", hint="; datasets go to POST /api/admin/datasets")
+    upload_cap = Cap(settings.upload_max_bytes, "RBA_UPLOAD_MAX_BYTES", what="upload")
+    app.add_middleware(BodyLimit, default=json_cap, routes={("POST", admin_datasets.router.prefix): upload_cap})
+    app.add_middleware(AdminGate, token=settings.admin_token,
+                       failures=FailureLimiter(settings.admin_failures_per_minute))
+    for router in (domains.router, interpret.router, sessions.router, clips.router, admin_labels.router,
+                   admin_datasets.router, admin_training.router):
+        app.include_router(router, dependencies=[Depends(known_query)])  # the API's, not the pages' (?utm_… is fine)
+    _document_upload_form(app)
 
     @app.get("/healthz", include_in_schema=False)
     def healthz() -> dict[str, str]:
         return {"status": "ok"}
+
+    @app.get("/favicon.ico", include_in_schema=False)
+    def favicon() -> FileResponse:
+        """Browsers ask for it whatever the page links: an SVG (every current browser reads one here)."""
+        return FileResponse(FRONTEND / "favicon.svg", media_type="image/svg+xml")
 
     @app.get("/", include_in_schema=False)
     def index() -> FileResponse:
@@ -76,6 +92,19 @@ def create_app(settings: Settings | None = None, compute: Compute | None = None)
     return app
 
 
+def _document_upload_form(app: FastAPI) -> None:
+    """Add the upload's form (which its route parses itself) to the OpenAPI document when it is first made."""
+    make = app.openapi
+
+    def openapi() -> dict:
+        if app.openapi_schema is None:
+            schemas = make().setdefault("components", {}).setdefault("schemas", {})
+            schemas["DatasetUpload"] = DatasetUpload.model_json_schema(ref_template="#/components/schemas/{model}")
+        return app.openapi_schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
+
+
 def run(host: str | None = None, port: int | None = None, ray_address: str | None = None) -> None:
     """``rba serve``: uvicorn with the app on ``host:port`` (defaults from the settings), computing on Ray at
     ``ray_address`` if given."""
@@ -86,3 +115,27 @@ def run(host: str | None = None, port: int | None = None, ray_address: str | Non
                         force=True)  # `rba serve` set up the CLI's logging already: RBA_LOG_LEVEL decides here
     uvicorn.run(create_app(settings), host=host or settings.host, port=port or settings.port,
                 log_level=settings.log_level.lower())
+
+
+@contextmanager
+def serve_in_thread(settings: Settings, timeout: float = 30.0) -> Iterator[str]:
+    """The app on a free loopback port in a thread of this process (browser tests, screenshots); its base URL
+    until the block ends."""
+    import uvicorn
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    server = uvicorn.Server(uvicorn.Config(create_app(settings), host="127.0.0.1", port=port, log_level="warning"))
+    thread = threading.Thread(target=server.run, name="rba-serve-in-thread", daemon=True)
+    thread.start()
+    deadline = time.monotonic() + timeout
+    while not server.started:
+        if time.monotonic() > deadline or not thread.is_alive():
+            raise RuntimeError(f"the server did not start within {timeout:g} s")
+        time.sleep(0.05)
+    try:
+        yield f"http://127.0.0.1:{port}"
+    finally:
+        server.should_exit = True
+        thread.join(timeout)

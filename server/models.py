@@ -2,6 +2,9 @@
 
 SQLModel's Base / table / Create / Public split: the table classes hold what must survive a
 restart (the agent's JSON state included); the Public classes are what the API returns.
+Request bodies are strict (``"step": "0"`` or ``"satisfied": "yes"`` are refused, not coerced) and refuse
+unknown fields. Names that come from a registry (domains, methods, reps) are ``OneOf`` strings: checked
+against the registry as it is now, and listed as an enum in the OpenAPI document.
 Imports only ``server.feedback`` (the body's feedback rule), so every other module may import it.
 """
 
@@ -10,13 +13,22 @@ from __future__ import annotations
 import datetime as dt
 import enum
 import uuid
-from typing import Any, Literal
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, GetCoreSchemaHandler, GetJsonSchemaHandler, field_validator, model_validator
+from pydantic_core import PydanticCustomError, core_schema
 from sqlalchemy import JSON, Column, DateTime, UniqueConstraint
 from sqlmodel import Field, SQLModel
 
+from rba.domains import domain_names
+from rba.embed import REPRESENTATIONS
+from rba.methods import methods
 from server.feedback import check_kind
+
+STRICT_BODY = ConfigDict(strict=True, extra="forbid")
+"""Request bodies: no type coercion, no unknown fields."""
 
 
 def utcnow() -> dt.datetime:
@@ -30,6 +42,38 @@ def as_utc(value: dt.datetime) -> dt.datetime:
 
 def new_session_id() -> str:
     return uuid.uuid4().hex
+
+
+def attribute_methods() -> tuple[str, ...]:
+    """Methods whose agents take more/less feedback (PbRL asks A/B questions: not served here)."""
+    return tuple(m.name for m in methods() if m.feedback_kind == "attribute")
+
+
+@dataclass(frozen=True)
+class OneOf:
+    """``Annotated[str, OneOf("domain", domain_names)]``: one of the names ``valid()`` lists when the request comes
+    (registries grow at run time), an enum of those it lists when the OpenAPI document is made (app start)."""
+
+    kind: str
+    valid: Callable[[], tuple[str, ...]]
+
+    def __get_pydantic_core_schema__(self, source: Any, handler: GetCoreSchemaHandler) -> core_schema.CoreSchema:
+        return core_schema.no_info_after_validator_function(self.check, handler(source))
+
+    def __get_pydantic_json_schema__(self, schema: core_schema.CoreSchema, handler: GetJsonSchemaHandler) -> dict:
+        return {**handler(schema), "enum": list(self.valid())}
+
+    def check(self, value: str) -> str:
+        valid = self.valid()
+        if value not in valid:
+            raise PydanticCustomError("enum", "unknown {kind} {given}; valid: {valid}",
+                                      {"kind": self.kind, "given": repr(value), "valid": ", ".join(valid)})
+        return value
+
+
+DomainName = Annotated[str, OneOf("domain", domain_names)]
+MethodName = Annotated[str, OneOf("method", attribute_methods)]
+RepName = Annotated[str, OneOf("rep", lambda: REPRESENTATIONS)]
 
 
 class SessionStatus(enum.StrEnum):
@@ -48,6 +92,12 @@ class SessionBase(SQLModel):
 
 class SessionCreate(SessionBase):
     """Body of POST /api/sessions."""
+
+    model_config = STRICT_BODY
+
+    domain: DomainName = Field(description="a domain from GET /api/domains, e.g. walker")
+    method: MethodName = Field(default="global", description="agent: one of the domain's methods")
+    rep: RepName = Field(default="onehot", description="attribute representation")
 
 
 class TuningSession(SessionBase, table=True):
@@ -87,6 +137,8 @@ Direction = Literal["more", "less"]
 
 
 class AttributeChoice(BaseModel):
+    model_config = STRICT_BODY
+
     attribute: str = Field(description="an attribute name of the session's domain, e.g. step_size")
     direction: Direction = Field(description="'more' or 'less'")
 
@@ -94,7 +146,12 @@ class AttributeChoice(BaseModel):
 class FeedbackCreate(BaseModel):
     """Body of POST /api/sessions/{id}/feedback: attribute feedback, or ``satisfied: true``."""
 
+    model_config = STRICT_BODY
+
     step: int = Field(ge=0, description="the session's current step (409 if it moved on)")
+    clip: str | None = Field(default=None, max_length=128,
+                             description="the rollout id of the clip this answers about (the session's "
+                                         "clip.rollout_id); 409 if the session shows another one")
     feedback: list[AttributeChoice] | None = Field(default=None, max_length=32)
     satisfied: bool = False
 
@@ -107,12 +164,22 @@ class FeedbackCreate(BaseModel):
         return [(c.attribute, c.direction) for c in self.feedback or ()]
 
 
+class ReadingPublic(BaseModel):
+    """Show ``sign * value`` under ``label``: how a person reads this attribute's measured value."""
+
+    label: str = Field(description="e.g. landing speed")
+    sign: int = Field(description="-1: the shown value is minus the measured one")
+    note: str = Field(description="which way is more of the attribute, e.g. lower is softer")
+
+
 class AttributePublic(BaseModel):
     name: str
     description: str
     unit: str
     low: float | None = Field(default=None, description="smallest measured value in the serve library")
     high: float | None = Field(default=None, description="largest measured value in the serve library")
+    decimals: int = Field(default=2, description="decimals that show a change a person can tell apart")
+    reading: ReadingPublic | None = Field(default=None, description="how to show the value, if not as it is")
 
 
 class MethodPublic(BaseModel):
@@ -148,6 +215,22 @@ class ClipPublic(BaseModel):
     ready: bool = Field(description="already rendered: the URL answers at once")
 
 
+class ClipStatusPublic(BaseModel):
+    """GET /api/clips/{domain}/{rollout_id}/status: how far a clip's render is."""
+
+    rollout_id: str
+    state: Literal["ready", "queued", "rendering", "absent"] = Field(
+        description="ready: stored; queued: waiting for a worker; rendering; absent: not asked for yet")
+    elapsed_seconds: float | None = Field(description="since the render was submitted")
+    typical_seconds: float | None = Field(description="mean render time of this domain's clips on this server so far")
+
+
+class TargetRange(BaseModel):
+    attribute: str
+    low: float = Field(description="measured value (the attribute's unit) at the interval's lower end")
+    high: float = Field(description="measured value at the upper end")
+
+
 class FeedbackPublic(BaseModel):
     step: int
     feedback: list[AttributeChoice] | None
@@ -168,6 +251,9 @@ class SessionPublic(SessionBase):
     clip: ClipPublic
     attributes: list[AttributePublic]
     history: list[FeedbackPublic]
+    target: list[TargetRange] | None = Field(
+        default=None, description="where the agent believes the target is (the middle half of its belief), "
+                                  "for agents that keep such a belief (RBA-Global)")
     created_at: dt.datetime
     updated_at: dt.datetime
 

@@ -3,8 +3,9 @@
 Import direction (no cycles, function-level imports included), lowest first:
 
 1. tables, rules and tools: ``settings``, ``errors``, ``feedback``, ``models``, ``admin_models``,
-   ``db``, ``uploads``, ``transitions``, ``background``, ``prefetch``, ``catalog``; ``labeldata`` (stored label
-   data) and ``jobs`` (training processes, which read ``labeldata``); the clip cache and the
+   ``db`` (and its ``migrations``), ``uploads``, ``transitions``, ``background``, ``prefetch``, ``catalog``;
+   ``labeldata`` (stored label data), ``processes`` (job processes that die with their server) and ``jobs``
+   (training processes, which read ``labeldata`` and use ``processes``); the clip cache and the
    per-key locks are the library's (``rba.clips``, ``rba.locks``), and so is the compute layer (``rba.compute``);
 2. this module, which holds those parts and imports nothing above it;
 3. operations that take a ``Services``: ``versions``, ``views``, ``prerender``, ``sessions``,
@@ -32,9 +33,11 @@ from server.background import Background
 from server.catalog import Catalog
 from server.db import make_engine
 from server.jobs import JobRunner
+from server.labeldata import sweep_uploads
 from server.prefetch import Prefetcher
 from server.settings import Settings
 from server.transitions import Transitions
+from server.uploads import sweep_workspaces
 
 log = logging.getLogger(__name__)
 
@@ -78,6 +81,8 @@ class Services:
         torch.set_num_threads(settings.torch_threads)
         engine = make_engine(settings.db_url)
         catalog = Catalog(settings)
+        sweep_uploads(engine, catalog.store)  # what uploads cut short by a crash left (never a live one's)
+        sweep_workspaces()
         owns = compute is None
         compute = compute or make_compute(settings)
         clips = ClipCache(catalog.store.clips(), compute, settings.clip_width, settings.clip_height)

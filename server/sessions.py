@@ -18,7 +18,6 @@ from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session
 
 from rba.interact import SATISFIED, Feedback
-from server.admin_models import BUILTIN_VERSION
 from server.errors import conflict, invalid, not_found
 from server.feedback import parse_feedback
 from server.models import (
@@ -46,10 +45,7 @@ def load_session(db: Session, session_id: str) -> TuningSession:
 
 
 def create_session(svc: Services, db: Session, body: SessionCreate) -> SessionPublic:
-    if body.domain in svc.catalog.names():
-        version = serving_version(svc, db, body.domain, body.method, body.rep)
-    else:
-        version = BUILTIN_VERSION
+    version = serving_version(svc, db, body.domain, body.method, body.rep)
     svc.catalog.check_available(body.domain, body.method, body.rep, version)
     ctx = svc.catalog.context(body.domain, body.method, body.rep, version)
     rollout_id, state = svc.transitions.first(ctx, body.method)
@@ -67,13 +63,16 @@ def _closed(s: TuningSession) -> str:
     return f"session {s.id} is {s.status}; it takes no more feedback (start a new session)"
 
 
-def _answerable(db: Session, session_id: str, step: int) -> TuningSession:
-    """The session, if it is active and at ``step``; 409 otherwise."""
+def _answerable(db: Session, session_id: str, body: FeedbackCreate) -> TuningSession:
+    """The session, if it is active, at ``body.step`` and showing ``body.clip`` (when given); 409 otherwise."""
     s = load_session(db, session_id)
     if s.status != SessionStatus.active:
         raise conflict(_closed(s))
-    if step != s.step:
-        raise conflict(f"step {step} is stale: session {s.id} is at step {s.step}; "
+    if body.clip is not None and body.clip != s.current_rollout_id:
+        raise conflict(f"the answer is about clip {body.clip} but session {s.id} now shows clip "
+                       f"{s.current_rollout_id}; watch that clip and answer about it")
+    if body.step != s.step:
+        raise conflict(f"step {body.step} is stale: session {s.id} is at step {s.step}; "
                        "GET the session and answer about the clip it shows now")
     return s
 
@@ -123,7 +122,7 @@ def _record_step(db: Session, s: TuningSession, body: FeedbackCreate, feedback: 
 def give_feedback(svc: Services, db: Session, session_id: str, body: FeedbackCreate) -> SessionPublic:
     """Advance the session by one round; 409 if the step is stale or the session is closed."""
     with svc.session_locks(session_id):
-        s = _answerable(db, session_id, body.step)
+        s = _answerable(db, session_id, body)
         domain = svc.catalog.domain(s.domain)
         ctx = svc.catalog.context(s.domain, s.method, s.rep, s.model_set)
         feedback = parse_feedback(body.choices(), body.satisfied, domain.name, ctx.attribute_names)

@@ -31,6 +31,10 @@ class Settings(LibrarySettings):
                                   "enforced while the body streams in")
     upload_max_uncompressed: int = Field(default=200 * 2**20, ge=1024, description="what an uploaded .npz may "
                                          "expand to (bytes): refuses zip bombs")
+    json_max_bytes: int = Field(default=2**20, ge=1024, description="largest request body of every route but the "
+                                "dataset upload (bytes), counted while it streams in")
+    admin_failures_per_minute: int = Field(default=10, ge=1, le=10_000, description="wrong admin tokens one client "
+                                           "may send in a minute; then it waits (429 with Retry-After)")
     prerender_library: bool = Field(default=True, description="after the warm-up, render every serve clip not "
                                     "cached yet (background, niced; once: the cache is on disk): then no one waits "
                                     "for a render")

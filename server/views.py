@@ -6,30 +6,37 @@ and ``server.versions``, below ``server.sessions`` and the routes; it never impo
 
 from __future__ import annotations
 
+import copy
+import math
 from urllib.parse import quote
 
+import numpy as np
 from sqlmodel import Session, select
 
 from rba.domains import Domain
 from rba.embed import REPRESENTATIONS
-from rba.interact import SATISFIED
+from rba.interact import SATISFIED, restore_agent
 from rba.library import LibraryNotFoundError
 from rba.methods import trainable
 from server.admin_models import BUILTIN_VERSION
-from server.catalog import attribute_methods
+from server.errors import not_found
 from server.models import (
     AttributeChoice,
     AttributePublic,
     ClipPublic,
+    ClipStatusPublic,
     DomainPublic,
     DomainsPublic,
     FeedbackEvent,
     FeedbackPublic,
     MethodPublic,
+    ReadingPublic,
     SessionPublic,
     SessionStatus,
+    TargetRange,
     TrainablePublic,
     TuningSession,
+    attribute_methods,
 )
 from server.services import Services
 from server.versions import active_version
@@ -54,20 +61,77 @@ def attributes_public(domain: Domain, svc: Services | None = None,
                       specs: list[dict] | None = None) -> list[AttributePublic]:
     """The domain's attributes (or ``specs`` from a model card); with ``svc``, also measured ranges."""
     ranges: dict[str, tuple[float, float]] = {}
+    fine: dict[str, float] = {}  # the high-precision ε of the domain's own attributes
     if svc is not None:
         try:
             lib = svc.catalog.library(domain.name)
             lo, hi = lib.proxies.min(0), lib.proxies.max(0)
             ranges = {a: (float(lo[j]), float(hi[j])) for j, a in enumerate(lib.attribute_names)}
+            if lib.attribute_names == domain.attribute_names:
+                fine = dict(zip(lib.attribute_names, domain.epsilons(lib.proxies, "high").tolist(), strict=True))
         except LibraryNotFoundError:
             pass
     specs = specs if specs is not None else [{"name": a.name, "description": a.description, "unit": a.unit}
                                              for a in domain.attributes]
+    known = {a.name: a for a in domain.attributes}
     out = []
     for a in specs:
         low, high = ranges.get(a["name"], (None, None))
-        out.append(AttributePublic(name=a["name"], description=a["description"], unit=a["unit"], low=low, high=high))
+        spec = known.get(a["name"])  # an attribute admins added has no spec (nor ε): decimals from its range
+        reading = spec.reading if spec is not None else None
+        eps = fine.get(a["name"])
+        out.append(AttributePublic(
+            name=a["name"], description=a["description"], unit=a["unit"], low=low, high=high,
+            decimals=epsilon_decimals(eps) if eps else range_decimals(low, high),
+            reading=ReadingPublic(label=reading.label, sign=reading.sign, note=reading.note) if reading else None))
     return out
+
+
+def epsilon_decimals(eps: float) -> int:
+    """Decimals that show a change of ``eps`` (the high-precision ε: snake speed needs 3, not 2)."""
+    return max(0, min(4, math.ceil(-math.log10(eps))))
+
+
+def range_decimals(low: float | None, high: float | None) -> int:
+    """Decimals that tell apart a fiftieth of the range (2 when the range is unknown)."""
+    if low is None or high is None or high <= low:
+        return 2
+    return max(0, min(4, math.ceil(-math.log10((high - low) / 50))))
+
+
+def target_public(svc: Services, s: TuningSession) -> list[TargetRange] | None:
+    """The agent's belief about the target, in measured values: its ranks mapped onto the serve library's proxies."""
+    try:
+        ctx = svc.catalog.context(s.domain, s.method, s.rep, s.model_set)
+        ranks = restore_agent(copy.deepcopy(s.agent_state), ctx).target_ranks()
+        lib = svc.catalog.library(s.domain)
+    except (FileNotFoundError, KeyError, ValueError, LibraryNotFoundError):  # models gone: no belief to show
+        return None
+    if ranks is None:
+        return None
+    out = []
+    for name, (lo, hi) in ranks.items():
+        if name not in lib.attribute_names:  # an admin-added attribute has no proxy to map onto
+            continue
+        values = lib.proxies[:, lib.attribute_names.index(name)]
+        low, high = np.quantile(values, [lo, hi])
+        out.append(TargetRange(attribute=name, low=float(low), high=float(high)))
+    return out
+
+
+def clip_status(svc: Services, domain: str, rollout_id: str) -> ClipStatusPublic:
+    """How far the render of a serve-library clip is; 404 for an unknown domain or rollout."""
+    svc.catalog.domain(domain)
+    try:
+        lib = svc.catalog.library(domain)
+        key = svc.clips.key(lib, rollout_id)
+    except LibraryNotFoundError as exc:
+        raise not_found(str(exc)) from exc
+    except KeyError as exc:
+        raise not_found(f"unknown rollout id {rollout_id!r} in {domain}/serve; ids look like {lib.ids[0]}") from exc
+    st = svc.clips.status(key)
+    return ClipStatusPublic(rollout_id=rollout_id, state=st.state, elapsed_seconds=st.elapsed,
+                            typical_seconds=st.typical)
 
 
 def history_public(svc: Services, db: Session, s: TuningSession) -> list[FeedbackPublic]:
@@ -93,7 +157,8 @@ def session_public(svc: Services, db: Session, s: TuningSession) -> SessionPubli
                          model_set=s.model_set, status=SessionStatus(s.status), step=s.step,
                          attributes=attributes_public(domain, svc, specs),
                          clip=clip_public(svc, s.domain, s.current_rollout_id),
-                         history=history_public(svc, db, s), created_at=s.created_at, updated_at=s.updated_at)
+                         history=history_public(svc, db, s), target=target_public(svc, s),
+                         created_at=s.created_at, updated_at=s.updated_at)
 
 
 def domains_public(svc: Services, db: Session) -> DomainsPublic:
@@ -103,10 +168,13 @@ def domains_public(svc: Services, db: Session) -> DomainsPublic:
         domain = svc.catalog.domain(name)
         pairs = dict.fromkeys(svc.catalog.available(name))  # the shipped models, then the active version's
         active = active_version(db, name)
-        if active != BUILTIN_VERSION:
-            pairs |= dict.fromkeys(svc.catalog.available(name, active))
+        specs = None  # the domain's own attributes, unless the active version's models learnt others
+        if active != BUILTIN_VERSION and (served := svc.catalog.available(name, active)):
+            pairs |= dict.fromkeys(served)
+            specs = svc.catalog.card_attributes(name, *served[0], active)
         available = [MethodPublic(method=m, rep=r) for m, r in pairs]
-        domains.append(DomainPublic(name=name, attributes=attributes_public(domain), frame_rate=domain.frame_rate,
+        domains.append(DomainPublic(name=name, attributes=attributes_public(domain, specs=specs),
+                                    frame_rate=domain.frame_rate,
                                     available=available, missing=svc.catalog.missing_reason(name)))
     return DomainsPublic(domains=domains, methods=list(attribute_methods()), reps=list(REPRESENTATIONS),
                          trainable=[TrainablePublic(method=m.name, label=m.label, presets=list(m.presets))

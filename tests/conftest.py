@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import shutil
+from pathlib import Path
 
 import pytest
 
@@ -35,3 +37,12 @@ def toy_roots(tmp_path_factory):
     cfg = GlobalTrainConfig(RankerConfig(steps=200, hidden=64), GlobalRewardConfig(steps=400, hidden=64))
     metrics = train_global("toy", "onehot", cfg, data_root=data, models_root=models)
     return data, models, metrics
+
+
+def own_copy(toy_roots, root: Path) -> tuple[Path, Path]:
+    """Copies of the toy ``data`` and ``models`` folders under ``root`` (jobs, uploads and sweeps write there);
+    their paths."""
+    data, models = root / "data", root / "models"
+    shutil.copytree(toy_roots[0], data)
+    shutil.copytree(toy_roots[1], models)
+    return data, models

@@ -32,7 +32,7 @@ class FakeCompute(Compute):
             self.submitted.append((urgent, future))
             self.jobs.append(job)
             self._cond.notify_all()
-        return Task(future, future.cancel)
+        return Task(future, future.cancel, future.running)  # a test starts it: set_running_or_notify_cancel
 
     def next_rollout(self, timeout: float) -> str:
         """Wait for the next job after those already seen by this method; its rollout id."""
@@ -48,3 +48,14 @@ class FakeCompute(Compute):
 
     def close(self) -> None:
         pass
+
+
+class InstantCompute(FakeCompute):
+    """Every render is done at once (a few bytes stand for the MP4): nothing waits for a render."""
+
+    CLIP = b"\x00\x00\x00\x18ftypmp42 not a real clip"
+
+    def render(self, job: RenderJob, urgent: bool = True) -> Task:
+        task = super().render(job, urgent)
+        task.future.set_result(self.CLIP)
+        return task

@@ -430,3 +430,15 @@ def test_dockerfile_agrees_with_the_readme_and_the_project():
         else:  # not a declared dependency (yet): then what this machine runs the tests with
             with contextlib.suppress(metadata.PackageNotFoundError):
                 assert metadata.version(package) == pin, (package, pin, metadata.version(package))
+
+
+def test_the_api_trusts_the_load_balancers_client_address():
+    """Behind lb every request comes from lb: uvicorn must take X-Forwarded-For (nginx sets it), or the admin-token
+    failure limit would slow down every client at once. Safe only because lb alone reaches the API and nginx
+    overwrites the header: appending to it ($proxy_add_x_forwarded_for) would let a client pick the address
+    uvicorn counts (it takes the leftmost) and so guess tokens without limit or lock another client out."""
+    assert environment(SERVICES["api"])["FORWARDED_ALLOW_IPS"] == "*"
+    assert "ports" not in SERVICES["api"]
+    nginx = (ROOT / "deploy" / "nginx.conf").read_text()
+    assert "proxy_set_header X-Forwarded-For $remote_addr;" in nginx
+    assert "$proxy_add_x_forwarded_for" not in nginx

@@ -58,9 +58,28 @@ def test_publish_renames_the_staging_folder_and_discard_removes_it(tmp_path):
     store.publish("j1", "toy-v1")
     assert store.models("toy-v1").weights("toy", "ranker", "onehot").read_bytes() == b"w"
     assert not store.staging("j1").exists()
+    assert store.staged_jobs() == []
     store.staging("j2").mkdir()
+    (store.versions_dir / ".tmp-file").write_bytes(b"")  # not a folder: no job's
+    assert store.staged_jobs() == ["j2"]
     store.discard("j2")
     assert not store.staging("j2").exists()
+    store.unpublish("toy-v1")
+    assert not store.models("toy-v1").root.exists()
+
+
+def test_job_records_live_under_data_jobs(tmp_path):
+    store = Store(tmp_path / "d", tmp_path / "m", tmp_path / "c")
+    assert store.job_record("j1") == tmp_path / "d" / "jobs" / "j1.json"
+    assert store.recorded_jobs() == []
+    store.job_record("j1").parent.mkdir(parents=True)
+    store.job_record("j1").write_text("{}")
+    half = tmp_path / "d" / "jobs" / ".j2.json.123.tmp"
+    half.write_text("")  # a record half-written by a crash
+    assert store.recorded_jobs() == ["j1"]
+    assert store.sweep_job_records(older_than=60) == 0  # it may be being written right now
+    os.utime(half, (time.time() - 120, time.time() - 120))
+    assert store.sweep_job_records(older_than=60) == 1 and not half.exists()
 
 
 def test_the_library_loads_from_the_store_when_no_root_is_given(toy_roots, monkeypatch):

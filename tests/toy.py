@@ -6,11 +6,27 @@ Each state shows both quantities with noise, so a per-state sum can rank them.
 
 from __future__ import annotations
 
+from types import MappingProxyType
+
 import numpy as np
 
-from rba.domains.base import AttributeSpec, Domain, Rollout
+from rba.domains.base import AttributeSpec, Domain, FeedbackPhrases, Rollout
 
 T = 24  # states per rollout
+
+
+# free-text feedback's anchors (rba.interpret): both sides written with the same nouns
+FEEDBACK_PHRASES = MappingProxyType({
+    "amplitude": FeedbackPhrases(
+        more=("wide swings", "swing far", "big movements", "large sway", "go far out to the sides", "broad arc"),
+        less=("narrow swings", "small movements", "stay near the middle", "tiny sway", "short arc",
+              "barely move to the sides"),
+        names=("swing width", "how far it swings")),
+    "pace": FeedbackPhrases(
+        more=("fast oscillation", "quick rhythm", "rapid back and forth", "hurry", "brisk", "frantic"),
+        less=("slow oscillation", "relaxed rhythm", "lazy back and forth", "calm", "leisurely", "sluggish"),
+        names=("frequency", "tempo", "how often it swings")),
+})
 
 
 class Toy(Domain):
@@ -22,6 +38,7 @@ class Toy(Domain):
     state_dim = 4
     param_names = ("amplitude", "pace")
     frame_rate = 12.0
+    feedback_phrases = FEEDBACK_PHRASES
 
     def sample_params(self, rng: np.random.Generator) -> dict[str, float]:
         return {"amplitude": float(rng.uniform(0.2, 2.0)), "pace": float(rng.uniform(0.5, 3.0))}

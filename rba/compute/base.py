@@ -48,6 +48,7 @@ class Task:
 
     future: Future
     cancel: Callable[[], bool]
+    running: Callable[[], bool] | None = None  # started on a worker (None: the backend cannot tell)
 
 
 class Compute(ABC):

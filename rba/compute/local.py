@@ -76,7 +76,8 @@ class _Pool:
                 outer.set_result(inner.result())
 
         attempt(RETRIES)  # ``outer`` stays pending until the result is in, so cancelling it works until then
-        return Task(outer, lambda: bool(state["inner"] and state["inner"].cancel()))  # ``finish`` cancels ``outer``
+        return Task(outer, lambda: bool(state["inner"] and state["inner"].cancel()),  # ``finish`` cancels ``outer``
+                    lambda: bool(state["inner"] and state["inner"].running()))
 
     def _replace(self, broken: ProcessPoolExecutor) -> None:
         with self._lock:

@@ -8,11 +8,26 @@ never read them.
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
+from types import MappingProxyType
 
 import numpy as np
+
+
+@dataclass(frozen=True)
+class Reading:
+    """How a person reads a proxy whose sign only serves the rule "the proxy grows with its attribute".
+
+    The page shows ``sign * proxy`` under ``label`` (walker softness is minus the landing speed: shown as
+    the landing speed, with ``note`` "lower is softer").
+    """
+
+    label: str  # e.g. "landing speed"
+    sign: int  # -1 or 1
+    note: str  # which way is more of the attribute, e.g. "lower is softer"
 
 
 @dataclass(frozen=True)
@@ -22,6 +37,7 @@ class AttributeSpec:
     name: str  # snake_case id, e.g. "step_size"
     description: str  # one sentence; the source of the language embedding
     unit: str  # unit of the proxy, e.g. "m"
+    reading: Reading | None = None  # how the page shows the proxy, when not as it is
 
 
 # ε per precision, as a fraction of a proxy's robust range over the serve library (its 1st to 99th percentile):
@@ -29,6 +45,22 @@ class AttributeSpec:
 # few outlying clips stretch the raw range (snake's doubled its ε).
 EPSILON_FRACTIONS = {"normal": 1 / 7, "high": 1 / 42}
 ROBUST_QUANTILES = (1.0, 99.0)  # percentiles of the serve library's proxies that bound the range ε divides
+
+
+@dataclass(frozen=True)
+class FeedbackPhrases:
+    """How people say more or less of one attribute in their own words (``rba.interpret``'s anchors).
+
+    ``more`` / ``less`` are short phrases that mean more / less of the attribute, written without
+    direction words ("more", "less", "not", "too": the interpreter reads those itself); words found on
+    one side only (after stemming) are that side's cue words, so write the two sides with the same
+    nouns ("land gently" / "land heavily"). ``names`` are ways to name the attribute itself
+    ("stride length"); the attribute's own name is always one.
+    """
+
+    more: tuple[str, ...]
+    less: tuple[str, ...]
+    names: tuple[str, ...] = ()
 
 
 @dataclass
@@ -59,6 +91,8 @@ class Domain(ABC):
     # (kind, rep) of a learned model the states come from (models/<name>/<kind>-<rep>.pt): loaded, never trained
     # here; `rba build` makes it when missing (rba.training.prepare_states)
     state_encoder: tuple[str, str] | None = None
+    # attribute name -> FeedbackPhrases: free-text feedback's anchors (an attribute without any is matched by name)
+    feedback_phrases: Mapping[str, FeedbackPhrases] = MappingProxyType({})
 
     @abstractmethod
     def sample_params(self, rng: np.random.Generator) -> dict[str, float]:

@@ -18,10 +18,11 @@ from __future__ import annotations
 import os
 import threading
 from collections.abc import Iterator
+from types import MappingProxyType
 
 import numpy as np
 
-from rba.domains.base import AttributeSpec, Domain, Rollout
+from rba.domains.base import AttributeSpec, Domain, FeedbackPhrases, Rollout
 
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")  # 'dummy' renders black frames in highway-env 1.12
 
@@ -73,6 +74,23 @@ def _draw(env) -> np.ndarray:
     return np.frombuffer(pygame.image.tobytes(surface, "RGB"), np.uint8).reshape(height, width, 3)
 
 
+# free-text feedback's anchors (rba.interpret): both sides written with the same nouns
+FEEDBACK_PHRASES = MappingProxyType({
+    "sharpness": FeedbackPhrases(
+        more=("sharp turn", "swerve abruptly", "quick lane change", "snap into the lane", "jerk the wheel",
+              "aggressive swerve", "sudden move across", "hard steering"),
+        less=("smooth turn", "gradual lane change", "ease into the lane", "gentle swerve", "drift slowly across",
+              "wide sweeping move across", "relaxed steering", "soft steering"),
+        names=("steering sharpness", "how sharp the swerve is")),
+    "gap": FeedbackPhrases(
+        more=("leave plenty of room", "big gap", "wait for a wide gap", "keep far from the car behind",
+              "generous space", "safe distance", "wait longer before changing lanes", "roomy"),
+        less=("cut in close", "small gap", "tight squeeze", "pull right in front of the car behind", "tailgate",
+              "tiny space", "change lanes sooner", "close distance"),
+        names=("gap to the car behind", "distance to the car behind", "room")),
+})
+
+
 class LaneChange(Domain):
     name = "lane_change"
     attributes = (
@@ -84,6 +102,7 @@ class LaneChange(Domain):
     state_dim = len(STATE_FEATURES)
     param_names = tuple(PARAM_RANGES)
     frame_rate = float(SIM_HZ)
+    feedback_phrases = FEEDBACK_PHRASES
     serve_size = 3600  # 1,200 leaves 19 % of test targets with no serve clip within the high-precision ε
 
     def __init__(self) -> None:

@@ -21,11 +21,12 @@ quadratic, so they show the jitter itself rather than the smooth lift (which is 
 from __future__ import annotations
 
 from collections.abc import Iterator
+from types import MappingProxyType
 
 import mujoco
 import numpy as np
 
-from rba.domains.base import AttributeSpec, Domain, Rollout
+from rba.domains.base import AttributeSpec, Domain, FeedbackPhrases, Rollout
 from rba.domains.mujoco_render import Camera, ThreadRenderers
 
 CONTROL_EVERY = 10  # physics steps (1 ms) per control step: 100 Hz
@@ -125,6 +126,22 @@ def measure(raw: np.ndarray) -> tuple[np.ndarray, dict[str, float], bool, dict[s
             {"ball_rise_m": float(ball_rise), "climb_m": float(climb)})
 
 
+# free-text feedback's anchors (rba.interpret): both sides written with the same nouns
+FEEDBACK_PHRASES = MappingProxyType({
+    "speed": FeedbackPhrases(
+        more=("fast lift", "lift quickly", "hurry", "rapid motion", "quick arm", "swift lift", "speedy", "brisk"),
+        less=("slow lift", "lift slowly", "take your time", "leisurely motion", "sluggish arm", "gradual lift",
+              "unhurried", "gently paced"),
+        names=("lifting speed", "pace")),
+    "instability": FeedbackPhrases(
+        more=("shaky motion", "jittery", "wobbly arm", "trembling", "jerky lift", "unsteady", "vibrating",
+              "shaking"),
+        less=("steady motion", "smooth", "stable arm", "calm lift", "fluid movement", "precise", "still",
+              "controlled"),
+        names=("shakiness", "jitter")),
+})
+
+
 class Manipulator(Domain):
     name = "manipulator"
     attributes = (
@@ -134,6 +151,7 @@ class Manipulator(Domain):
     state_dim = STACK * len(RAW_FEATURES) + 2 * (STACK - 3)
     param_names = tuple(PARAM_RANGES)
     frame_rate = FRAME_RATE
+    feedback_phrases = FEEDBACK_PHRASES
 
     def __init__(self) -> None:
         self._model: mujoco.MjModel | None = None

@@ -23,11 +23,12 @@ import functools
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import MappingProxyType
 
 import mujoco
 import numpy as np
 
-from rba.domains.base import AttributeSpec, Domain, Rollout
+from rba.domains.base import AttributeSpec, Domain, FeedbackPhrases, Rollout
 from rba.domains.mujoco_render import Camera, Sky, ThreadRenderers
 
 XML = Path(__file__).resolve().parent / "assets" / "snake.xml"
@@ -161,6 +162,27 @@ def measure(rec: SnakeRecording, period: float, dt: float, data: mujoco.MjData,
     return proxies, bool(success), {"forward_m": forward, "heading_rad": float(heading)}
 
 
+# free-text feedback's anchors (rba.interpret): both sides written with the same nouns
+FEEDBACK_PHRASES = MappingProxyType({
+    "bend_width": FeedbackPhrases(
+        more=("wide bends", "big sideways curves", "swing the body out wide", "broad waves", "large wiggles",
+              "sweeping curves", "deep zigzag"),
+        less=("narrow bends", "small sideways curves", "keep the body straight", "slight wiggles",
+              "shallow waves", "flat zigzag", "stay in line"),
+        names=("bend width", "width of the bends", "sideways bend")),
+    "compression": FeedbackPhrases(
+        more=("bunch up tightly", "scrunch together", "compress the body", "coil up", "squeeze together",
+              "fold up close", "contract"),
+        less=("stretch out", "stay extended", "keep the body long", "elongate", "spread out", "uncoil",
+              "loose body"),
+        names=("compression", "bunching")),
+    "speed": FeedbackPhrases(
+        more=("fast", "move quickly", "slither rapidly", "hurry forward", "zoom", "speedy", "quick"),
+        less=("slow", "move slowly", "crawl", "creep along", "leisurely pace", "unhurried", "sluggish"),
+        names=("forward speed", "speed of travel")),
+})
+
+
 class Snake(Domain):
     name = "snake"
     attributes = (
@@ -175,6 +197,7 @@ class Snake(Domain):
     state_dim = (LINKS - 1) + 2 + 1 + 1 + 1
     param_names = tuple(PARAM_RANGES)
     frame_rate = 1.0 / (FRAME_EVERY * CONTROL_EVERY * 0.002)
+    feedback_phrases = FEEDBACK_PHRASES
 
     def __init__(self) -> None:
         self._model: mujoco.MjModel | None = None

@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import math
 import os
+from types import MappingProxyType
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -63,7 +64,7 @@ from typing import NamedTuple
 import mujoco
 import numpy as np
 
-from rba.domains.base import AttributeSpec, Domain, Rollout
+from rba.domains.base import AttributeSpec, Domain, FeedbackPhrases, Reading, Rollout
 from rba.domains.mujoco_render import Camera, Sky, ThreadRenderers
 
 # ---------------------------------------------------------------- controller constants
@@ -740,6 +741,23 @@ def measure(recording: Recording, touchdowns: list[Touchdown], plan: GaitPlan, w
     return Measurement({"step_size": step_size, "softness": -landing}, steps_taken and not fallen, info)
 
 
+# free-text feedback's anchors (rba.interpret): both sides written with the same nouns
+FEEDBACK_PHRASES = MappingProxyType({
+    "step_size": FeedbackPhrases(
+        more=("longer steps", "big strides", "take long strides", "lengthen the stride", "stretch the legs out far",
+              "wide steps", "large steps", "cover ground with each step"),
+        less=("shorter steps", "small strides", "take short strides", "shorten the stride", "tiny steps",
+              "little steps", "keep the legs close together", "shuffle"),
+        names=("stride length", "step length")),
+    "softness": FeedbackPhrases(
+        more=("soft landings", "land gently", "gentle steps", "light footsteps", "tread lightly", "quiet feet",
+              "tiptoe", "land softly", "cushion the landing", "delicate steps", "careful footfalls"),
+        less=("stomp", "stomping", "hard landings", "land heavily", "heavy steps", "loud footsteps",
+              "slam the feet down", "pound the ground", "thud", "forceful landings", "harsh impact"),
+        names=("landing softness",)),
+})
+
+
 # ---------------------------------------------------------------- the domain
 class Walker(Domain):
     """dm_control walker taking three scripted, assisted steps (see the module docstring)."""
@@ -755,11 +773,13 @@ class Walker(Domain):
             name="softness",
             description="How softly the walker puts its feet down: gentle, slow landings are soft, stomping is not.",
             unit="m/s",
+            reading=Reading("landing speed", -1, "lower is softer"),
         ),
     )
     state_dim = len(STATE_FEATURES)
     param_names = tuple(PARAM_RANGES)
     frame_rate = FRAME_RATE
+    feedback_phrases = FEEDBACK_PHRASES
 
     def __init__(self) -> None:
         self._physics: WalkerPhysics | None = None

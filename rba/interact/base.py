@@ -77,6 +77,13 @@ class Agent(ABC):
     def from_state(cls, state: dict, context) -> Agent:
         """Rebuild an agent from ``state_dict()`` output and a loaded context."""
 
+    def target_ranks(self, mass: float = 0.5) -> dict[str, tuple[float, float]] | None:
+        """Where the agent believes the target is, per attribute: the central ``mass`` of its belief as
+        fractions (0..1) of the serve library ranked by the attribute's learned score; None if it keeps no
+        such belief. Ranks, not proxy values: the agent never reads proxies (the page maps ranks to them).
+        """
+        return None
+
 
 def validate_feedback(feedback: Feedback, kind: FeedbackKind, attribute_names: tuple[str, ...]) -> Feedback:
     """Check that one round's feedback is of ``kind`` and well formed; raise ValueError if not.

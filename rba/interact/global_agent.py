@@ -120,6 +120,16 @@ class GlobalAgent(Agent):
     def _median(self, a: int) -> float:
         return self._quantile(a, 0.5)
 
+    def target_ranks(self, mass: float = 0.5) -> dict[str, tuple[float, float]]:
+        """The belief's central ``mass`` per attribute, as the share of serve rollouts scoring below each end."""
+        out = {}
+        for a, name in enumerate(self.ctx.attribute_names):
+            ends = (self._quantile(a, (1 - mass) / 2), self._quantile(a, (1 + mass) / 2))
+            scores = self.ctx.serve_zeta[:, a]
+            lo, hi = (float(np.mean(scores <= z)) for z in ends)
+            out[name] = (lo, hi)
+        return out
+
     def _argmax(self) -> int:
         exclude = np.zeros(len(self.ctx.serve), dtype=bool)
         exclude[self.rejected[-REJECT_MEMORY:]] = True

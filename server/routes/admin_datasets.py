@@ -7,30 +7,38 @@ from fastapi.responses import JSONResponse
 
 from server import labelling
 from server.admin_models import DatasetPublic
-from server.auth import require_admin
+from server.auth import ADMIN_ERRORS, require_admin
 from server.deps import DbDep, ServicesDep
+from server.errors import error_response, responses
+from server.models import DomainName
 
 router = APIRouter(prefix="/api/admin/datasets", tags=["admin"], dependencies=[Depends(require_admin)],
-                   responses={401: {"description": "missing or wrong admin token"},
-                              503: {"description": "admin disabled (RBA_ADMIN_TOKEN unset)"}})
+                   responses=responses(*ADMIN_ERRORS))
+
+UPLOAD_FORM = {  # the route streams and parses the form itself (under RBA_UPLOAD_MAX_BYTES): FastAPI cannot see it
+    "required": True,
+    "content": {"multipart/form-data": {"schema": {"$ref": "#/components/schemas/DatasetUpload"},
+                                        "encoding": {"labels": {"contentType": "application/json"}}}},
+}
 
 
-@router.post("", status_code=201, response_model=DatasetPublic,
-             responses={200: {"description": "the same files were uploaded before: nothing new stored"},
-                        413: {"description": "over RBA_UPLOAD_MAX_BYTES"},
-                        422: {"description": "every problem found, in 'problems'"}},
+@router.post("", status_code=201, response_model=DatasetPublic, openapi_extra={"requestBody": UPLOAD_FORM},
+             responses={200: {"model": DatasetPublic,
+                              "description": "the same files were uploaded before: nothing new stored"},
+                        **responses(404, 413, 422, said={404: "unknown domain", 413: "over RBA_UPLOAD_MAX_BYTES",
+                                                         422: "every problem found, in 'problems'"})},
              summary="Upload labelled behaviour (multipart: domain, labels = JSON file, trajectories = .npz)")
 async def upload_dataset(request: Request, svc: ServicesDep, db: DbDep):
-    form = await labelling.read_upload_form(request, svc.settings.upload_max_bytes)
+    form = await labelling.read_upload_form(request)
     try:
         dataset, new = await labelling.store_upload(svc, db, form)
     except labelling.UploadProblems as e:
-        return JSONResponse(status_code=422, content={"detail": e.detail, "problems": e.problems})
+        return error_response(422, e.detail, problems=e.problems)
     if not new:
         return JSONResponse(status_code=200, content=dataset.model_dump(mode="json"))
     return dataset
 
 
 @router.get("", response_model=list[DatasetPublic], summary="Uploaded datasets of a domain")
-def list_datasets(domain: str, db: DbDep) -> list[DatasetPublic]:
+def list_datasets(domain: DomainName, db: DbDep) -> list[DatasetPublic]:
     return labelling.list_datasets(db, domain)

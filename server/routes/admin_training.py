@@ -8,45 +8,50 @@ from fastapi import APIRouter, Depends, Path
 
 from server import training, versions
 from server.admin_models import JobPublic, TrainCreate, VersionPublic
-from server.auth import require_admin
+from server.auth import ADMIN_ERRORS, require_admin
 from server.deps import DbDep, ServicesDep
+from server.errors import responses
+from server.models import DomainName
 
 router = APIRouter(prefix="/api/admin", tags=["admin"], dependencies=[Depends(require_admin)],
-                   responses={401: {"description": "missing or wrong admin token"},
-                              503: {"description": "admin disabled (RBA_ADMIN_TOKEN unset)"}})
+                   responses=responses(*ADMIN_ERRORS))
 
 JobId = Annotated[str, Path(max_length=64, description="the id POST /api/admin/train returned")]
 Version = Annotated[str, Path(max_length=80, description="a version from GET /api/admin/models, or builtin")]
 
 
 @router.post("/train", status_code=202, response_model=JobPublic,
-             responses={409: {"description": "a job for this domain is running"}},
+             responses=responses(409, said={409: "a job for this domain is running"}),
              summary="Start retraining a domain's models in a separate process")
 def start_training(body: TrainCreate, svc: ServicesDep, db: DbDep) -> JobPublic:
     return training.start_job(svc, db, body)
 
 
 @router.get("/jobs", response_model=list[JobPublic], summary="Training jobs, newest first")
-def list_jobs(db: DbDep, domain: str | None = None) -> list[JobPublic]:
-    return training.list_jobs(db, domain)
+def list_jobs(svc: ServicesDep, db: DbDep, domain: DomainName | None = None) -> list[JobPublic]:
+    return training.list_jobs(svc, db, domain)
 
 
-@router.get("/jobs/{job_id}", response_model=JobPublic, summary="A job: state, stage, step, loss, held-out numbers")
-def read_job(job_id: JobId, db: DbDep) -> JobPublic:
-    return training.job_public(training.load_job(db, job_id))
+@router.get("/jobs/{job_id}", response_model=JobPublic, responses=responses(404, said={404: "no such job"}),
+            summary="A job: state, stage, step, loss, progress, time left, held-out numbers")
+def read_job(job_id: JobId, svc: ServicesDep, db: DbDep) -> JobPublic:
+    return training.job_public(svc, training.load_job(db, job_id))
 
 
-@router.post("/jobs/{job_id}/cancel", response_model=JobPublic, summary="Stop a job; nothing it made is kept")
+@router.post("/jobs/{job_id}/cancel", response_model=JobPublic,
+             responses=responses(404, 409, said={404: "no such job", 409: "the job has finished already"}),
+             summary="Stop a job; nothing it made is kept")
 def cancel_job(job_id: JobId, svc: ServicesDep, db: DbDep) -> JobPublic:
     return training.cancel_job(svc, db, job_id)
 
 
 @router.get("/models", response_model=list[VersionPublic], summary="A domain's model versions (and which is active)")
-def list_versions(domain: str, svc: ServicesDep, db: DbDep) -> list[VersionPublic]:
+def list_versions(domain: DomainName, svc: ServicesDep, db: DbDep) -> list[VersionPublic]:
     return versions.list_versions(svc, db, domain)
 
 
 @router.post("/models/{version}/activate", response_model=VersionPublic,
+             responses=responses(404, 409, said={404: "no such version", 409: "the version's files are missing"}),
              summary="Serve this version to new sessions (running sessions keep theirs)")
-def activate_version(version: Version, svc: ServicesDep, db: DbDep, domain: str | None = None) -> VersionPublic:
+def activate_version(version: Version, svc: ServicesDep, db: DbDep, domain: DomainName | None = None) -> VersionPublic:
     return versions.activate_version(svc, db, version, domain)

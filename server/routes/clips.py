@@ -1,4 +1,5 @@
-"""GET /api/clips/{domain}/{rollout_id}.mp4: a rollout of the serve library as H.264 video.
+"""GET /api/clips/{domain}/{rollout_id}.mp4: a rollout of the serve library as H.264 video (and ``/status``:
+how far its render is, for the page's progress while a person waits).
 
 The rollout id is looked up in the library (404 if absent) and never used as a path. The
 file is rendered on first request and cached; responses carry a content ETag and honour
@@ -8,31 +9,56 @@ file is rendered on first request and cached; responses carry a content ETag and
 from __future__ import annotations
 
 import asyncio
+import os
 from typing import Annotated
 
 import anyio
 from fastapi import APIRouter, Header, Path, Response
 from fastapi.responses import FileResponse
+from starlette.datastructures import Headers
+from starlette.responses import MalformedRangeHeader, RangeNotSatisfiable
+from starlette.types import Receive, Scope, Send
 
-from rba.library import LibraryNotFoundError
 from server.deps import ServicesDep
-from server.errors import not_found
+from server.errors import error_response, not_found, responses
+from server.models import ClipStatusPublic, DomainName
+from server.views import clip_status
 
-router = APIRouter(prefix="/api/clips", tags=["clips"])
+router = APIRouter(prefix="/api/clips", tags=["clips"], responses=responses(413, 422))
 
 
-@router.get("/{domain}/{rollout_id}.mp4", response_class=FileResponse,
+class ClipFile(FileResponse):
+    """A FileResponse whose refusals of a ``Range`` header (400, 416) have the app's error body, not plain text."""
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        headers = Headers(scope=scope)
+        wanted, if_range = headers.get("range"), headers.get("if-range")
+        if wanted is not None and (if_range is None or self._should_use_range(if_range)):
+            size = (await anyio.to_thread.run_sync(os.stat, self.path)).st_size
+            try:
+                self._parse_range_header(wanted, size)
+            except MalformedRangeHeader as exc:
+                await error_response(400, f"bad Range header {wanted!r}: {exc.content}")(scope, receive, send)
+                return
+            except RangeNotSatisfiable:
+                await error_response(416, f"range {wanted!r} starts outside the clip's {size} bytes",
+                                     {"Content-Range": f"bytes */{size}"})(scope, receive, send)
+                return
+        await super().__call__(scope, receive, send)
+
+
+@router.get("/{domain}/{rollout_id}.mp4", response_class=ClipFile,
             responses={200: {"content": {"video/mp4": {}}, "description": "the clip"},
-                       206: {"description": "the requested byte range"}, 304: {"description": "not modified"},
-                       404: {"description": "unknown domain or rollout id"}},
+                       206: {"content": {"video/mp4": {}, "multipart/byteranges": {}},
+                             "description": "the requested byte range(s)"},
+                       304: {"description": "not modified"},
+                       **responses(400, 404, 416, said={400: "a malformed Range header",
+                                                        404: "no serve library, or no such rollout in it"})},
             summary="A rollout's clip as MP4 (rendered on first request, then cached)")
-async def get_clip(domain: Annotated[str, Path(max_length=64)], rollout_id: Annotated[str, Path(max_length=128)],
+async def get_clip(domain: Annotated[DomainName, Path()], rollout_id: Annotated[str, Path(max_length=128)],
                    svc: ServicesDep, if_none_match: Annotated[str | None, Header()] = None) -> Response:
     await anyio.to_thread.run_sync(svc.catalog.domain, domain)  # the first call imports the simulator
-    try:
-        library = await anyio.to_thread.run_sync(svc.catalog.library, domain)
-    except LibraryNotFoundError as exc:
-        raise not_found(str(exc)) from exc
+    library = await anyio.to_thread.run_sync(svc.catalog.library, domain)  # LibraryNotFoundError is a 404
     if rollout_id not in library:
         raise not_found(f"unknown rollout id {rollout_id!r} in {domain}/serve; ids look like {library.ids[0]}")
     key = svc.clips.key(library, rollout_id)
@@ -42,7 +68,15 @@ async def get_clip(domain: Annotated[str, Path(max_length=64)], rollout_id: Anno
         return Response(status_code=304, headers=headers)
     # Rendered on the compute layer (or already in flight there): waiting holds no thread.
     path = await asyncio.wrap_future(svc.clips.request(key, library))
-    return FileResponse(path, media_type="video/mp4", headers=headers)
+    return ClipFile(path, media_type="video/mp4", headers=headers)
 
 
 router.add_api_route("/{domain}/{rollout_id}.mp4", get_clip, methods=["HEAD"], include_in_schema=False)
+
+
+@router.get("/{domain}/{rollout_id}/status", response_model=ClipStatusPublic,
+            responses=responses(404, said={404: "no serve library, or no such rollout in it"}),
+            summary="How far a clip's render is: ready, queued, rendering (elapsed and typical seconds) or absent")
+def get_clip_status(domain: Annotated[DomainName, Path()], rollout_id: Annotated[str, Path(max_length=128)],
+                    svc: ServicesDep) -> ClipStatusPublic:
+    return clip_status(svc, domain, rollout_id)

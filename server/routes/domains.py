@@ -5,10 +5,11 @@ from __future__ import annotations
 from fastapi import APIRouter
 
 from server.deps import DbDep, ServicesDep
+from server.errors import responses
 from server.models import DomainsPublic
 from server.views import domains_public
 
-router = APIRouter(prefix="/api/domains", tags=["domains"])
+router = APIRouter(prefix="/api/domains", tags=["domains"], responses=responses(413))
 
 
 @router.get("", response_model=DomainsPublic, summary="List domains, their attributes and available methods")

@@ -8,23 +8,24 @@ from fastapi import APIRouter, Path
 
 from server import prerender, sessions, views
 from server.deps import DbDep, ServicesDep
+from server.errors import responses
 from server.models import FeedbackCreate, SessionCreate, SessionPublic
 
-router = APIRouter(prefix="/api/sessions", tags=["sessions"])
+router = APIRouter(prefix="/api/sessions", tags=["sessions"], responses=responses(413, 422))
 
 SessionId = Annotated[str, Path(description="the id POST /api/sessions returned", max_length=64)]
 
-ERRORS = {404: {"description": "no such session"}, 409: {"description": "stale step, or the session is closed"},
-          422: {"description": "invalid body: the message names the valid values"}}
+SAID = {404: "no such session", 409: "stale step, or the session is closed",
+        422: "invalid body: the message names the valid values"}
 
 
-@router.post("", response_model=SessionPublic, status_code=201, responses={422: ERRORS[422]},
+@router.post("", response_model=SessionPublic, status_code=201, responses=responses(422, said=SAID),
              summary="Start a session; the response holds the first clip")
 def create_session(body: SessionCreate, svc: ServicesDep, db: DbDep) -> SessionPublic:
     return sessions.create_session(svc, db, body)
 
 
-@router.get("/{session_id}", response_model=SessionPublic, responses={404: ERRORS[404]},
+@router.get("/{session_id}", response_model=SessionPublic, responses=responses(404, said=SAID),
             summary="A session: status, step, current clip (with measured values) and history")
 def read_session(session_id: SessionId, svc: ServicesDep, db: DbDep) -> SessionPublic:
     s = sessions.load_session(db, session_id)
@@ -32,13 +33,13 @@ def read_session(session_id: SessionId, svc: ServicesDep, db: DbDep) -> SessionP
     return views.session_public(svc, db, s)
 
 
-@router.post("/{session_id}/feedback", response_model=SessionPublic, responses=ERRORS,
+@router.post("/{session_id}/feedback", response_model=SessionPublic, responses=responses(404, 409, 422, said=SAID),
              summary="Answer the current clip: more/less of attributes, or satisfied")
 def give_feedback(session_id: SessionId, body: FeedbackCreate, svc: ServicesDep, db: DbDep) -> SessionPublic:
     return sessions.give_feedback(svc, db, session_id, body)
 
 
-@router.post("/{session_id}/abandon", response_model=SessionPublic, responses={404: ERRORS[404], 409: ERRORS[409]},
+@router.post("/{session_id}/abandon", response_model=SessionPublic, responses=responses(404, 409, said=SAID),
              summary="Stop a session without choosing a behaviour")
 def abandon_session(session_id: SessionId, svc: ServicesDep, db: DbDep) -> SessionPublic:
     return sessions.abandon_session(svc, db, session_id)

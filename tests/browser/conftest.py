@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-import socket
-import threading
-import time
+import contextlib
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
 
-from server.main import create_app
+from server.main import serve_in_thread
 from server.settings import Settings
 
 CHROMIUM = Path("/usr/bin/chromium")
@@ -18,36 +16,11 @@ CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-backg
                  "--disable-component-update", "--disable-sync", "--no-first-run"]
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.fixture(scope="module")
 def live_server() -> Iterator[Callable[[Settings], str]]:
     """``start(settings)`` -> base URL of a server running in a thread; all stop at module end."""
-    import uvicorn
-
-    servers: list[tuple[uvicorn.Server, threading.Thread]] = []
-
-    def start(settings: Settings) -> str:
-        port = free_port()
-        server = uvicorn.Server(uvicorn.Config(create_app(settings), host="127.0.0.1", port=port, log_level="warning"))
-        thread = threading.Thread(target=server.run, daemon=True)
-        thread.start()
-        deadline = time.monotonic() + 15
-        while not server.started:
-            if time.monotonic() > deadline or not thread.is_alive():
-                raise RuntimeError("the server did not start within 15 s")
-            time.sleep(0.05)
-        servers.append((server, thread))
-        return f"http://127.0.0.1:{port}"
-
-    yield start
-    for server, thread in servers:
-        server.should_exit = True
-        thread.join(15)
+    with contextlib.ExitStack() as servers:
+        yield lambda settings: servers.enter_context(serve_in_thread(settings, timeout=15))
 
 
 @pytest.fixture(scope="module")
@@ -60,3 +33,20 @@ def browser():
         b = p.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
         yield b
         b.close()
+
+
+AXE = Path(__file__).resolve().parent / "vendor" / "axe.min.js"  # axe-core 4.14.1 from npm (MPL-2.0, beside it)
+
+
+def axe_violations(page, impacts: tuple[str, ...] = ("serious", "critical")) -> list:
+    """Run the vendored axe-core on ``page`` (WCAG 2 A/AA rules); its violations of ``impacts``, each as
+    ``{"id", "impact", "help", "targets"}`` (each target with axe's reason) so a failing assert says what and where."""
+    if not page.evaluate("() => Boolean(window.axe)"):
+        page.add_script_tag(content=AXE.read_text(encoding="utf-8"))
+    result = page.evaluate("""async () => {
+      const tags = ['wcag2a', 'wcag2aa', 'wcag21a', 'wcag21aa'];
+      const r = await axe.run(document, { runOnly: { type: 'tag', values: tags } });
+      return r.violations.map((v) => ({ id: v.id, impact: v.impact, help: v.help,
+                                        targets: v.nodes.map((n) => `${n.target.join(' ')}: ${n.failureSummary}`) }));
+    }""")
+    return [v for v in result if v["impact"] in impacts]

@@ -1,33 +1,69 @@
-"""The admin page in a real browser: a wrong token is refused; the right one unlocks it; a label is saved at once."""
+"""The admin page in a real browser: the token, labelling only about clips both seen, the upload form's problems,
+WCAG AA by axe-core, and the API docs without a network. Screenshots go to the test's temporary folder."""
 
 from __future__ import annotations
 
+import datetime as dt
+import io
+import json
+import re
+import shutil
 from pathlib import Path
+from urllib.parse import urlparse
 
 import httpx
+import numpy as np
 import pytest
+from sqlalchemy import create_engine
+from sqlmodel import Session
 
+from server.admin_models import ModelVersion, TrainJob
 from server.settings import Settings
+from tests.browser.conftest import axe_violations
 
 REPO = Path(__file__).resolve().parents[2]
-RESULTS = REPO / "benchmarks" / "results"
 TOKEN = "browser-admin-token"
+AUTH = {"Authorization": f"Bearer {TOKEN}"}
 CLIPS_PLAYING = """() => {
   const v = [...document.querySelectorAll('#pair video')];
   return v.length === 2 && v.every((x) => x.readyState >= 3 && x.currentTime > 0.2);
 }"""
+BOTH_SEEN = "() => document.getElementById('right-more').getAttribute('aria-disabled') === 'false'"
 
 pytestmark = pytest.mark.slow
 
 
-def test_admin_labels_a_pair(live_server, browser, tmp_path):
-    settings = Settings(data_dir=REPO / "data", models_dir=REPO / "models", database_url=f"sqlite:///{tmp_path}/rba.db",
-                        cache_dir=tmp_path / "clips", warm_start=False, prerender=False, admin_token=TOKEN)
-    url = live_server(settings)
+@pytest.fixture(scope="module")
+def url(live_server, tmp_path_factory) -> str:
+    tmp = tmp_path_factory.mktemp("admin")
+    return live_server(Settings(data_dir=REPO / "data", models_dir=REPO / "models", database_url=f"sqlite:///{tmp}/rba.db",
+                                cache_dir=tmp / "clips", warm_start=False, prerender=False, admin_token=TOKEN))
+
+
+@pytest.fixture
+def page(browser):
     page = browser.new_page(viewport={"width": 1280, "height": 900})
     errors: list[str] = []
     page.on("pageerror", lambda e: errors.append(str(e)))
+    yield page
+    assert not errors, errors
+    page.close()
 
+
+def unlock(page, url: str) -> None:
+    page.goto(f"{url}/admin")
+    page.fill("#token", TOKEN)
+    page.get_by_role("button", name="Unlock").click()
+    page.wait_for_function("() => document.querySelectorAll('#pair video').length === 2", timeout=30_000)
+
+
+def labels(url: str) -> list[dict]:
+    r = httpx.get(f"{url}/api/admin/labels", params={"domain": "walker"}, headers=AUTH)
+    assert r.status_code == 200, r.text
+    return r.json()
+
+
+def test_a_wrong_token_is_refused(url, page):
     page.goto(f"{url}/admin")
     page.fill("#token", "not-the-token")
     page.get_by_role("button", name="Unlock").click()
@@ -35,26 +71,180 @@ def test_admin_labels_a_pair(live_server, browser, tmp_path):
     assert "wrong admin token" in page.locator("#toast").inner_text()
     assert page.locator("#admin").is_hidden()
 
-    page.fill("#token", TOKEN)
-    page.get_by_role("button", name="Unlock").click()
-    page.wait_for_function(CLIPS_PLAYING, timeout=90_000)  # both clips render on request
+
+def test_answers_wait_until_both_clips_played_and_focus_stays(url, page, tmp_path):
+    unlock(page, url)
+    assert page.locator("#toast").is_hidden()
+    # the clips render on request, then must play a second: until then neither buttons nor keys save anything
+    for name in ("left-more", "right-more", "skip"):
+        assert page.locator(f"#{name}").get_attribute("aria-disabled") == "true"
+    shown_first = page.eval_on_selector_all("#pair figcaption", "c => c.map((x) => x.textContent)")
+    page.locator("#right-more").click(force=True)  # Playwright would wait for it to be enabled; a person doesn't
+    page.keyboard.press("ArrowLeft")
+    page.keyboard.press("ArrowDown")
+    assert "Watch both clips" in page.locator("#watch-status").inner_text()
+    assert page.eval_on_selector_all("#pair figcaption", "c => c.map((x) => x.textContent)") == shown_first
+    assert page.evaluate("() => [...document.querySelectorAll('#pair video')].some((v) => v.currentTime < 1)")
+
+    page.wait_for_function(BOTH_SEEN, timeout=90_000)
+    assert page.evaluate("() => [...document.querySelectorAll('#pair video')].every((v) => v.currentTime >= 0.9)")
+    assert labels(url) == []  # the early press, ← and ↓ did nothing
     assert page.locator("#attribute").input_value() == "step_size"
-    assert page.locator("#toast").is_hidden()  # the refused token's message went with the unlock
     methods = page.eval_on_selector_all("#train-method option", "o => o.map((x) => [x.value, x.textContent])")
     assert methods == [["global", "RBA-Global"], ["local", "RBA-Local"]]  # from the server's method registry
     assert page.eval_on_selector_all("#preset option", "o => o.map((x) => x.value)") == ["default", "quick", "tiny"]
-    shown = page.eval_on_selector_all("#pair figcaption", "c => c.map((x) => x.textContent.split(' · ')[1])")
-    page.get_by_role("button", name="Right has more").click()
-    page.wait_for_function("() => document.getElementById('label-count').textContent.includes('1 saved')")
+    # the key hints show beside the labels the script sets
+    assert [page.locator(f"#{b} kbd").inner_text() for b in ("left-more", "skip", "right-more")] == ["←", "↓", "→"]
+    assert page.locator("#skip").evaluate("b => getComputedStyle(b).borderTopWidth") == "1px"  # looks like a button
 
-    labels = httpx.get(f"{url}/api/admin/labels", params={"domain": "walker"},
-                       headers={"Authorization": f"Bearer {TOKEN}"}).json()
-    assert [(x["kind"], x["attribute"], x["payload"]["more"], x["payload"]["less"]) for x in labels] == [
+    shown = page.eval_on_selector_all("#pair figcaption", "c => c.map((x) => x.textContent.split(' · ')[1])")
+    page.locator("#right-more").focus()
+    page.keyboard.press("Enter")
+    page.wait_for_function("() => document.getElementById('label-count').textContent.includes('1 saved')")
+    assert [(x["kind"], x["attribute"], x["payload"]["more"], x["payload"]["less"]) for x in labels(url)] == [
         ("comparison", "step_size", shown[1], shown[0])]
-    page.wait_for_function(CLIPS_PLAYING, timeout=90_000)  # the next pair
-    assert page.locator("#versions li").count() >= 1  # builtin, active
+    assert page.evaluate("() => document.activeElement.id") == "right-more"  # focus did not fall to the body
+    # the next pair locks the answers again (a clip needs a second of play, so this runs well within it)
+    assert page.locator("#right-more").get_attribute("aria-disabled") == "true"
+    page.keyboard.press("ArrowLeft")  # ignored
+    page.wait_for_function(BOTH_SEEN, timeout=90_000)
+    assert len(labels(url)) == 1
+    page.keyboard.press("ArrowLeft")
+    page.wait_for_function("() => document.getElementById('label-count').textContent.includes('2 saved')")
+    assert len(labels(url)) == 2
     assert "serving new sessions" in page.locator("#versions").inner_text()
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    page.screenshot(path=str(RESULTS / "screenshot-admin.png"), full_page=True)
-    assert not errors, errors
-    page.close()
+    page.screenshot(path=str(tmp_path / "admin.png"), full_page=True)
+
+
+def _npz(**arrays) -> bytes:
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    return buf.getvalue()
+
+
+def test_upload_form_shows_the_problems_of_each_file(url, page):
+    unlock(page, url)
+    bad_labels = {"orderings": [{"attribute": "step_size", "clips": ["mine_0", "no-such-clip"]}]}
+    bad_npz = _npz(mine_0=np.zeros((12, 3), np.float32))  # walker states are wider than 3
+    page.set_input_files("#upload-labels", {"name": "my-labels.json", "mimeType": "application/json",
+                                            "buffer": json.dumps(bad_labels).encode()})
+    page.set_input_files("#upload-npz", {"name": "my-walks.npz", "mimeType": "application/octet-stream",
+                                         "buffer": bad_npz})
+    page.get_by_role("button", name=re.compile("Upload to walker")).click()
+    result = page.locator("#upload-result")
+    result.locator(".refused").wait_for()
+    text = result.inner_text()
+    assert "Refused: nothing was stored" in text
+    groups = page.eval_on_selector_all("#upload-result .file-problems", """g => g.map((x) => [
+        x.querySelector('strong').textContent, [...x.querySelectorAll('li')].map((li) => li.textContent)])""")
+    assert [name for name, _ in groups] == ["my-labels.json", "my-walks.npz"]
+    npz_problems = dict(groups)["my-walks.npz"]
+    assert any("trajectory 'mine_0': shape [12, 3], expected [T," in p for p in npz_problems), npz_problems
+    r = httpx.get(f"{url}/api/admin/datasets", params={"domain": "walker"}, headers=AUTH)
+    assert r.status_code == 200 and r.json() == []
+
+    page.set_input_files("#upload-labels", {"name": "broken.json", "mimeType": "application/json", "buffer": b"{oops"})
+    page.set_input_files("#upload-npz", [])
+    page.get_by_role("button", name=re.compile("Upload to walker")).click()
+    page.wait_for_function("() => document.querySelector('#upload-result strong')?.textContent === 'broken.json'")
+    assert "labels: not UTF-8 JSON" in result.inner_text()
+
+
+def test_axe_finds_no_serious_violation_on_the_admin_page(url, page):
+    page.goto(f"{url}/admin")
+    assert axe_violations(page) == []  # locked
+    unlock(page, url)
+    page.wait_for_function(CLIPS_PLAYING, timeout=90_000)
+    page.wait_for_function("() => document.querySelectorAll('#versions li').length > 0")
+    assert axe_violations(page) == []  # unlocked, with the clips, the forms and the versions
+    page.locator("#skip").focus()
+    page.keyboard.press("Tab")  # focus moved by the keyboard: the ring must show
+    assert page.evaluate("() => document.activeElement.id") == "right-more"
+    ring = page.locator("#right-more").evaluate(
+        "b => { const s = getComputedStyle(b); return [s.outlineStyle, s.outlineWidth, s.outlineColor]; }")
+    assert ring == ["solid", "3px", "rgb(55, 48, 163)"]  # 3 px of #3730a3: 10:1 on white
+    assert page.locator("h1").inner_text() == "RBA Studio admin"
+
+
+@pytest.mark.parametrize(("path", "shown"), [("/docs", ".opblock"), ("/redoc", "[data-section-id^='tag/admin']")])
+def test_api_docs_render_offline(url, page, path, shown):
+    blocked: list[str] = []
+
+    def only_local(route) -> None:
+        if urlparse(route.request.url).hostname in ("127.0.0.1", "localhost"):
+            route.continue_()
+        else:
+            blocked.append(route.request.url)
+            route.abort()
+
+    page.route("**/*", only_local)
+    page.goto(f"{url}{path}")
+    page.locator(shown).first.wait_for(timeout=30_000)
+    text = page.locator("body").inner_text()
+    assert "/api/admin/datasets" in text and "/api/sessions" in text
+    # ReDoc's sidebar asks for Redocly's logo and hides it when it fails; nothing else is asked of another host
+    assert [u for u in blocked if u != "https://cdn.redoc.ly/redoc/logo-mini.svg"] == []
+    if path == "/docs":
+        assert page.locator(".opblock").count() >= 15  # every operation listed
+
+
+def _worse_version(models, db_url: str) -> None:
+    """A published walker version that is worse on test and has an attribute no held-out pair measures."""
+    folder = models / "versions" / "walker-worse" / "walker"
+    folder.mkdir(parents=True)
+    for kind in ("ranker", "global_reward"):
+        for suffix in (".pt", ".json"):
+            shutil.copy(models / "walker" / f"{kind}-onehot{suffix}", folder)
+    ranker = json.loads((folder / "ranker-onehot.json").read_text())
+    ranker["attributes"].append({"name": "foot_lift", "description": "How high the feet lift.", "unit": "m"})
+    ranker["held_out"]["foot_lift"] = {"held_out_pair_accuracy": None, "held_out_pairs": 0}
+    (folder / "ranker-onehot.json").write_text(json.dumps(ranker))
+    reward = json.loads((folder / "global_reward-onehot.json").read_text())
+    reward["held_out"]["argmax_within_epsilon"] = 0.37
+    (folder / "global_reward-onehot.json").write_text(json.dumps(reward))
+    now = dt.datetime.now(dt.UTC)
+    engine = create_engine(db_url)
+    with Session(engine) as db:
+        db.add(ModelVersion(version="walker-worse", domain="walker", method="global", rep="onehot", job_id="0" * 32,
+                            attributes=["step_size", "softness", "foot_lift"], held_out={}))
+        db.add(TrainJob(domain="walker", method="global", rep="onehot", preset="default", datasets=[], state="running",
+                        stage="global_reward[onehot]", step=500, total=1000, created_at=now - dt.timedelta(seconds=100),
+                        updated_at=now, heartbeat_at=now))
+        db.commit()
+    engine.dispose()
+
+
+def test_activating_a_worse_version_asks_first_and_the_intro_follows(live_server, page, tmp_path):
+    models = tmp_path / "models"
+    shutil.copytree(REPO / "models", models, ignore=shutil.ignore_patterns("versions"))
+    db_url = f"sqlite:///{tmp_path}/rba.db"
+    url = live_server(Settings(data_dir=REPO / "data", models_dir=models, database_url=db_url, cache_dir=tmp_path / "c",
+                               warm_start=False, prerender=False, admin_token=TOKEN))
+    _worse_version(models, db_url)
+    unlock(page, url)
+    page.wait_for_function("() => document.querySelectorAll('#versions li').length === 2")
+    # one bar for the whole job: ζσ done (195 s of the shipped 978 s) and half of rθ, with an estimate
+    assert page.locator("#progress").get_attribute("aria-valuenow") == "60"
+    assert re.search(r"60 % done · about \d+ s left · global_reward\[onehot\] step 500/1000",
+                     page.locator("#job-detail").inner_text())
+    worse = page.locator("#versions li", has_text="walker-worse")
+    assert "serving now: builtin" in worse.inner_text()
+    assert page.eval_on_selector_all("#versions li:nth-child(2) tr.worse th", "t => t.map((x) => x.textContent)") == [
+        "pair accuracy · foot lift", "argmax within ε"]
+    page.get_by_role("button", name="Activate walker-worse").click()
+    dialog = page.locator("#confirm")
+    dialog.wait_for()
+    assert "argmax within ε: 0.370, below 0.925 of builtin" in dialog.inner_text()
+    assert "pair accuracy · foot lift: untested (no held-out pairs)" in dialog.inner_text()
+    page.screenshot(path=str(tmp_path / "admin-confirm.png"))
+    page.get_by_role("button", name="Keep the current one").click()
+    assert dialog.is_hidden()
+    assert page.evaluate("() => document.activeElement.textContent") == "Activate"  # back where it was
+    assert "✓ serving" in page.locator("#versions li:nth-child(1)").inner_text()  # builtin still serves
+
+    page.get_by_role("button", name="Activate walker-worse").click()
+    page.get_by_role("button", name="Activate anyway").click()
+    page.wait_for_function("() => document.querySelector('#versions li:nth-child(2) .serving') !== null")
+    assert "foot lift" in page.locator("#toast").inner_text()
+    page.goto(url)  # the user page's intro lists the active version's attributes
+    page.wait_for_function("() => document.body.innerText.includes('foot lift')", timeout=15_000)

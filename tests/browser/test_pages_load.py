@@ -13,7 +13,8 @@ import pytest
 from server.settings import Settings
 
 REPO = Path(__file__).resolve().parents[2]
-SCRIPTS = {"/": {"/static/app.js", "/static/common.js"}, "/admin": {"/static/admin.js", "/static/common.js"}}
+SCRIPTS = {"/": {"/static/app.js", "/static/common.js", "/static/meters.js"},
+           "/admin": {"/static/admin.js", "/static/common.js"}}
 
 
 @pytest.fixture(scope="module")

@@ -16,6 +16,7 @@ def test_attributes_are_well_formed(domain):
     for a in domain.attributes:
         assert a.name.isidentifier() and a.name == a.name.lower()
         assert a.description.endswith(".") and a.unit
+        assert a.reading is None or (a.reading.sign in (-1, 1) and a.reading.label and a.reading.note)
 
 
 def test_equal_seeds_give_equal_rollouts(domain):

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import os
+import threading
 from collections.abc import Callable, Iterator
 
 import pytest
 from fastapi.testclient import TestClient
-from sqlalchemy import create_engine
+from sqlalchemy import create_engine, text
 from sqlmodel import SQLModel
 
 from server.main import create_app
@@ -17,11 +18,13 @@ POSTGRES_URL = os.environ.get("RBA_TEST_POSTGRES_URL")
 
 
 def _reset_postgres(url: str) -> None:
-    """Drop the app's tables so every test starts from an empty database."""
-    from server import db  # noqa: F401  (registers every table)
+    """Drop the app's tables and the migrations' record, so every test starts from an empty database."""
+    from server import admin_models, models  # noqa: F401  (registers every table)
 
     engine = create_engine(url)
     SQLModel.metadata.drop_all(engine)
+    with engine.begin() as conn:
+        conn.execute(text("DROP TABLE IF EXISTS alembic_version"))
     engine.dispose()
 
 
@@ -63,5 +66,27 @@ def session(client) -> dict:
     return r.json()
 
 
-def more(attribute: str, step: int, direction: str = "more") -> dict:
-    return {"step": step, "feedback": [{"attribute": attribute, "direction": direction}]}
+def more(attribute: str, step: int, direction: str = "more", clip: str | None = None) -> dict:
+    """A feedback body; with ``clip``, it names the clip it answers about (the page always does)."""
+    body = {"step": step, "feedback": [{"attribute": attribute, "direction": direction}]}
+    return body if clip is None else {**body, "clip": clip}
+
+
+def make_engines_together(database_url: str, n: int) -> tuple[list, list[Exception]]:
+    """``n`` replicas' ``make_engine`` started at once (each in a thread): their engines and errors."""
+    from server.db import make_engine
+
+    engines, errors = [], []
+
+    def start() -> None:
+        try:
+            engines.append(make_engine(database_url))
+        except Exception as exc:
+            errors.append(exc)
+
+    threads = [threading.Thread(target=start) for _ in range(n)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60)
+    return engines, errors

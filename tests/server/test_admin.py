@@ -8,7 +8,6 @@ from __future__ import annotations
 import io
 import json
 import pickle
-import shutil
 import time
 import zipfile
 from pathlib import Path
@@ -18,6 +17,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from server.main import create_app
+from tests.conftest import own_copy
 
 TOKEN = "s3cret-admin-token"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
@@ -27,9 +27,7 @@ STATE_DIM = 4  # the toy domain's
 @pytest.fixture
 def settings(make_settings, toy_roots, tmp_path, database_url):
     """Own copies of the toy models and data folders: jobs write versions and uploads there."""
-    data, models, _ = toy_roots
-    shutil.copytree(models, tmp_path / "models")
-    shutil.copytree(data, tmp_path / "data")
+    own_copy(toy_roots, tmp_path)
     return make_settings(admin_token=TOKEN, data_dir=tmp_path / "data", models_dir=tmp_path / "models",
                          upload_max_bytes=256 * 1024, upload_max_uncompressed=512 * 1024, database_url=database_url)
 
@@ -334,7 +332,7 @@ def test_train_request_errors(admin):
     r = admin.post("/api/admin/train", headers=AUTH, json={"domain": "toy", "datasets": ["missing"]})
     assert r.status_code == 422 and "no dataset 'missing' for toy; uploaded: none" in r.json()["detail"]
     r = admin.post("/api/admin/train", headers=AUTH, json={"domain": "toy", "method": "magic"})
-    assert r.status_code == 422 and "method: Input should be 'global' or 'local'" in r.json()["detail"]
+    assert r.status_code == 422 and "method: unknown method 'magic'; valid: global, local" in r.json()["detail"]
     r = admin.get("/api/admin/jobs/nope", headers=AUTH)
     assert r.status_code == 404 and "no training job 'nope'" in r.json()["detail"]
     assert admin.get("/api/admin/jobs", headers=AUTH).json() == []
@@ -400,8 +398,27 @@ def test_failed_job_changes_nothing_served(admin, settings):
     r = admin.post("/api/admin/train", headers=AUTH, json={"domain": "toy", "datasets": [ds["id"]], "preset": "tiny"})
     assert r.status_code == 202
     job = wait_job(admin, r.json()["id"])
-    assert job["state"] == "failed" and "FileNotFoundError" in job["error"] and job["version"] is None
+    assert job["state"] == "failed" and job["version"] is None
+    assert job["error"] == f"ValueError: dataset {ds['id']}: its file {ds['id']}.json is missing from " \
+                           f"{settings.data_dir / 'uploads' / 'toy'}"
     versions = settings.models_dir / "versions"
     assert not versions.exists() or not any(versions.iterdir())
     s = admin.post("/api/sessions", json={"domain": "toy", "method": "global", "rep": "onehot"}).json()
     assert s["model_set"] == "builtin"
+
+
+def test_a_training_process_that_cannot_start_is_503_and_frees_the_domain(admin, monkeypatch):
+    jobs = admin.app.state.services.jobs
+
+    def refuse(proc) -> None:
+        raise OSError("no more processes")
+
+    monkeypatch.setattr(jobs._launcher, "start", refuse)
+    r = admin.post("/api/admin/train", headers=AUTH, json={"domain": "toy", "preset": "tiny"})
+    assert r.status_code == 503
+    assert r.json()["detail"] == ("the training process could not start (OSError: no more processes); "
+                                  "the job is marked failed: try again")
+    [job] = admin.get("/api/admin/jobs", headers=AUTH).json()
+    assert job["state"] == "failed" and "could not start: OSError: no more processes" in job["error"]
+    again = admin.post("/api/admin/train", headers=AUTH, json={"domain": "toy", "preset": "tiny"})
+    assert again.status_code == 503  # not 409: the failed job holds the domain no more

@@ -18,7 +18,7 @@ def test_domains_lists_attributes_and_available_models(client):
     toy = next(d for d in body["domains"] if d["name"] == "toy")
     assert [a["name"] for a in toy["attributes"]] == ["amplitude", "pace"]
     assert toy["attributes"][0] == {"name": "amplitude", "description": "How far the dot swings from side to side.",
-                                    "unit": "m", "low": None, "high": None}
+                                    "unit": "m", "low": None, "high": None, "decimals": 2, "reading": None}
     assert toy["available"] == [{"method": "global", "rep": "onehot"}]  # only these models were trained
     assert toy["missing"] is None
     walker = next(d for d in body["domains"] if d["name"] == "walker")
@@ -101,6 +101,38 @@ def test_feedback_for_another_step_is_409(client, session, step):
     assert r.status_code == 409
     assert r.json()["detail"] == (f"step {step} is stale: session {session['id']} is at step 0; "
                                   "GET the session and answer about the clip it shows now")
+
+
+def test_an_answer_about_a_clip_no_longer_shown_is_409(client, session):
+    """A second press made before the new clip was shown names the old clip: refused, saying which is shown."""
+    sid, first = session["id"], session["clip"]["rollout_id"]
+    r = client.post(f"/api/sessions/{sid}/feedback", json=more("pace", 0, clip=first))
+    assert r.status_code == 200, r.text
+    now = r.json()["clip"]["rollout_id"]
+    assert now != first
+    r = client.post(f"/api/sessions/{sid}/feedback", json=more("pace", 1, clip=first))
+    assert r.status_code == 409
+    assert r.json()["detail"] == (f"the answer is about clip {first} but session {sid} now shows clip {now}; "
+                                  "watch that clip and answer about it")
+    r = client.post(f"/api/sessions/{sid}/feedback", json={"step": 1, "clip": first, "satisfied": True})
+    assert r.status_code == 409 and f"now shows clip {now}" in r.json()["detail"]
+    s = client.get(f"/api/sessions/{sid}").json()
+    assert s["step"] == 1 and s["status"] == "active" and len(s["history"]) == 1
+
+
+def test_session_shows_the_agents_target_interval_in_measured_values(client, session):
+    """RBA-Global's belief, as measured values inside the library's range; an answer narrows it."""
+    before = {t["attribute"]: t for t in session["target"]}
+    ranges = {a["name"]: (a["low"], a["high"]) for a in session["attributes"]}
+    assert set(before) == {"amplitude", "pace"}
+    for name, t in before.items():
+        assert ranges[name][0] <= t["low"] < t["high"] <= ranges[name][1]
+    shown = session["clip"]["measured"]["pace"]
+    after = client.post(f"/api/sessions/{session['id']}/feedback",
+                        json=more("pace", 0, clip=session["clip"]["rollout_id"])).json()
+    moved = next(t for t in after["target"] if t["attribute"] == "pace")
+    assert moved["high"] - moved["low"] < before["pace"]["high"] - before["pace"]["low"]
+    assert moved["high"] > shown  # "more pace" than the clip shown: the belief lies above it
 
 
 def test_repeating_an_answer_is_409_not_a_second_step(client, session):
@@ -188,13 +220,33 @@ def test_clip_is_an_mp4_with_etag_and_ranges(client, session):
     ("/api/clips/toy/..%5C..%5Cetc%5Cpasswd.mp4", r"unknown rollout id '..\\..\\etc\\passwd' in toy/serve"),
     ("/api/clips/toy/..%2F..%2Fetc%2Fpasswd.mp4", "no API route /api/clips/toy/../../etc/passwd.mp4"),
     ("/api/clips/toy/train-00001.mp4", "unknown rollout id 'train-00001' in toy/serve"),
-    ("/api/clips/atlantis/serve-00001.mp4", "unknown domain 'atlantis'; valid: walker, lane_change"),
     ("/api/clips/walker/serve-00001.mp4", "no serve library for 'walker'"),
 ])
 def test_unknown_clips_are_404(client, path, message):
     r = client.get(path)
     assert r.status_code == 404
     assert message in r.json()["detail"]
+
+
+def test_clip_status_says_ready_once_rendered_and_404s_unknown_clips(client, session):
+    rid = session["clip"]["rollout_id"]
+    url = f"/api/clips/toy/{rid}/status"
+    before = client.get(url)
+    assert before.status_code == 200 and before.json()["state"] in {"absent", "queued", "rendering"}
+    assert client.get(session["clip"]["url"]).status_code == 200
+    after = client.get(url).json()
+    assert after["rollout_id"] == rid and after["state"] == "ready" and after["typical_seconds"] > 0
+    r = client.get("/api/clips/toy/serve-99999/status")
+    assert r.status_code == 404
+    assert r.json()["detail"] == "unknown rollout id 'serve-99999' in toy/serve; ids look like serve-00000"
+    r = client.get("/api/clips/atlantis/serve-00001/status")
+    assert r.status_code == 422 and "domain: unknown domain 'atlantis'; valid: walker" in r.json()["detail"]
+
+
+def test_clip_of_an_unknown_domain_is_422_naming_the_domains(client):
+    r = client.get("/api/clips/atlantis/serve-00001.mp4")
+    assert r.status_code == 422
+    assert "domain: unknown domain 'atlantis'; valid: walker, lane_change" in r.json()["detail"]
 
 
 # -- the rest of the app -----------------------------------------------------------------------
@@ -204,9 +256,32 @@ def test_page_docs_and_unknown_routes(client):
     assert page.status_code == 200 and "RBA Studio" in page.text and "/static/app.js" in page.text
     assert client.get("/static/app.js").status_code == 200
     assert client.get("/static/app.css").status_code == 200
+    icon = client.get("/favicon.ico")
+    assert icon.status_code == 200 and icon.headers["content-type"].startswith("image/svg+xml")
+    assert icon.content.startswith(b"<svg")
     assert client.get("/docs").status_code == 200
     spec = client.get("/openapi.json").json()
     assert {"/api/domains", "/api/sessions", "/api/sessions/{session_id}", "/api/sessions/{session_id}/feedback",
             "/api/sessions/{session_id}/abandon", "/api/clips/{domain}/{rollout_id}.mp4"} <= set(spec["paths"])
     r = client.get("/api/nothing/here")
     assert r.status_code == 404 and r.json()["detail"] == "no API route /api/nothing/here; see /docs for the routes"
+
+
+def test_attributes_say_how_to_read_them_and_with_how_many_decimals():
+    """Walker softness is minus a landing speed: shown as the speed; snake speed changes in the third decimal."""
+    from rba.domains import get_domain
+    from rba.library import SkillLibrary
+    from server.models import ReadingPublic
+    from server.views import attributes_public, epsilon_decimals, range_decimals
+
+    walker = {a.name: a for a in attributes_public(get_domain("walker"))}
+    assert walker["softness"].reading == ReadingPublic(label="landing speed", sign=-1, note="lower is softer")
+    assert walker["step_size"].reading is None
+
+    def fine(name: str) -> dict[str, int]:
+        domain = get_domain(name)
+        eps = domain.epsilons(SkillLibrary.load(name, "serve").proxies, "high")
+        return {a: epsilon_decimals(e) for a, e in zip(domain.attribute_names, eps, strict=True)}
+
+    assert fine("walker")["step_size"] == 2 and fine("snake")["speed"] == 3
+    assert range_decimals(0.0, 0.08) == 3 and range_decimals(0.0, 50.0) == 0 and range_decimals(None, 1.0) == 2

@@ -7,7 +7,7 @@ import threading
 import pytest
 from fastapi.testclient import TestClient
 
-from rba.clips import ClipCache
+from rba.clips import ClipCache, ClipStatus
 from rba.interact import AttributeFeedback
 from rba.library import SkillLibrary
 from rba.store import ClipStore
@@ -64,6 +64,27 @@ def test_a_request_while_the_finished_clip_is_being_stored_joins_that_render(toy
     compute.submitted[0][1].set_result(b"mp4")
     assert len(compute.submitted) == 1  # nothing new was submitted
     assert joined[0] is first and first.result(1) == store.path(key) and cache.renders == 1
+
+
+def test_clip_status_goes_absent_queued_rendering_ready_with_a_typical_time(toy_roots, tmp_path):
+    """What the page shows while a person waits: the render's real state, and how long this domain's take."""
+    data, _, _ = toy_roots
+    lib = SkillLibrary.load("toy", "serve", data)
+    compute = FakeCompute()
+    cache = ClipCache(ClipStore(tmp_path / "clips"), compute, 64, 48)
+    first, second = cache.key(lib, "serve-00001"), cache.key(lib, "serve-00002")
+    assert cache.status(first) == ClipStatus("absent")
+    cache.request(first, lib)
+    queued = cache.status(first)
+    assert (queued.state, queued.typical) == ("queued", None) and queued.elapsed >= 0
+    compute.submitted[0][1].set_running_or_notify_cancel()
+    assert cache.status(first).state == "rendering"
+    compute.submitted[0][1].set_result(b"mp4")
+    done = cache.status(first)
+    assert done.state == "ready" and done.elapsed is None and done.typical > 0
+    cache.request(second, lib, urgent=False)
+    guess = cache.status(second)
+    assert (guess.state, guess.typical) == ("queued", done.typical)
 
 
 def test_clip_keys_only_accept_library_ids(toy_roots, tmp_path):

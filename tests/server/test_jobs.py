@@ -8,19 +8,22 @@ those of the rows.
 from __future__ import annotations
 
 import datetime as dt
+import shutil
+import subprocess
 import threading
 import time
 
 import pytest
-from sqlalchemy import inspect, text
 from sqlalchemy.exc import IntegrityError
-from sqlmodel import Session, create_engine
+from sqlmodel import Session, select
 
-from server.admin_models import JobState, TrainJob
+from server.admin_models import JobState, ModelVersion, TrainJob
 from server.db import make_engine
-from server.jobs import JobRunner
+from server.jobs import JobLost, JobRunner, _record_success, update_job
 from server.models import as_utc, utcnow
+from server.processes import ProcessRecord
 from server.settings import Settings
+from tests.server.test_processes import alive, wait_dead
 
 
 class StandInProcess:
@@ -47,8 +50,8 @@ def replica(make_settings, database_url, tmp_path):
     runners: list[JobRunner] = []
 
     def make(name: str, **overrides) -> JobRunner:
-        settings = make_settings(database_url=database_url, models_dir=tmp_path / "models", replica=name,
-                                 **overrides)
+        settings = make_settings(database_url=database_url, data_dir=tmp_path / "data", models_dir=tmp_path / "models",
+                                 replica=name, **overrides)
         runner = JobRunner(settings, make_engine(settings.db_url))
         runners.append(runner)
         return runner
@@ -191,24 +194,109 @@ def test_train_route_on_two_replicas(make_settings, database_url, tmp_path, monk
         assert jobs[second.json()["id"]]["state"] == "queued"
 
 
+@pytest.fixture
+def sleepers():
+    """sleepers() -> a new process in a group of its own, standing for a training process a crash left."""
+    procs: list[subprocess.Popen] = []
+
+    def make() -> int:
+        procs.append(subprocess.Popen(["sleep", "60"], start_new_session=True))
+        return procs[-1].pid
+
+    yield make
+    for proc in procs:
+        proc.kill()
+        proc.wait(10)
+
+
+def test_a_restart_kills_what_its_previous_process_left_and_sweeps_what_no_live_job_owns(replica, sleepers):
+    a = replica("a")
+    orphaned = add_job(a, "toy", "a#0ld0ld00", beat_age=1)  # a's previous process ran it, and was killed
+    ProcessRecord.of(orphan := sleepers()).save(a.store.job_record(orphaned))
+    finished = add_job(a, "snake", "a#0ld0ld00", beat_age=1)  # failed by another replica; its process ran on
+    update_job(a.engine, finished, state=JobState.failed.value, error="the server running the job stopped")
+    ProcessRecord.of(survivor := sleepers()).save(a.store.job_record(finished))
+    elsewhere = add_job(a, "walker", "b#11ve11ve", beat_age=1)  # replica b's live job, on another machine
+    ProcessRecord(sleepers(), 0.0, "b-host").save(a.store.job_record(elsewhere))
+    a.store.staging("0123456789abcdef").mkdir()  # a staging folder no job row knows
+
+    restarted = replica("a")
+    restarted.recover()
+    assert wait_dead(orphan, 0.5) and wait_dead(survivor, 0.5)
+    assert (row(a, orphaned).state, row(a, orphaned).error) == ("failed", "the server stopped while the job ran")
+    assert (row(a, elsewhere).state, row(a, elsewhere).busy_domain) == ("running", "walker")
+    assert a.store.staged_jobs() == [elsewhere]  # its models in progress stay, and so does its record
+    assert a.store.recorded_jobs() == [elsewhere]
+
+
+def test_a_restart_removes_a_published_version_no_row_names_unless_its_job_is_live(replica):
+    """Killed between renaming its folder into place and committing its row, a job leaves a version nobody lists."""
+    a = replica("a")
+    live = add_job(a, "walker", "b#11ve11ve", beat_age=1)  # replica b, recording its version right now
+    for name in ("toy-20260101-000000-dead00", f"walker-20260101-000000-{live[:6]}", "toy-20260101-000000-beef00",
+                 "toy-by-hand"):
+        (a.store.versions_dir / name).mkdir(parents=True)
+    with Session(a.engine) as db:
+        db.add(ModelVersion(version="toy-20260101-000000-beef00", domain="toy", method="global", rep="onehot",
+                            attributes=["pace"], held_out={}, job_id="beef00"))
+        db.commit()
+    replica("a").recover()
+    assert a.store.published() == ["toy-20260101-000000-beef00", "toy-by-hand", f"walker-20260101-000000-{live[:6]}"]
+
+
+def test_a_record_whose_pid_was_reused_kills_nothing(replica, sleepers):
+    a = replica("a")
+    job = add_job(a, "toy", "a#0ld0ld00", beat_age=1)
+    ProcessRecord(other := sleepers(), 12.0, ProcessRecord.of(other).host).save(a.store.job_record(job))
+    replica("a").recover()
+    assert alive(other) and row(a, job).state == "failed"
+    assert a.store.recorded_jobs() == [] and a.store.staged_jobs() == []
+
+
+def test_a_job_taken_from_its_server_writes_nothing_and_records_no_version(replica):
+    a = replica("a")
+    job = add_job(a, "toy", "a#0ld0ld00", beat_age=0)  # owned by a's previous process
+    mine = TrainJob.owner == a.owner
+    assert update_job(a.engine, job, mine, step=7) is False
+    with pytest.raises(JobLost):
+        _record_success(a.engine, a.settings, job, mine, "toy-20260101-000000-abcdef", {}, "")
+    assert (row(a, job).state, row(a, job).step, row(a, job).version) == ("running", 0, None)
+    with Session(a.engine) as db:
+        assert db.exec(select(ModelVersion)).all() == []
+
+
+def test_a_training_process_whose_job_was_taken_stops_by_itself(replica, toy_roots, tmp_path):
+    """Failed by another replica (or a restart) while it trains: at its next progress report it stops,
+    writing nothing more. No heartbeat runs here, so nothing else stops it."""
+    shutil.copytree(toy_roots[0], tmp_path / "data")
+    a = replica("a")
+    job = add_job(a, "toy", a.owner, beat_age=0)
+    update_job(a.engine, job, preset="default")  # minutes of training if nothing stopped it
+    a.start(job)
+    proc = a._procs[job]
+    deadline = time.monotonic() + 120
+    while row(a, job).step == 0 and proc.is_alive() and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert row(a, job).state == "running" and row(a, job).step > 0, row(a, job)
+    assert update_job(a.engine, job, state=JobState.failed.value, error="taken by another replica")
+    taken = row(a, job)
+    # Its next report is 50 steps on: a second or two, unless the machine is crowded. The server's watch thread
+    # joins the process too, and whichever thread reaps it first sets the exit code: poll it, do not join.
+    deadline = time.monotonic() + 180
+    while proc.exitcode is None and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert proc.exitcode == 0  # it returned: no one killed it
+    after = row(a, job)
+    assert (after.state, after.error, after.step, after.updated_at) == ("failed", "taken by another replica",
+                                                                         taken.step, taken.updated_at)
+    assert not a.store.staging(job).exists()
+    deadline = time.monotonic() + 5
+    while a.store.recorded_jobs() and time.monotonic() < deadline:  # the watch removes the record on exit
+        time.sleep(0.05)
+    assert a.store.recorded_jobs() == []
+
+
 def test_heartbeat_must_be_well_inside_the_staleness_limit():
     with pytest.raises(ValueError, match=r"job_stale_seconds \(10\) must exceed twice job_heartbeat_seconds \(5\)"):
         Settings(job_heartbeat_seconds=5, job_stale_seconds=10)
 
-
-def test_old_databases_get_the_ownership_columns(tmp_path):
-    """A job table from before replicas (no owner, no heartbeat) gains both columns at start-up."""
-    url = f"sqlite:///{tmp_path / 'old.db'}"
-    old = create_engine(url)
-    with old.begin() as conn:
-        conn.execute(text("CREATE TABLE rba_train_job (id VARCHAR(32) PRIMARY KEY, domain VARCHAR(64) NOT NULL, "
-                          "method VARCHAR(32) NOT NULL, rep VARCHAR(32) NOT NULL, preset VARCHAR(16) NOT NULL, "
-                          "datasets JSON NOT NULL, stage VARCHAR(64) NOT NULL, step INTEGER NOT NULL, "
-                          "total INTEGER NOT NULL, loss FLOAT, held_out JSON, log_tail TEXT NOT NULL, error TEXT, "
-                          "version VARCHAR(64), busy_domain VARCHAR(64) UNIQUE, include_page_labels BOOLEAN NOT NULL, "
-                          "state VARCHAR(16) NOT NULL, created_at DATETIME NOT NULL, updated_at DATETIME NOT NULL)"))
-    old.dispose()
-    engine = make_engine(url)
-    columns = {c["name"] for c in inspect(engine).get_columns("rba_train_job")}
-    assert {"owner", "heartbeat_at"} <= columns
-    engine.dispose()

@@ -19,7 +19,7 @@ from server import sessions
 from server.admin_models import ModelVersion
 from server.main import create_app
 from server.models import FeedbackEvent, TuningSession
-from tests.server.conftest import more
+from tests.server.conftest import make_engines_together, more
 
 
 @pytest.fixture
@@ -117,21 +117,7 @@ def test_a_version_activated_on_one_replica_serves_new_sessions_on_the_other(mak
 
 def test_replicas_starting_together_on_a_fresh_database_all_get_the_schema(database_url):
     """Without the schema lock, concurrent create_all on PostgreSQL fails with a duplicate key in pg_type."""
-    from server.db import make_engine
-
-    engines, errors = [], []
-
-    def start() -> None:
-        try:
-            engines.append(make_engine(database_url))
-        except Exception as exc:
-            errors.append(exc)
-
-    threads = [threading.Thread(target=start) for _ in range(4)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join(60)
+    engines, errors = make_engines_together(database_url, 4)
     assert errors == [] and len(engines) == 4
     for engine in engines:
         with Session(engine) as db:

@@ -1,0 +1,19 @@
+"""Feedback in a person's own words: the operation behind POST /api/domains/{domain}/interpret."""
+
+from __future__ import annotations
+
+from rba.interpret import NotUnderstood, Understood, interpreter_for
+from server.errors import invalid
+from server.services import Services
+
+
+def interpret(svc: Services, domain: str, text: str) -> Understood:
+    """What ``text`` asks of ``domain``'s attributes; 422 when nothing is close enough (the route checks the domain).
+
+    The first call per domain loads the sentence model (once per process) and embeds the domain's anchors.
+    """
+    interpreter = interpreter_for(svc.catalog.domain(domain))
+    try:
+        return interpreter.interpret(text)
+    except NotUnderstood as exc:
+        raise invalid(str(exc)) from None

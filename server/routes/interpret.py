@@ -1,0 +1,65 @@
+"""POST /api/domains/{domain}/interpret: a sentence ("land more gently") -> attribute feedback to confirm."""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from fastapi import APIRouter, Path
+from pydantic import BaseModel, Field, field_validator
+
+from rba.interpret import MAX_TEXT, Understood
+from server import interpreting
+from server.deps import ServicesDep
+from server.errors import responses
+from server.models import STRICT_BODY, DomainName
+
+router = APIRouter(prefix="/api/domains", tags=["interpret"])
+
+class InterpretCreate(BaseModel):
+    """Body: the sentence a person typed."""
+
+    model_config = STRICT_BODY
+
+    text: str = Field(description=f"feedback in your own words, at most {MAX_TEXT} characters",
+                      examples=["land more gently", "bigger but softer steps"])
+
+    @field_validator("text")
+    @classmethod
+    def _a_sentence(cls, text: str) -> str:
+        if not text.strip():
+            raise ValueError("is empty: say what to change, e.g. 'land more gently'")
+        if len(text) > MAX_TEXT:
+            raise ValueError(f"is {len(text)} characters long; at most {MAX_TEXT}: one or two short sentences")
+        return text
+
+
+class InterpretedChoice(BaseModel):
+    model_config = STRICT_BODY
+
+    attribute: str = Field(description="an attribute name of the domain, e.g. softness")
+    direction: Literal["more", "less"]
+
+
+class InterpretPublic(BaseModel):
+    """What the sentence was understood as: send ``feedback`` as the session's feedback once confirmed."""
+
+    model_config = STRICT_BODY
+
+    feedback: list[InterpretedChoice] = Field(description="in the sentence's order; never empty")
+    confidence: float = Field(ge=0.0, le=1.0, description="the least certain clause's score: cosine similarity "
+                              "to the closest anchor phrase, plus a bonus for a cue word, at most 1")
+
+    @classmethod
+    def of(cls, understood: Understood) -> InterpretPublic:
+        return cls(feedback=[InterpretedChoice(attribute=a, direction=d) for a, d in understood.feedback],
+                   confidence=round(understood.confidence, 3))
+
+
+ERRORS = responses(413, 422, said={
+    422: "unknown domain, empty or too long text, or not understood: the message lists the valid names"})
+
+
+@router.post("/{domain}/interpret", response_model=InterpretPublic, responses=ERRORS,
+             summary="Map a sentence of feedback to more/less of the domain's attributes")
+def interpret(domain: Annotated[DomainName, Path()], body: InterpretCreate, svc: ServicesDep) -> InterpretPublic:
+    return InterpretPublic.of(interpreting.interpret(svc, domain, body.text))
