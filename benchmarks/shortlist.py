@@ -31,8 +31,8 @@ RESULTS = Path(__file__).resolve().parent / "results"
 
 def measure(domain: str, rep: str, ks: list[int | None]) -> list[dict]:
     ctx = load_context(domain, "global", rep)
-    test = SkillLibrary.load(domain, "test")
-    test_zeta = load_model(domain, "ranker", rep).model.score_library(test)
+    val = SkillLibrary.load(domain, "val")  # a tuning measurement: never on test
+    test_zeta = load_model(domain, "ranker", rep).model.score_library(val)
     eps = {p: get_domain(domain).epsilons(ctx.serve.proxies, p) for p in ("normal", "high")}
     none = np.zeros(len(ctx.serve), dtype=bool)
     full = None

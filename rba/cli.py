@@ -61,10 +61,10 @@ def cmd_build(args) -> int:
     from rba.training import prepare_states
 
     prepare_states(args.domain, args.seed)  # a learned state encoder the rollouts load, trained if missing
-    sizes = {"train": args.train, "serve": args.serve, "test": args.test}
+    sizes = {"train": args.train, "serve": args.serve, "val": args.val, "test": args.test}
     settings = LibrarySettings(compute_workers=args.workers, compute_nice=0)  # nothing else runs: no need to yield
     with make_compute(settings, args.ray) as compute:
-        libs = build_all(args.domain, seed=args.seed, sizes=sizes, compute=compute)
+        libs = build_all(args.domain, seed=args.seed, sizes=sizes, compute=compute, splits=tuple(args.splits))
     for split, lib in libs.items():
         m = lib.meta
         print(f"{args.domain}/{split}: {len(lib)} rollouts, success {m['success_rate']:.1%} of {m['attempted']}, "
@@ -93,12 +93,14 @@ def cmd_eval(args) -> int:
         from rba.methods import methods
 
         runs = [(m.name, r) for m in methods(include_reference=True) for r in m.run_reps]
-        results = [evaluate(args.domain, m, r, args.targets, args.seed, args.precision, args.user) for m, r in runs]
+        results = [evaluate(args.domain, m, r, args.targets, args.seed, args.precision, args.user, split=args.split)
+                   for m, r in runs]
         print(format_table(results))
         if args.json:
             save_json(Path(args.json), [r.to_json() for r in results])
         return 0
-    result = evaluate(args.domain, args.method, args.rep, args.targets, args.seed, args.precision, args.user)
+    result = evaluate(args.domain, args.method, args.rep, args.targets, args.seed, args.precision, args.user,
+                      split=args.split)
     print(format_table([result]))
     if args.json:
         save_json(Path(args.json), result.to_json())
@@ -169,13 +171,18 @@ def _ray_option(parser: argparse.ArgumentParser) -> None:
 
 
 def _build_command(sub) -> argparse.ArgumentParser:
-    b = sub.add_parser("build", help="simulate the train / serve / test skill libraries")
+    from rba.library import SPLITS
+
+    b = sub.add_parser("build", help="simulate the train / serve / val / test skill libraries")
     b.add_argument("domain", type=_domain)
     b.add_argument("--seed", type=int, default=0)
     b.add_argument("--train", type=_positive, default=300, help="rollouts in train (labels come from these)")
     b.add_argument("--serve", type=_positive, default=None,
                    help="rollouts the agent chooses from (default: the domain's serve_size)")
-    b.add_argument("--test", type=_positive, default=120, help="held-out target behaviours")
+    b.add_argument("--val", type=_positive, default=120, help="held-out behaviours for tuning and model selection")
+    b.add_argument("--test", type=_positive, default=120, help="held-out target behaviours (only `rba eval`)")
+    b.add_argument("--splits", nargs="+", choices=SPLITS, default=list(SPLITS),
+                   help="build only these splits; the others stay as they are")
     b.add_argument("--workers", type=_positive, default=2, help="simulation processes (without --ray)")
     _ray_option(b)
     b.set_defaults(func=cmd_build)
@@ -200,9 +207,11 @@ def _train_command(sub) -> argparse.ArgumentParser:
 
 
 def _cache_command(sub) -> argparse.ArgumentParser:
+    from rba.library import SPLITS
+
     c = sub.add_parser("cache", help="render every clip of a split into the app's clip cache (RBA_CACHE_DIR)")
     c.add_argument("domain", type=_domain)
-    c.add_argument("--split", choices=("serve", "train", "test"), default="serve")
+    c.add_argument("--split", choices=SPLITS, default="serve")
     c.add_argument("--width", type=_positive, default=None, help="default: RBA_CLIP_WIDTH (320)")
     c.add_argument("--height", type=_positive, default=None, help="default: RBA_CLIP_HEIGHT (240)")
     _ray_option(c)
@@ -213,6 +222,7 @@ def _cache_command(sub) -> argparse.ArgumentParser:
 def _eval_command(sub) -> argparse.ArgumentParser:
     from rba.embed import REPRESENTATIONS
     from rba.interact.users import USER_KINDS
+    from rba.library import HELD_OUT
     from rba.methods import method_names
 
     e = sub.add_parser("eval", help="run the paper's protocol with simulated users")
@@ -222,6 +232,8 @@ def _eval_command(sub) -> argparse.ArgumentParser:
     e.add_argument("--targets", type=_positive, default=20)
     e.add_argument("--seed", type=int, default=0)
     e.add_argument("--precision", choices=("normal", "high"), default="normal")
+    e.add_argument("--split", choices=HELD_OUT, default="test",
+                   help="where targets come from: val to tune or choose models, test for reported numbers")
     e.add_argument("--user", type=_user, default="paper", metavar="KIND[:param]",
                    help=f"the simulated user: {', '.join(USER_KINDS)} (e.g. mistake:0.2; without a param the "
                         "kind's default strength; see rba/interact/users.py)")

@@ -17,7 +17,7 @@ import numpy as np
 from rba.domains import get_domain
 from rba.interact import SATISFIED, Agent, FeedbackKind, Preference, load_context, new_agent
 from rba.interact.users import SKIP, PreferenceTeacher, SimulatedUser, UserSpec, parse_user
-from rba.library import SkillLibrary
+from rba.library import HELD_OUT, SkillLibrary
 
 log = logging.getLogger(__name__)
 
@@ -48,6 +48,7 @@ class EvalResult:
     std_feedback: float | None
     seconds: float
     trials: list[Trial]
+    split: str = "test"  # where the targets came from: "val" while tuning, "test" for reports
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -134,10 +135,14 @@ def simulate(agent: Agent, target: np.ndarray, epsilon: np.ndarray, serve: Skill
 
 def evaluate(domain_name: str, method: str, rep: str = "onehot", targets: int = 20, seed: int = 0,
              precision: str = "normal", user: str | UserSpec = "paper", data_root=None, models_root=None,
-             context=None) -> EvalResult:
+             context=None, split: str = "test") -> EvalResult:
+    """SR / AF over ``targets`` targets drawn from ``split``: ``val`` for tuning and model selection,
+    ``test`` (the default) only for reported numbers."""
+    if split not in HELD_OUT:
+        raise ValueError(f"targets come from a held-out split; got {split!r}, valid: {', '.join(HELD_OUT)}")
     spec = parse_user(user)
     domain = get_domain(domain_name)
-    test = SkillLibrary.load(domain_name, "test", data_root)
+    test = SkillLibrary.load(domain_name, split, data_root)
     context = context or load_context(domain_name, method, rep, data_root, models_root)
     serve = context.serve
     eps = domain.epsilons(serve.proxies, precision)
@@ -151,7 +156,7 @@ def evaluate(domain_name: str, method: str, rep: str = "onehot", targets: int = 
                       success_rate=float(np.mean([t.success for t in trials])),
                       avg_feedback=float(fb.mean()) if len(fb) else None,
                       std_feedback=float(fb.std()) if len(fb) else None,
-                      seconds=round(time.perf_counter() - start, 2), trials=trials)
+                      seconds=round(time.perf_counter() - start, 2), trials=trials, split=split)
 
 
 def format_table(results: list[EvalResult]) -> str:

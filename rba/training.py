@@ -1,4 +1,4 @@
-"""`rba train`: fit RBA-Global (ζσ, rθ) or RBA-Local (rθ) models, measure them on `test`, save with cards.
+"""`rba train`: fit RBA-Global (ζσ, rθ) or RBA-Local (rθ) models, measure them on `val`, save with cards.
 
 Also the learned state encoder a domain's states come from (lane_change_image's frame VAE),
 which `rba build` trains before it simulates, when it is missing.
@@ -146,7 +146,7 @@ class _Inputs:
     domain: Domain
     train: SkillLibrary
     serve: SkillLibrary
-    test: SkillLibrary
+    val: SkillLibrary  # held out: the cards' metrics (never test: that is only for `rba eval`)
     embed: np.ndarray  # float32[k, E]
     attrs: list[dict]  # model card entries {name, description, unit}: the domain's, then declared ones
 
@@ -155,7 +155,7 @@ class _Inputs:
              extra_attributes: Iterable[NewAttribute] = ()) -> _Inputs:
         check_rep(rep)
         domain = get_domain(domain_name)
-        libs = (SkillLibrary.load(domain_name, s, data_root) for s in ("train", "serve", "test"))
+        libs = (SkillLibrary.load(domain_name, s, data_root) for s in ("train", "serve", "val"))
         attrs = [{"name": a.name, "description": a.description, "unit": a.unit} for a in domain.attributes]
         attrs += [{"name": a.name, "description": a.description, "unit": ""} for a in extra_attributes]
         return cls(domain_name, domain, *libs, attribute_embeddings([a["description"] for a in attrs], rep), attrs)
@@ -167,7 +167,7 @@ class _Inputs:
     def card(self, rep: str) -> dict:
         """The card entries every model trained on these inputs shares."""
         return {"domain": self.name, "representation": rep, "attributes": self.attrs,
-                "data": {"train": self.train.version, "serve": self.serve.version, "test": self.test.version}}
+                "data": {"train": self.train.version, "serve": self.serve.version, "val": self.val.version}}
 
 
 @dataclass
@@ -268,16 +268,16 @@ def _global_labels(inputs: _Inputs, pool: _Pool, sources: list[LabelSource], cfg
 
 def _ranker_metrics(ranker: AttributeRanker, inputs: _Inputs, pool: _Pool, held_out: dict[str, np.ndarray]
                     ) -> tuple[dict, np.ndarray, np.ndarray]:
-    """(metrics, ζσ of test, ζσ of the pool): ranking quality on test by proxy, and on held-out pairs."""
-    test_zeta = ranker.score_library(inputs.test)
+    """(metrics, ζσ of val, ζσ of the pool): ranking quality on val by proxy, and on held-out pairs."""
+    val_zeta = ranker.score_library(inputs.val)
     k = len(inputs.domain.attributes)
-    metrics = ranking_metrics(test_zeta[:, :k], inputs.test.proxies, inputs.domain.attribute_names)
+    metrics = ranking_metrics(val_zeta[:, :k], inputs.val.proxies, inputs.domain.attribute_names)
     pool_zeta = ranker.score(pool.data)
     for name, pairs in held_out.items():
         a = inputs.names.index(name)
         acc = float(np.mean(pool_zeta[pairs[:, 0], a] > pool_zeta[pairs[:, 1], a])) if len(pairs) else None
         metrics[name] = {"held_out_pair_accuracy": acc, "held_out_pairs": len(pairs)}
-    return metrics, test_zeta, pool_zeta
+    return metrics, val_zeta, pool_zeta
 
 
 def train_global(domain_name: str, rep: str, cfg: GlobalTrainConfig | None = None,
@@ -297,7 +297,7 @@ def train_global(domain_name: str, rep: str, cfg: GlobalTrainConfig | None = Non
     labels, held_out = _global_labels(inputs, pool, sources, cfg.ranker)
     (ranker, rstats), ranker_seconds = _timed(train_ranker, pool.data, labels, inputs.embed, cfg.ranker,
                                               progress=_progress(stage_name("ranker", rep), on_progress))
-    rmetrics, test_zeta, pool_zeta = _ranker_metrics(ranker, inputs, pool, held_out)
+    rmetrics, val_zeta, pool_zeta = _ranker_metrics(ranker, inputs, pool, held_out)
     log.info("ranker[%s] held out: %s", rep, rmetrics)
     common = inputs.card(rep)
     if sources:
@@ -308,21 +308,21 @@ def train_global(domain_name: str, rep: str, cfg: GlobalTrainConfig | None = Non
                         "architecture": {**arch, "embed_dim": int(inputs.embed.shape[1]), "hidden": cfg.ranker.hidden,
                                          "layers": cfg.ranker.layers, "clip": cfg.ranker.clip},
                         "training": {**rstats, "seconds": ranker_seconds},
-                        "held_out": {"split": "test", "rollouts": len(inputs.test), **rmetrics}}, models_root)
+                        "held_out": {"split": "val", "rollouts": len(inputs.val), **rmetrics}}, models_root)
     # rθ learns from ζσ labels only: every pooled trajectory (train, serve, uploaded), no proxies.
     (reward, gstats), reward_seconds = _timed(train_global_reward, pool.data, pool_zeta, cfg.reward,
                                               progress=_progress(stage_name("global_reward", rep), on_progress))
     scorer = LibraryScorer(reward, Ragged.from_numpy(inputs.serve.states, inputs.serve.state_offsets))
     eps = {p: inputs.domain.epsilons(inputs.serve.proxies, p) for p in ("normal", "high")}
-    match = {p: argmax_match_rate(scorer, inputs.serve, test_zeta, inputs.test.proxies, eps[p])
+    match = {p: argmax_match_rate(scorer, inputs.serve, val_zeta, inputs.val.proxies, eps[p])
              for p in ("normal", "high")}
-    log.info("global_reward[%s] argmax within ε on test: %s", rep, match)
+    log.info("global_reward[%s] argmax within ε on val: %s", rep, match)
     train_zeta = pool_zeta[: len(inputs.train)]
     save_model(reward, {**common, "kind": "global_reward", "weights_sha": weights_sha(reward),
                         "architecture": {**arch, "hidden": cfg.reward.hidden, "layers": cfg.reward.layers},
                         "zeta_bounds": np.stack([train_zeta.min(0), train_zeta.max(0)]).tolist(),
                         "training": {**gstats, "seconds": reward_seconds, "labels": "zeta of train+serve (no proxies)"},
-                        "held_out": {"split": "test", "rollouts": len(inputs.test),
+                        "held_out": {"split": "val", "rollouts": len(inputs.val),
                                      "argmax_within_epsilon": match["normal"],
                                      "argmax_within_high_precision_epsilon": match["high"]}}, models_root)
     return {"ranker": rmetrics, "argmax_within_epsilon": match,
@@ -331,16 +331,16 @@ def train_global(domain_name: str, rep: str, cfg: GlobalTrainConfig | None = Non
 
 def _local_metrics(model: LocalReward, inputs: _Inputs, cfg: LocalTrainConfig,
                    near_copy_radius: float) -> tuple[dict, dict]:
-    """(ranking of test pairs among test rollouts, what the agent would do: argmax over serve per test edit)."""
+    """(ranking of val pairs among val rollouts, what the agent would do: argmax over serve per val edit)."""
     eps = inputs.domain.epsilons(inputs.serve.proxies)
-    test = inputs.test
-    test_pairs = local_pairs(test.proxies, eps, inputs.domain.attribute_names, cfg.labels, max_pairs=len(test))
-    test_scorer = LocalLibraryScorer(model, Ragged.from_numpy(test.states, test.state_offsets))
-    ranking = pair_metrics(test_scorer, test_pairs)
+    val = inputs.val
+    val_pairs = local_pairs(val.proxies, eps, inputs.domain.attribute_names, cfg.labels, max_pairs=len(val))
+    val_scorer = LocalLibraryScorer(model, Ragged.from_numpy(val.states, val.state_offsets))
+    ranking = pair_metrics(val_scorer, val_pairs)
     serve_scorer = LocalLibraryScorer(model, Ragged.from_numpy(inputs.serve.states, inputs.serve.state_offsets))
-    anchors = torch.as_tensor(test_pairs.anchor)
-    edits = edit_metrics(serve_scorer, test_scorer.phi[anchors], test.proxies[test_pairs.anchor],
-                         inputs.serve.proxies, test_pairs, eps, near_copy_radius)
+    anchors = torch.as_tensor(val_pairs.anchor)
+    edits = edit_metrics(serve_scorer, val_scorer.phi[anchors], val.proxies[val_pairs.anchor],
+                         inputs.serve.proxies, val_pairs, eps, near_copy_radius)
     return ranking, edits
 
 
@@ -351,8 +351,8 @@ def train_local(domain_name: str, rep: str, cfg: LocalTrainConfig | None = None,
 
     Pairs come from the proxies of ``train`` plus the local changes ``sources`` label (then
     negatives are drawn from train, serve and uploaded trajectories). Held-out numbers use pairs
-    built the same way among ``test`` rollouts (anchors, targets and negatives all from test),
-    plus what the agent would do: the argmax over ``serve`` for each test anchor and asked edit.
+    built the same way among ``val`` rollouts (anchors, targets and negatives all from val),
+    plus what the agent would do: the argmax over ``serve`` for each val anchor and asked edit.
     """
     cfg = cfg or LocalTrainConfig()
     sources = sources or []
@@ -369,7 +369,7 @@ def train_local(domain_name: str, rep: str, cfg: LocalTrainConfig | None = None,
     (model, stats), seconds = _timed(train_local_reward, data, pairs, inputs.embed, cfg.reward,
                                      progress=_progress(stage_name("local_reward", rep), on_progress))
     ranking, edits = _local_metrics(model, inputs, cfg, stats["near_copy_radius"])
-    log.info("local_reward[%s] on test: %s; argmax over serve: %s", rep, ranking, edits)
+    log.info("local_reward[%s] on val: %s; argmax over serve: %s", rep, ranking, edits)
     r = cfg.reward
     save_model(model, {**inputs.card(rep), "kind": "local_reward", "weights_sha": weights_sha(model),
                        "architecture": {"state_dim": inputs.domain.state_dim, "num_attributes": len(inputs.attrs),
@@ -379,7 +379,7 @@ def train_local(domain_name: str, rep: str, cfg: LocalTrainConfig | None = None,
                        "near_copy_radius": stats["near_copy_radius"],
                        "labels": {**asdict(cfg.labels), "pairs": pair_counts(pairs, inputs.names)},
                        "training": {**stats, "seconds": seconds},
-                       "held_out": {"split": "test", "rollouts": len(inputs.test), **ranking,
+                       "held_out": {"split": "val", "rollouts": len(inputs.val), **ranking,
                                     "argmax_over_serve": edits}}, models_root)
     return {"local_reward": ranking, "argmax_over_serve": edits, "seconds": {"local_reward": seconds}}
 
