@@ -1,6 +1,6 @@
 """RBA-Global query cost and precision: rθ over the whole serve library vs over a ζσ shortlist.
 
-For every ``test`` rollout as target, the query is argmax Σ rθ(·|ζσ(target)) over ``serve`` (the
+For every ``val`` rollout as target, the query is argmax Σ rθ(·|ζσ(target)) over ``serve`` (the
 paper), or over the K serve rollouts nearest the target in ζσ space. Reports, per K, the share
 of queries within ε of the target on every attribute, how often the two agree, and the time per
 query (all measured in one run, so the ratios hold on a noisy machine).
@@ -32,7 +32,7 @@ RESULTS = Path(__file__).resolve().parent / "results"
 def measure(domain: str, rep: str, ks: list[int | None]) -> list[dict]:
     ctx = load_context(domain, "global", rep)
     val = SkillLibrary.load(domain, "val")  # a tuning measurement: never on test
-    test_zeta = load_model(domain, "ranker", rep).model.score_library(val)
+    val_zeta = load_model(domain, "ranker", rep).model.score_library(val)
     eps = {p: get_domain(domain).epsilons(ctx.serve.proxies, p) for p in ("normal", "high")}
     none = np.zeros(len(ctx.serve), dtype=bool)
     full = None
@@ -40,14 +40,14 @@ def measure(domain: str, rep: str, ks: list[int | None]) -> list[dict]:
     for k in ks:
         c = replace(ctx, shortlist=k)
         start = time.perf_counter()
-        picks = np.array([c.scorer.argmax(z, none, c.candidates(z, none)) for z in test_zeta])
-        seconds = (time.perf_counter() - start) / len(test_zeta)
+        picks = np.array([c.scorer.argmax(z, none, c.candidates(z, none)) for z in val_zeta])
+        seconds = (time.perf_counter() - start) / len(val_zeta)
         if full is None:
             full = picks
         row = {"rep": rep, "k": "all" if k is None else k, "ms_per_query": 1000 * seconds,
                "same_as_full": float(np.mean(picks == full))}
         for p, e in eps.items():
-            row[p] = float(np.mean(np.all(np.abs(ctx.serve.proxies[picks] - test.proxies) <= e, axis=1)))
+            row[p] = float(np.mean(np.all(np.abs(ctx.serve.proxies[picks] - val.proxies) <= e, axis=1)))
         rows.append(row)
         logging.info("%s", row)
     return rows
@@ -65,7 +65,7 @@ def main() -> None:
     rows = [r for rep in args.reps for r in measure(args.domain, rep, [None, *args.ks])]
     lines = [f"# {args.domain}: rθ query over the whole serve library vs a ζσ shortlist", "",
              f"{dt.datetime.now(dt.UTC):%Y-%m-%d %H:%M} UTC, `python benchmarks/shortlist.py --domain {args.domain} "
-             f"--ks {' '.join(map(str, args.ks))}`, {time.perf_counter() - start:.0f} s. Targets: every `test` "
+             f"--ks {' '.join(map(str, args.ks))}`, {time.perf_counter() - start:.0f} s. Targets: every `val` "
              "rollout; a query is within ε when the chosen serve rollout is within ε of the target on every "
              "attribute.", "",
              "| rep | K | within ε | within high-precision ε | same pick as K=all | ms / query |",
