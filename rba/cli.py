@@ -75,6 +75,13 @@ def cmd_build(args) -> int:
 def cmd_train(args) -> int:
     from rba.methods import get_method, trainable
 
+    if args.remeasure:
+        from rba.embed import REPRESENTATIONS
+        from rba.training import remeasure
+
+        for rep in REPRESENTATIONS if args.rep == "all" else (args.rep,):
+            print(json.dumps({"domain": args.domain, "rep": rep, **remeasure(args.domain, rep)}, indent=2))
+        return 0
     chosen = trainable() if args.method == "all" else (get_method(args.method),)
     for method in chosen:
         if args.preset not in method.presets:
@@ -202,6 +209,8 @@ def _train_command(sub) -> argparse.ArgumentParser:
     t.add_argument("--preset", choices=train_presets(), default="default",
                    help="'quick': a shorter rθ; 'tiny': the CI smoke preset")
     t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--remeasure", action="store_true",
+                   help="train nothing: recompute the saved models' held-out card numbers on val with today's ε")
     t.set_defaults(func=cmd_train)
     return t
 

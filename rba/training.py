@@ -44,6 +44,8 @@ from rba.learn.local_reward import (
 from rba.learn.ranker import AttributeRanker, RankerConfig, ranking_metrics, train_ranker
 from rba.learn.vae import SIZE, STACK, VAEConfig, train_vae
 from rba.library import SkillLibrary
+from rba.storage import save_json
+from rba.store import model_files
 
 log = logging.getLogger(__name__)
 
@@ -74,6 +76,24 @@ def get_preset(name: str) -> Preset:
     if name not in _PRESETS:
         raise ValueError(f"unknown preset {name!r}; valid: {', '.join(PRESETS)}")
     return _PRESETS[name]
+
+
+# What was chosen by measuring, per model kind. Every such measurement used ``val``: it holds the rollouts of the
+# first release's test split (split code 2), where these were chosen; ``test`` was then rebuilt from split code 3
+# and is read only by `rba eval` and benchmarks/paper_tables.py. Each card says so (``tuning``).
+TUNED = {
+    "ranker": ("Domain.ranker_steps",),
+    "global_reward": ("GlobalRewardConfig.focus", "rba.interact.global_agent.SHORTLIST", "Domain.serve_size",
+                      "rba.interact.base.REJECT_MEMORY"),
+    "local_reward": ("Domain.serve_size", "rba.interact.base.REJECT_MEMORY"),
+}
+
+
+def tuning_record(kind: str) -> dict:
+    """A card's ``tuning``: which settings were chosen by measurement, and on which split (always val)."""
+    return {"split": "val", "settings": list(TUNED.get(kind, ())),
+            "note": "val = the first release's test rollouts (split code 2), where these were chosen; "
+                    "test (split code 3) is only for `rba eval` and the tables"}
 
 
 @dataclass
@@ -307,7 +327,7 @@ def train_global(domain_name: str, rep: str, cfg: GlobalTrainConfig | None = Non
     save_model(ranker, {**common, "kind": "ranker", "weights_sha": weights_sha(ranker),
                         "architecture": {**arch, "embed_dim": int(inputs.embed.shape[1]), "hidden": cfg.ranker.hidden,
                                          "layers": cfg.ranker.layers, "clip": cfg.ranker.clip},
-                        "training": {**rstats, "seconds": ranker_seconds},
+                        "training": {**rstats, "seconds": ranker_seconds}, "tuning": tuning_record("ranker"),
                         "held_out": {"split": "val", "rollouts": len(inputs.val), **rmetrics}}, models_root)
     # rθ learns from ζσ labels only: every pooled trajectory (train, serve, uploaded), no proxies.
     (reward, gstats), reward_seconds = _timed(train_global_reward, pool.data, pool_zeta, cfg.reward,
@@ -322,6 +342,7 @@ def train_global(domain_name: str, rep: str, cfg: GlobalTrainConfig | None = Non
                         "architecture": {**arch, "hidden": cfg.reward.hidden, "layers": cfg.reward.layers},
                         "zeta_bounds": np.stack([train_zeta.min(0), train_zeta.max(0)]).tolist(),
                         "training": {**gstats, "seconds": reward_seconds, "labels": "zeta of train+serve (no proxies)"},
+                        "tuning": tuning_record("global_reward"),
                         "held_out": {"split": "val", "rollouts": len(inputs.val),
                                      "argmax_within_epsilon": match["normal"],
                                      "argmax_within_high_precision_epsilon": match["high"]}}, models_root)
@@ -377,8 +398,9 @@ def train_local(domain_name: str, rep: str, cfg: LocalTrainConfig | None = None,
                                         "layers": r.layers, "lstm_hidden": r.lstm_hidden,
                                         "lstm_layers": r.lstm_layers, "anchor_stride": r.anchor_stride},
                        "near_copy_radius": stats["near_copy_radius"],
-                       "labels": {**asdict(cfg.labels), "pairs": pair_counts(pairs, inputs.names)},
-                       "training": {**stats, "seconds": seconds},
+                       "labels": {**asdict(cfg.labels), "pairs": pair_counts(pairs, inputs.names),
+                                  "epsilon": eps.tolist()},  # the ε the change bands are in units of
+                       "training": {**stats, "seconds": seconds}, "tuning": tuning_record("local_reward"),
                        "held_out": {"split": "val", "rollouts": len(inputs.val), **ranking,
                                     "argmax_over_serve": edits}}, models_root)
     return {"local_reward": ranking, "argmax_over_serve": edits, "seconds": {"local_reward": seconds}}
@@ -399,8 +421,49 @@ def train_frame_vae(domain_name: str, seed: int = 0, models_root: Path | None = 
     kind, rep = domain.state_encoder
     save_model(model, {"domain": domain.name, "kind": kind, "representation": rep,
                        "architecture": {"latent": latent, "size": SIZE, "stack": STACK, **domain.frame_view},
-                       "training": stats}, models_root)
+                       "training": stats, "tuning": tuning_record(kind)}, models_root)
     return stats
+
+
+def _ranker_held_out(card: dict, model, inputs: _Inputs, models_root: Path | None) -> dict:
+    k = len(inputs.domain.attributes)
+    return ranking_metrics(model.score_library(inputs.val)[:, :k], inputs.val.proxies, inputs.domain.attribute_names)
+
+
+def _global_held_out(card: dict, model, inputs: _Inputs, models_root: Path | None) -> dict:
+    val_zeta = load_model(inputs.name, "ranker", card["representation"], models_root).model.score_library(inputs.val)
+    scorer = LibraryScorer(model, Ragged.from_numpy(inputs.serve.states, inputs.serve.state_offsets))
+    eps = {p: inputs.domain.epsilons(inputs.serve.proxies, p) for p in ("normal", "high")}
+    match = {p: argmax_match_rate(scorer, inputs.serve, val_zeta, inputs.val.proxies, eps[p]) for p in eps}
+    return {"argmax_within_epsilon": match["normal"], "argmax_within_high_precision_epsilon": match["high"]}
+
+
+def _local_held_out(card: dict, model, inputs: _Inputs, models_root: Path | None) -> dict:
+    labels = {k: v for k, v in card["labels"].items() if k in LocalLabelConfig.__dataclass_fields__}
+    ranking, edits = _local_metrics(model, inputs, LocalTrainConfig(LocalLabelConfig(**labels)),
+                                    card["near_copy_radius"])
+    return {**ranking, "argmax_over_serve": edits}
+
+
+_HELD_OUT = {"ranker": _ranker_held_out, "global_reward": _global_held_out, "local_reward": _local_held_out}
+
+
+def remeasure(domain_name: str, rep: str, data_root: Path | None = None, models_root: Path | None = None) -> dict:
+    """Recompute the held-out numbers of the saved ``rep`` models' cards on val with today's ε (`rba train
+    --remeasure`): after a change of split or ε the cards tell the truth again; the weights stay as they are."""
+    inputs = _Inputs.load(domain_name, rep, data_root)
+    files, out = model_files(models_root), {}
+    for kind, measure in _HELD_OUT.items():
+        try:
+            artifact = load_model(domain_name, kind, rep, models_root)
+        except ModelNotFoundError:
+            continue
+        held = {"split": "val", "rollouts": len(inputs.val), **measure(artifact.card, artifact.model, inputs,
+                                                                         models_root)}
+        card = dict(artifact.card, data=inputs.card(rep)["data"], held_out=held, tuning=tuning_record(kind))
+        save_json(files.card(domain_name, kind, rep), card)
+        out[kind] = held
+    return out
 
 
 # A domain's ``state_encoder`` kind -> what trains it: (domain, seed, models_root) -> training stats.

@@ -49,7 +49,7 @@ def test_ray_runs_on_both_nodes_and_simulates_the_toy_library_identically(ray_cl
 
 def test_a_tiny_walker_build_and_its_clips_are_identical_on_both_backends(ray_cluster, local_compute, tmp_path):
     _, _, ray = ray_cluster
-    sizes = {"train": 3, "serve": 4, "test": 2}
+    sizes = {"train": 3, "serve": 4, "val": 2, "test": 2}
     on_ray = build_all("walker", seed=11, sizes=sizes, root=tmp_path / "ray", progress=False, compute=ray)
     local = build_all("walker", seed=11, sizes=sizes, root=tmp_path / "local", progress=False, compute=local_compute)
     assert {s: lib.version for s, lib in on_ray.items()} == {s: lib.version for s, lib in local.items()}
@@ -61,7 +61,7 @@ def test_a_tiny_walker_build_and_its_clips_are_identical_on_both_backends(ray_cl
 
 def test_a_killed_ray_worker_loses_no_clip_and_leaves_no_half_file(ray_cluster, local_compute, tmp_path):
     cluster, nodes, ray = ray_cluster
-    lib = build_all("walker", seed=12, sizes={"train": 2, "serve": 4, "test": 2}, root=tmp_path / "data",
+    lib = build_all("walker", seed=12, sizes={"train": 2, "serve": 4, "val": 2, "test": 2}, root=tmp_path / "data",
                     progress=False, compute=local_compute)["serve"]
     cache = ClipCache(ClipStore(tmp_path / "clips"), ray, 96, 72)
     keys = [(cache.key(lib, rid), lib) for rid in lib.ids]

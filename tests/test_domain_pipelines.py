@@ -17,7 +17,7 @@ SHIPPED = [d for d in domain_names() if (REPO_ROOT / "models" / d / "ranker-oneh
 @pytest.mark.parametrize("domain", [d for d in domain_names() if d != "toy"])
 def test_tiny_preset_end_to_end(domain, tmp_path):
     data, models = tmp_path / "data", tmp_path / "models"
-    build_all(domain, seed=5, sizes={"train": 80, "serve": 160, "test": 12}, root=data, progress=False)
+    build_all(domain, seed=5, sizes={"train": 80, "serve": 160, "val": 12, "test": 12}, root=data, progress=False)
     metrics = train_global(domain, "onehot", GlobalTrainConfig.preset("tiny", seed=0), data_root=data,
                            models_root=models)
     for name, m in metrics["ranker"].items():

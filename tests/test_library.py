@@ -36,12 +36,12 @@ def test_tampered_arrays_are_refused(tmp_path):
 def test_missing_library_names_the_fix(tmp_path):
     with pytest.raises(LibraryNotFoundError, match="rba build toy"):
         SkillLibrary.load("toy", "serve", tmp_path)
-    with pytest.raises(ValueError, match="valid: train, serve, test"):
+    with pytest.raises(ValueError, match="valid: train, serve, val, test"):
         SkillLibrary.load("toy", "nope", tmp_path)
 
 
 def test_build_all_keeps_test_params_out_of_train(tmp_path):
-    libs = build_all("toy", seed=1, sizes={"train": 15, "serve": 15, "test": 10}, workers=1, root=tmp_path,
+    libs = build_all("toy", seed=1, sizes={"train": 15, "serve": 15, "val": 10, "test": 10}, workers=1, root=tmp_path,
                      progress=False)
     train = {tuple(p) for p in libs["train"].params}
     assert not any(tuple(p) in train for p in libs["test"].params)
