@@ -3,17 +3,25 @@
 For each registered domain with a library and trained models: every registered method with each
 representation it runs with (RBA-Global, RBA-Global-L, RBA-Local, RBA-Local-L, PbRL), between two
 reference rows, Random (the floor: random serve clips) and Oracle (the ceiling the library allows:
-bisection on the true proxies), 20 held-out targets each (ARCHITECTURE §5), beside the paper's numbers.
+bisection on the true proxies), 20 targets of the ``test`` split each (ARCHITECTURE §5), beside the paper's
+numbers, with the paper's user. ``--users KIND ...`` adds one table per teacher kind (RBA-Global and RBA-Local,
+one-hot, normal precision, over the four hand-made domains); raw state views (``<domain>_raw``, just more
+``--domains``) are shown beside their hand-made view; the label-noise report is linked when it exists.
 ε is a fraction of each proxy's robust range over the serve library (``Domain.epsilons``). Writes
-``benchmarks/results/paper_tables.md`` (and ``.json``).
+``benchmarks/results/paper_tables.md`` (and ``.json``: one object per row, with its ``user``, ``split``, ``epsilon``).
 
     python benchmarks/paper_tables.py                         # every domain, both precisions
+    python benchmarks/paper_tables.py --users mistake skip equal myopic boundary inconsistent
+                                                    # ... and one table per teacher kind
     python benchmarks/paper_tables.py --domains lane_change --precisions normal --targets 5
     python benchmarks/paper_tables.py --domains snake --merge benchmarks/results/paper_tables.json
                                                     # re-measure one domain, keep the others' rows
     python benchmarks/paper_tables.py --report-only --merge a.json b.json   # combine parallel runs
     python benchmarks/paper_tables.py --domains walker --check benchmarks/results/paper_tables.json
                                                     # re-measure, compare with the report (exit 1 if a row differs)
+
+Merged rows must carry ``split: "test"`` and the current ε (``epsilon_definition``): rows of an older report
+(measured on the old test split, or with another ε) are refused, never reused.
 """
 
 from __future__ import annotations
@@ -21,26 +29,37 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import logging
+import os
 import platform
 import sys
 from pathlib import Path
 
 from rba.artifacts import ModelNotFoundError
 from rba.domains import domain_names
+from rba.domains.base import EPSILON_FRACTIONS, ROBUST_QUANTILES
 from rba.evaluate import EvalResult, evaluate
 from rba.interact import load_context
+from rba.interact.users import USER_KINDS, UserSpec, parse_user
 from rba.library import LibraryNotFoundError
 from rba.methods import methods
 from rba.storage import load_json, save_json, save_text
 
 log = logging.getLogger("paper_tables")
 RESULTS = Path(__file__).resolve().parent / "results"
+LABEL_NOISE = RESULTS / "label_noise.md"  # the ζσ label-noise report (its own benchmark); linked when it exists
+SPLIT = "test"  # every reported row's targets: `test` is touched only by `rba eval` and these tables
+PAPER_USER = "paper"  # the user of the paper's tables
 # The rows: the random floor, every registered method with each representation it runs with, the oracle
 # ceiling, as (method, rep, label).
 _ORDER = {"floor": 0, None: 1, "ceiling": 2}
 _ROWS = sorted(methods(include_reference=True), key=lambda m: _ORDER[m.reference])
 METHODS = [(m.name, rep, m.label_for(rep)) for m in _ROWS for rep in m.run_reps]
 LABELS = [label for _, _, label in METHODS]  # the tables' row order
+# The teacher-kind tables: these rows (one-hot), normal precision, the hand-made views of the paper's domains.
+USER_LABELS = ("RBA-Global", "RBA-Local")
+USER_DOMAINS = ("walker", "manipulator", "lane_change", "snake")
+USER_PRECISION = "normal"
+RAW_SUFFIX = "_raw"  # a domain's raw state view (the simulator's positions and velocities) is "<domain>_raw"
 # The paper's Tables 1 and 2: (SR, AF, std of AF) per row of PAPER_LABELS; AF None where the paper has N/A.
 PAPER_LABELS = ("RBA-Global", "RBA-Global-L", "RBA-Local", "RBA-Local-L", "PbRL")
 PAPER = {
@@ -63,30 +82,56 @@ PAPER = {
 
 PAPER_ROW = {"lane_change_image": "lane_change"}  # the paper's lane change observes images
 PRECISIONS = ("high", "normal")  # the tables' order: high precision is the headline
-TITLES = {"high": "Table 1 — high precision (the headline; the paper's Table 2)",
-          "normal": "Table 2 — normal precision (the paper's Table 1)"}
+TITLES = {"high": "Table 2 — high precision (the headline)", "normal": "Table 1 — normal precision"}
+
+Row = tuple[str, str, EvalResult]  # (domain, label, result)
+# The ε of rows stored with a split but no "epsilon" (reports written before rows carried it): the robust ε came
+# before the split field, so those rows were measured with this one; they merge while it is still the current ε.
+EPSILON_BEFORE_STORED = {"normal": "0.142857 x (p1-p99 of serve proxies)",
+                         "high": "0.0238095 x (p1-p99 of serve proxies)"}
+
+
+def epsilon_definition(precision: str) -> str:
+    """What ε is at ``precision`` (stored with every row: a row measured with another ε is not merged)."""
+    lo, hi = ROBUST_QUANTILES
+    return f"{EPSILON_FRACTIONS[precision]:.6g} x (p{lo:g}-p{hi:g} of serve proxies)"
 
 
 def _cell(sr: float, af: float | None, sd: float | None) -> str:
     return f"{sr:.2f} / " + ("–" if af is None else f"{af:.2f} ({sd:.2f})")
 
 
-def run(domains: list[str], precisions: list[str], targets: int, seed: int,
-        labels: list[str], on_row=None) -> list[tuple[str, str, EvalResult]]:
-    """Evaluate every requested domain × method × precision; ``on_row(rows so far)`` after each."""
+def _result_cell(r: EvalResult | None) -> str:
+    return "–" if r is None else _cell(r.success_rate, r.avg_feedback, r.std_feedback)
+
+
+def _jobs(domain: str, label: str, precisions: list[str], labels: list[str],
+          users: list[UserSpec]) -> list[tuple[str, str]]:
+    """(user, precision) to measure for one domain and row: the paper's user, then each teacher kind."""
+    jobs = [(PAPER_USER, p) for p in precisions] if label in labels else []
+    if domain in USER_DOMAINS and label in USER_LABELS:
+        jobs += [(str(u), USER_PRECISION) for u in users if (str(u), USER_PRECISION) not in jobs]
+    return jobs
+
+
+def run(domains: list[str], precisions: list[str], targets: int, seed: int, labels: list[str],
+        on_row=None, users: list[UserSpec] = ()) -> list[Row]:
+    """Evaluate every requested domain × method × precision (and teacher kind); ``on_row(rows so far)`` after each."""
     out = []
     for domain in domains:
         for method, rep, label in METHODS:
-            if label not in labels:
+            jobs = _jobs(domain, label, precisions, labels, list(users))
+            if not jobs:
                 continue
             try:
                 ctx = load_context(domain, method, rep)
             except (ModelNotFoundError, LibraryNotFoundError) as exc:
                 log.warning("%s %s: not measured (%s)", domain, label, exc)
                 continue
-            for precision in precisions:
-                r = evaluate(domain, method, rep, targets, seed, precision=precision, context=ctx)
-                log.info("%s %s %s: SR %.2f AF %s (%.0f s)", domain, label, precision, r.success_rate,
+            for user, precision in jobs:
+                r = evaluate(domain, method, rep, targets, seed, precision=precision, user=user, context=ctx,
+                             split=SPLIT)
+                log.info("%s %s %s %s: SR %.2f AF %s (%.0f s)", domain, label, precision, user, r.success_rate,
                          r.avg_feedback, r.seconds)
                 out.append((domain, label, r))
                 if on_row:
@@ -94,111 +139,211 @@ def run(domains: list[str], precisions: list[str], targets: int, seed: int,
     return out
 
 
-def merged(rows, paths: list[Path]) -> list:
-    """Rows of earlier runs' JSON (a later file's row replaces an earlier one's), then this run's rows."""
-    kept: dict[tuple[str, str, str], tuple] = {}
+class StaleRowError(ValueError):
+    """A stored row that may not be merged: no split, another split or another ε."""
+
+
+def _stored_result(row: dict, path: Path) -> EvalResult:
+    """A stored row as an ``EvalResult``, if it was measured the way these tables measure; else StaleRowError."""
+    what = f"{path}: row {row.get('domain')} {row.get('label')} {row.get('precision')} {row.get('user', '?')}"
+    if "split" not in row:
+        raise StaleRowError(f"{what} has no split (measured before the val/test split, on the old test "
+                            f"targets): re-measure it, do not merge it")
+    if row["split"] != SPLIT:
+        raise StaleRowError(f"{what} was measured on split {row['split']!r}; the tables report {SPLIT!r} only")
+    epsilon = row.get("epsilon", EPSILON_BEFORE_STORED.get(row["precision"]))
+    if epsilon != epsilon_definition(row["precision"]):
+        raise StaleRowError(f"{what} was measured with ε {epsilon!r}; the tables use "
+                            f"{epsilon_definition(row['precision'])!r}")
+    return EvalResult(**{**{k: v for k, v in row.items() if k not in ("label", "epsilon")}, "trials": []})
+
+
+def _key(domain: str, label: str, r: EvalResult) -> tuple[str, str, str, str]:
+    return domain, label, r.precision, r.user
+
+
+def merged(rows: list[Row], paths: list[Path]) -> list[Row]:
+    """Rows of earlier runs' JSON (a later file's row replaces an earlier one's), then this run's rows.
+
+    A stored row without ``split: "test"`` and the current ε is refused (StaleRowError), never reused.
+    """
+    kept: dict[tuple[str, str, str, str], Row] = {}
     for path in paths:
-        for row in map(_with_user, load_json(path)):
-            result = EvalResult(**{**{k: v for k, v in row.items() if k != "label"}, "trials": []})
-            kept[(result.domain, row["label"], result.precision)] = (result.domain, row["label"], result)
+        for row in load_json(path):
+            result = _stored_result(row, path)
+            kept[_key(result.domain, row["label"], result)] = (result.domain, row["label"], result)
     for domain, label, result in rows:
-        kept[(domain, label, result.precision)] = (domain, label, result)
-    return sorted(kept.values(), key=lambda x: (x[0], LABELS.index(x[1])))
-
-
-def _with_user(row: dict) -> dict:
-    """A stored row with its user spec: reports written before teacher kinds have ``noise`` (mistake's p)."""
-    if "noise" not in row:
-        return row
-    noise = row.pop("noise")
-    return {**row, "user": f"mistake:{noise:g}" if noise else "paper"}
+        kept[_key(domain, label, result)] = (domain, label, result)
+    return sorted(kept.values(), key=lambda x: (x[0], LABELS.index(x[1]), x[2].user))
 
 
 RESULT_FIELDS = ("success_rate", "avg_feedback", "std_feedback")
 
 
-def check(rows, stored: Path) -> tuple[str, bool]:
-    """This run's rows beside ``stored``'s (same domain, label, precision): (a Markdown table, all equal?).
+def check(rows: list[Row], stored: Path) -> tuple[str, bool]:
+    """This run's rows beside ``stored``'s (same domain, label, precision, user): (a Markdown table, all equal?).
 
     Evaluation is seeded, so the same models and libraries must give exactly the same SR / AF.
     """
-    kept = {(row["domain"], row["label"], row["precision"]): row for row in load_json(stored)}
-    lines = ["| domain | method | precision | stored | measured | same |", "|---|---|---|---|---|---|"]
+    kept = {(row["domain"], row["label"], row["precision"], row.get("user", PAPER_USER)): row
+            for row in load_json(stored)}
+    lines = ["| domain | method | precision | user | stored | measured | same |", "|---|---|---|---|---|---|---|"]
     same_all = True
     for domain, label, r in rows:
-        old = kept.get((domain, label, r.precision))
+        old = kept.get(_key(domain, label, r))
         same = old is not None and all(old[k] == getattr(r, k) for k in RESULT_FIELDS)
         same_all &= same
         was = "missing" if old is None else _cell(*(old[k] for k in RESULT_FIELDS))
-        lines.append(f"| {domain} | {label} | {r.precision} | {was} | "
-                     f"{_cell(*(getattr(r, k) for k in RESULT_FIELDS))} | {'yes' if same else 'NO'} |")
+        lines.append(f"| {domain} | {label} | {r.precision} | {r.user} | {was} | {_result_cell(r)} | "
+                     f"{'yes' if same else 'NO'} |")
     return "\n".join(lines), same_all
 
 
-def json_rows(rows) -> list[dict]:
-    """The report's JSON: one object per row, its label and result without the per-trial detail."""
-    return [{"label": label, **{k: v for k, v in r.to_json().items() if k != "trials"}} for _, label, r in rows]
+def json_rows(rows: list[Row]) -> list[dict]:
+    """The report's JSON: one object per row, its label, result and ε definition, without the per-trial detail."""
+    return [{"label": label, **{k: v for k, v in r.to_json().items() if k != "trials"},
+             "epsilon": epsilon_definition(r.precision)} for _, label, r in rows]
 
 
-def markdown(rows, domains: list[str], precisions: list[str], targets: int, seed: int, seconds: float) -> str:
-    lines = ["# The paper's tables, measured", "",
-             f"{targets} held-out targets per domain and method (seed {seed}), 500-feedback budget; AF over "
-             "successful trials (PbRL: binary labels). Ours beside the paper's (SR / AF (std)). Random (the floor: "
-             "random serve clips) and Oracle (the ceiling the library allows: bisection on the true proxies) frame "
-             "the methods. ε is 1/7 (normal) or 1/42 (high) of each proxy's 1st–99th percentile range over serve.",
-             ""]
-    for precision in sorted(precisions, key=PRECISIONS.index):
-        lines += [f"## {TITLES[precision]}", "", "| domain | method | ours | paper |", "|---|---|---|---|"]
-        for domain, label, r in rows:
-            if r.precision != precision:
-                continue
-            paper = PAPER[precision].get(PAPER_ROW.get(domain, domain))
-            paper_cell = _cell(*paper[PAPER_LABELS.index(label)]) if paper and label in PAPER_LABELS else "–"
-            lines.append(f"| {domain} | {label} | {_cell(r.success_rate, r.avg_feedback, r.std_feedback)} | "
-                         f"{paper_cell} |")
+def _main_table(rows: list[Row], precision: str) -> list[str]:
+    lines = [f"## {TITLES[precision]}", "", f"User: `{PAPER_USER}` (the paper's: more/less beyond ε, never wrong). "
+             f"ε = {epsilon_definition(precision)}.", "", "| domain | method | ours | paper |", "|---|---|---|---|"]
+    for domain, label, r in rows:
+        if r.precision != precision or r.user != PAPER_USER:
+            continue
+        paper = PAPER[precision].get(PAPER_ROW.get(domain, domain.removesuffix(RAW_SUFFIX)))
+        paper_cell = _cell(*paper[PAPER_LABELS.index(label)]) if paper and label in PAPER_LABELS else "–"
+        lines.append(f"| {domain} | {label} | {_result_cell(r)} | {paper_cell} |")
+    return [*lines, ""]
+
+
+def _state_views(rows: list[Row]) -> list[str]:
+    """Each raw-view row beside the hand-made view's (the paper's user); nothing if no raw view was measured."""
+    found = {(d, label, r.precision): r for d, label, r in rows if r.user == PAPER_USER}
+    raw = [(d, label, p) for d, label, p in found if d.endswith(RAW_SUFFIX)]
+    if not raw:
+        return []
+    lines = ["## State views", "", "The hand-made view's states carry features close to the proxies; the raw view "
+             "(`<domain>_raw`) gives the models the simulator's own positions and velocities, nothing derived from "
+             f"the proxies: the honest number. User `{PAPER_USER}`.", "",
+             "| domain | method | precision | hand-made | raw |", "|---|---|---|---|---|"]
+    for d, label, p in sorted(raw, key=lambda k: (k[0], LABELS.index(k[1]), PRECISIONS.index(k[2]))):
+        base = d.removesuffix(RAW_SUFFIX)
+        lines.append(f"| {base} | {label} | {p} | {_result_cell(found.get((base, label, p)))} | "
+                     f"{_result_cell(found[(d, label, p)])} |")
+    return [*lines, ""]
+
+
+def _user_tables(rows: list[Row]) -> list[str]:
+    """One table per teacher kind measured (other than the paper's user): domains × RBA-Global / RBA-Local."""
+    by_user: dict[str, dict[tuple[str, str], EvalResult]] = {}
+    for d, label, r in rows:
+        if r.user != PAPER_USER and r.precision == USER_PRECISION and label in USER_LABELS:
+            by_user.setdefault(r.user, {})[(d, label)] = r
+    if not by_user:
+        return []
+    lines = ["## Teacher kinds", "", "B-Pref's teachers adapted to attribute feedback (`rba/interact/users.py`), "
+             f"each at its default strength; one-hot, {USER_PRECISION} precision (ε = "
+             f"{epsilon_definition(USER_PRECISION)}). A trial succeeds if the true proxies of the clip the user "
+             "stops at are within ε of its (current) target.", ""]
+    for user in sorted(by_user, key=lambda u: (list(USER_KINDS).index(parse_user(u).kind), u)):
+        cells = by_user[user]
+        domains = sorted({d for d, _ in cells}, key=lambda d: (d not in USER_DOMAINS, d))
+        lines += [f"### User `{user}`", "", "| domain | " + " | ".join(USER_LABELS) + " |",
+                  "|---|" + "---|" * len(USER_LABELS)]
+        lines += [f"| {d} | " + " | ".join(_result_cell(cells.get((d, lab))) for lab in USER_LABELS) + " |"
+                  for d in domains]
         lines.append("")
-    methods = " ".join(sorted({label for _, label, _ in rows}, key=LABELS.index))
+    return lines
+
+
+def _labels_section(out: Path, label_report: Path) -> list[str]:
+    """A link to the ζσ label-noise report (pairwise labels with noise and "can't tell"), when it exists."""
+    if not label_report.exists():
+        return []
+    link = os.path.relpath(label_report, out.parent)
+    return ["## Labels", "", "ζσ trained from what people can give (pairwise comparisons with Bradley–Terry noise "
+            f"and \"can't tell\" answers) against the perfect order: [{label_report.name}]({link}).", ""]
+
+
+def markdown(rows: list[Row], domains: list[str], precisions: list[str], targets: int, seed: int, seconds: float,
+             users: list[str] = (), out: Path = RESULTS / "paper_tables.md",
+             label_report: Path = LABEL_NOISE) -> str:
+    lines = ["# The paper's tables, measured", "",
+             f"{targets} targets per domain and method from the `{SPLIT}` split (seed {seed}; settings were tuned "
+             "on `val`, never on `test`), 500-feedback budget; AF over successful trials (PbRL: binary labels). Ours "
+             "beside the paper's (SR / AF (std)). Random (the floor: random serve clips) and Oracle (the ceiling the "
+             "library allows: bisection on the true proxies) frame the methods. ε is 1/7 (normal) or 1/42 (high) of "
+             "each proxy's robust range over the serve library: its 1st to 99th percentile.", ""]
+    for precision in sorted(precisions, key=PRECISIONS.index):
+        lines += _main_table(rows, precision)
+    lines += _state_views(rows) + _user_tables(rows) + _labels_section(out, label_report)
+    methods_ = " ".join(sorted({label for _, label, _ in rows}, key=LABELS.index))
     command = (f"python benchmarks/paper_tables.py --domains {' '.join(domains)} --precisions {' '.join(precisions)} "
-               f"--methods {methods} --targets {targets} --seed {seed}")
+               f"--methods {methods_} --targets {targets} --seed {seed}")
+    command += f" --users {' '.join(users)}" if users else ""
     lines += [f"Command: `{command}`; {seconds / 60:.1f} min of evaluation; {dt.date.today().isoformat()}, "
               f"Python {platform.python_version()}, CPU only.", ""]
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> None:
+def _user_spec(text: str) -> UserSpec:
+    """argparse type of ``--users``: a teacher kind ``KIND[:param]``; the message names the valid kinds."""
+    try:
+        return parse_user(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--domains", nargs="+", default=list(domain_names()), choices=domain_names())
     ap.add_argument("--precisions", nargs="+", default=list(PRECISIONS), choices=PRECISIONS)
     ap.add_argument("--methods", nargs="+", default=LABELS, choices=LABELS)
+    ap.add_argument("--users", nargs="+", type=_user_spec, default=[], metavar="KIND[:param]",
+                    help=f"one table per teacher kind ({', '.join(USER_KINDS)}): {', '.join(USER_LABELS)} one-hot, "
+                         f"{USER_PRECISION} precision, on {', '.join(USER_DOMAINS)} (of --domains)")
     ap.add_argument("--targets", type=int, default=20)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=RESULTS / "paper_tables.md")
     ap.add_argument("--merge", type=Path, nargs="+", default=[],
-                    help="earlier runs' .json (later files win): keep their rows for what this run does not measure")
+                    help="earlier runs' .json (later files win): keep their rows for what this run does not measure; "
+                         f"only rows of split {SPLIT!r} with the current ε")
     ap.add_argument("--report-only", action="store_true",
                     help="measure nothing: write the report from the --merge files (runs made in parallel)")
     ap.add_argument("--check", type=Path, metavar="REPORT_JSON",
                     help="re-measure and compare with this report instead of writing one; exit 1 if a row differs")
+    return ap
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = _parser()
     args = ap.parse_args(argv)
     if args.report_only and not args.merge:
         ap.error("--report-only needs --merge: the .json files of the runs to report")
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+    try:
+        merged([], args.merge)  # refuse stale rows before measuring anything
+    except StaleRowError as exc:
+        ap.exit(2, f"{ap.prog}: error: {exc}\n")
 
     def write(rows) -> str:  # after every row: a long run stopped early still leaves its measured rows
         rows = merged(rows, args.merge)
         seconds = sum(r.seconds for *_, r in rows)  # evaluation time of every row in the report
         shown = [p for p in PRECISIONS if p in args.precisions or any(r.precision == p for *_, r in rows)]
-        text = markdown(rows, sorted({d for d, *_ in rows}), shown, args.targets, args.seed, seconds)
+        users = sorted({r.user for *_, r in rows} - {PAPER_USER})
+        text = markdown(rows, sorted({d for d, *_ in rows}), shown, args.targets, args.seed, seconds, users,
+                        args.out)
         save_text(args.out, text)
         save_json(args.out.with_suffix(".json"), json_rows(rows))
         return text
 
+    measure = dict(targets=args.targets, seed=args.seed, labels=args.methods, users=args.users)
     if args.check:
-        text, same = check(run(args.domains, args.precisions, args.targets, args.seed, args.methods), args.check)
+        text, same = check(run(args.domains, args.precisions, **measure), args.check)
         print(text)
         sys.exit(0 if same else 1)
-    rows = [] if args.report_only else run(args.domains, args.precisions, args.targets, args.seed, args.methods,
-                                           on_row=write)
+    rows = [] if args.report_only else run(args.domains, args.precisions, **measure, on_row=write)
     print(write(rows))
 
 

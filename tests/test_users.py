@@ -6,6 +6,7 @@ import pytest
 
 from rba.interact import SATISFIED, AttributeFeedback
 from rba.interact.users import (
+    DRIFT_KEEP,
     SKIP,
     USER_KINDS,
     MyopicUser,
@@ -75,13 +76,13 @@ def user(spec: str, proxies=PROXIES, seed=0, target=(0.0, 0.0)):
 
 
 class FakeServe:
-    """What a user reads of a library: names and proxies (and, for myopic, states: one per clip)."""
+    """What a user reads of a library: names and proxies (and, for myopic, the replay: 4 frames per clip)."""
 
     def __init__(self, proxies):
         self.attribute_names = NAMES
         self.proxies = np.asarray(proxies, dtype=np.float64)
-        self.states = np.repeat(self.proxies, 4, axis=0).astype(np.float32)  # 4 states per clip
-        self.state_offsets = np.arange(0, 4 * len(proxies) + 1, 4)
+        self.replay = np.repeat(self.proxies, 4, axis=0).astype(np.float32)
+        self.replay_offsets = np.arange(0, 4 * len(proxies) + 1, 4)
 
 
 def test_specs_parse_in_one_place_with_defaults():
@@ -159,12 +160,16 @@ def test_boundary_says_more_with_a_logistic_probability_in_epsilon_units():
 
 def test_inconsistent_targets_drift_by_steps_of_s_epsilon_after_unsatisfied_rounds():
     u = user("inconsistent:0.1", [[100.0, 100.0]], seed=5)  # a clip far off: never satisfied
-    steps = []
-    for _ in range(3000):
+    steps, offsets = [], []
+    for _ in range(4000):
         before = u.target.copy()
         u.respond(0)
         steps.append((u.target - before) / EPS)
+        offsets.append(u.target / EPS)
     assert np.allclose(np.std(steps, axis=0), 0.1, rtol=0.06) and np.allclose(np.mean(steps, axis=0), 0, atol=0.01)
+    # pulled back to where it started: the spread settles at s / sqrt(1 - keep²) ≈ 0.32 ε (a walk would reach ~6 ε)
+    assert np.allclose(np.std(offsets[500:], axis=0), 0.1 / np.sqrt(1 - DRIFT_KEEP**2), rtol=0.15)
+    assert np.abs(offsets).max() < 1.5
     still = user("inconsistent:0.1", seed=5)
     still.respond(2)  # satisfied: the session is over, the target stays
     assert np.array_equal(still.target, np.zeros(2))
@@ -188,7 +193,28 @@ def test_last_part_proxies_read_the_end_of_each_clip():
     proxies = rng.uniform(0, 1, (60, 2))
     clips = [np.vstack([rng.normal(0, 1, (6, 2)), np.repeat(p[None] * [2, -3], 2, 0)]) for p in proxies]
     offsets = np.concatenate([[0], np.cumsum([len(c) for c in clips])])
-    end = last_part_proxies(np.vstack(clips), offsets, proxies)  # the last quarter (2 of 8 states) is the proxy
+    end = last_part_proxies(np.vstack(clips), offsets, proxies)  # the last quarter (2 of 8 frames) is the proxy
     assert np.abs(end - proxies).max() < 0.02
     mixed = last_part_proxies(np.vstack([c[::-1] for c in clips]), offsets, proxies)  # the proxy at the start
     assert np.abs(mixed - proxies).mean() > 0.1  # the end says nothing: regressed towards the mean
+    assert np.abs(mixed.mean(0) - proxies.mean(0)).max() < 1e-9
+
+
+def test_last_part_proxies_read_speed_too():
+    """Clips whose ends move at different speeds (and so end at different places) are told apart."""
+    speeds = np.linspace(0.1, 2.0, 40)
+    clips = [np.concatenate([np.zeros(12), np.cumsum(np.full(4, v))])[:, None] for v in speeds]
+    clips = [np.hstack([c, np.zeros_like(c)]) for c in clips]
+    offsets = np.concatenate([[0], np.cumsum([len(c) for c in clips])])
+    proxies = np.stack([speeds, np.zeros_like(speeds)], 1)
+    end = last_part_proxies(np.vstack(clips), offsets, proxies)
+    assert np.abs(end - proxies).max() < 0.05
+
+
+def test_myopic_user_reads_the_replay_of_the_library():
+    """The myopic user's impression comes from the replay (the same whatever state view agents learn from)."""
+    serve = FakeServe(PROXIES)
+    serve.states = np.full((len(PROXIES), 3), np.nan)  # never read
+    u = MyopicUser.from_library(0.5, np.zeros(2), EPS, serve, 0)
+    expected = 0.5 * PROXIES + 0.5 * last_part_proxies(serve.replay, serve.replay_offsets, PROXIES)
+    assert np.allclose(u.seen, expected)

@@ -11,13 +11,18 @@ proxies are within ε of that target (``succeeded``), so a user who perceives wr
 - ``equal:k`` (2) comments only on attributes more than k·ε off; when all are within k·ε (but not ε) it
   names just the worst one. Its silence no longer means "this attribute is right".
 - ``myopic:w`` (0.5) judges a clip by (1 − w) × its proxies + w × its proxies as the clip's last quarter shows
-  them. Proxies are clip-level (a rollout stores states, a replay and one value per attribute), so the
-  last-quarter proxies are a least-squares map, fitted over the serve library, from the mean and spread of
-  the last quarter's states to the proxies (``last_part_proxies``): where the end of a clip says little
-  about an attribute the map regresses to the mean, and the user misjudges.
+  them. Proxies are clip-level: the domains measure one value per attribute over the whole simulation (peak
+  yaw rate, touchdown speeds, ...), so no proxy of a clip's last part exists. It is approximated by what the
+  last quarter tells a viewer about the attribute (``last_part_proxies``): a ridge least-squares map, fitted
+  over the serve library, from what the last quarter of the replay shows (the rendered frames' simulator
+  positions: their mean, spread and mean speed) to the proxies. Where the end of a clip says little about
+  an attribute the map regresses to the mean, and the user misjudges. The replay, not ``states``: the user
+  is the same whatever state view the agents learn from.
 - ``boundary:s`` (0.5) says "more" with probability σ((target − value) / (s·ε)) about each attribute it
   comments on (those outside ε): answers near the target are coin flips, far ones are sure.
-- ``inconsistent:s`` (0.1) moves its target by a normal step of s·ε per attribute after every round.
+- ``inconsistent:s`` (0.1) moves its target after every round by a normal step of s·ε per attribute, pulled
+  back towards where it started (``DRIFT_KEEP`` of the offset is kept a round): a person's wish wanders a
+  little around what it is (a spread of about 3·s·ε), it does not walk away.
 """
 
 from __future__ import annotations
@@ -34,6 +39,7 @@ from rba.interact.base import SATISFIED, AttributeFeedback, Feedback
 if TYPE_CHECKING:
     from rba.library import SkillLibrary
 
+DRIFT_KEEP = 0.95  # inconsistent: share of the target's offset from its start kept a round (mean reversion)
 SKIP: Literal["skip"] = "skip"  # a user's "no answer this round": the agent is not updated, the clip shown again
 Answer = Feedback | Literal["skip"]
 
@@ -157,14 +163,19 @@ class BoundaryUser(_KindUser):
 
 
 class InconsistentUser(_KindUser):
-    """Its target drifts: after every round each attribute's target moves by N(0, (``strength``·ε)²)."""
+    """Its target wanders: after every round, offset ← ``DRIFT_KEEP`` × offset + N(0, (``strength``·ε)²)."""
 
     kind = "inconsistent"
+
+    def __init__(self, target, epsilon, attribute_names, proxies, strength: float, seed: int = 0) -> None:
+        super().__init__(target, epsilon, attribute_names, proxies, strength, seed)
+        self.start = self.target.copy()
 
     def respond(self, rollout_index: int) -> Answer:
         answer = super().respond(rollout_index)
         if answer != SATISFIED:
-            self.target = self.target + self.rng.normal(0.0, self.strength * self.epsilon)
+            offset = DRIFT_KEEP * (self.target - self.start) + self.rng.normal(0.0, self.strength * self.epsilon)
+            self.target = self.start + offset
         return answer
 
 
@@ -181,29 +192,35 @@ class MyopicUser(_KindUser):
 
     @classmethod
     def from_library(cls, strength, target, epsilon, serve, seed):
-        end = last_part_proxies(serve.states, serve.state_offsets, serve.proxies)
+        end = last_part_proxies(serve.replay, serve.replay_offsets, serve.proxies)
         return cls(target, epsilon, serve.attribute_names, serve.proxies, strength, seed, end)
 
     def perceived(self, rollout_index: int) -> np.ndarray:
         return self.seen[rollout_index]
 
 
-def last_part_proxies(states: np.ndarray, offsets: np.ndarray, proxies: np.ndarray, part: float = 0.25,
+def _segment_features(frames: np.ndarray) -> np.ndarray:
+    """What a person sees of a run of frames: the mean and spread of each coordinate, and its mean speed."""
+    speed = np.abs(np.diff(frames, axis=0)).mean(0) if len(frames) > 1 else np.zeros(frames.shape[1])
+    return np.concatenate([frames.mean(0), frames.std(0), speed])
+
+
+def last_part_proxies(frames: np.ndarray, offsets: np.ndarray, proxies: np.ndarray, part: float = 0.25,
                       ridge: float = 1e-3) -> np.ndarray:
     """Each clip's proxies as its last ``part`` shows them, float64[N, k] (see the module docstring).
 
-    Features: mean and standard deviation of the last ``part`` of the clip's states, standardised over the
-    library; a ridge least-squares map to the proxies, fitted on the same library.
+    ``frames``/``offsets``: the library's replay. Features of the last ``part`` of each clip (at least two
+    frames), standardised over the library; a ridge least-squares map to the proxies, fitted on the same library.
     """
     rows = []
     for start, end in itertools.pairwise(offsets):
-        tail = np.asarray(states[start + int((end - start) * (1 - part)):end], dtype=np.float64)
-        rows.append(np.concatenate([tail.mean(0), tail.std(0)]))
+        clip = np.asarray(frames[start:end], dtype=np.float64)
+        rows.append(_segment_features(clip[min(int(len(clip) * (1 - part)), len(clip) - 2):]))
     x = np.array(rows)
     x = (x - x.mean(0)) / np.maximum(x.std(0), 1e-9)
-    x = np.hstack([x, np.ones((len(x), 1))])
-    w = np.linalg.solve(x.T @ x + ridge * len(x) * np.eye(x.shape[1]), x.T @ np.asarray(proxies, np.float64))
-    return x @ w
+    y = np.asarray(proxies, np.float64)
+    w = np.linalg.solve(x.T @ x + ridge * len(x) * np.eye(x.shape[1]), x.T @ (y - y.mean(0)))
+    return y.mean(0) + x @ w
 
 
 @dataclass(frozen=True)
