@@ -64,7 +64,7 @@ from typing import NamedTuple
 import mujoco
 import numpy as np
 
-from rba.domains.base import AttributeSpec, Domain, FeedbackPhrases, Reading, Rollout
+from rba.domains.base import AttributeSpec, Domain, FeedbackPhrases, Reading, Rollout, SkillPolicy, SkillSim
 from rba.domains.mujoco_render import Camera, Sky, ThreadRenderers
 
 # ---------------------------------------------------------------- controller constants
@@ -328,6 +328,18 @@ class WalkerPhysics:
         ctrl_arr[0], ctrl_arr[1], ctrl_arr[2], ctrl_arr[3], ctrl_arr[4], ctrl_arr[5] = ctrl
         applied[self._root[0]], applied[self._root[1]], applied[self._root[2]] = assist
         mujoco.mj_step(self.model, self.data)
+
+    def bias_at(self, q: list[float], v: list[float]) -> list[float]:
+        """MuJoCo's bias forces on the leg joints at root z, x, pitch + leg angles ``q`` and their rates ``v``.
+
+        Overwrites this physics' state: for a copy of the model that only answers this (a policy's own).
+        """
+        qpos, qvel, (iz, ix, iy), legs = self._qpos, self._qvel, self._root, self._legs
+        qpos[iz], qpos[ix], qpos[iy] = q[:3]
+        qvel[iz], qvel[ix], qvel[iy] = v[:3]
+        qpos[legs:legs + 6], qvel[legs:legs + 6] = q[3:], v[3:]
+        mujoco.mj_forward(self.model, self.data)
+        return self._bias[legs:legs + 6].tolist()
 
     # ---------------------------------------------------------------- named quantities (of the last observe)
     def timestep(self) -> float:
@@ -716,12 +728,6 @@ class Measurement:
 def measure(recording: Recording, touchdowns: list[Touchdown], plan: GaitPlan, weight: float,
             dt: float) -> Measurement:
     """Proxies (over the later two touchdowns), success and diagnostics of a finished rollout."""
-    later = touchdowns[1:] if len(touchdowns) > 1 else touchdowns
-    if later:
-        step_size = float(np.mean([td.feet_distance for td in later]))
-        landing = float(np.mean([td.landing_speed for td in later]))
-    else:
-        step_size, landing = 0.0, 0.0
     fallen = bool(recording.fall_reason)
     steps_taken = len(touchdowns) == N_STEPS and not any(td.forced for td in touchdowns)
     info = {
@@ -738,7 +744,16 @@ def measure(recording: Recording, touchdowns: list[Touchdown], plan: GaitPlan, w
         info[f"touchdown{i}_landing_speed_mps"] = td.landing_speed
     if fallen:
         info["fall_reason_" + recording.fall_reason.replace(" ", "_").replace("/", "_")] = 1.0
-    return Measurement({"step_size": step_size, "softness": -landing}, steps_taken and not fallen, info)
+    return Measurement(touchdown_proxies(touchdowns), steps_taken and not fallen, info)
+
+
+def touchdown_proxies(touchdowns: list[Touchdown]) -> dict[str, float]:
+    """The attributes' proxies: feet distance and minus the landing speed, means over the later two touchdowns."""
+    later = touchdowns[1:] if len(touchdowns) > 1 else touchdowns
+    if not later:
+        return {"step_size": 0.0, "softness": -0.0}
+    return {"step_size": float(np.mean([td.feet_distance for td in later])),
+            "softness": -float(np.mean([td.landing_speed for td in later]))}
 
 
 # free-text feedback's anchors (rba.interpret): both sides written with the same nouns
@@ -798,11 +813,7 @@ class Walker(Domain):
 
     def rollout(self, params: dict[str, float], seed: int) -> Rollout:
         physics = self.physics()
-        plan = GaitPlan.from_params(params, physics.geometry)
-        rng = np.random.default_rng(seed)  # a small seed-dependent perturbation of the start
-        pose = np.array(plan.start_pose(physics.geometry)) + np.concatenate([[0.0] * 3,
-                                                                              rng.normal(0.0, INIT_JOINT_NOISE, 6)])
-        physics.reset(pose, np.concatenate([[0.0] * 3, rng.normal(0.0, INIT_VEL_NOISE, 6)]))
+        plan = start(physics, params, seed)
         controller = GaitController(plan, physics)
         recording = run(physics, controller)
         m = measure(recording, controller.touchdowns, plan, physics.body_weight(), physics.timestep())
@@ -816,6 +827,28 @@ class Walker(Domain):
         camera = Camera(CAMERA_DISTANCE, CAMERA_ELEVATION,  # follows the torso along x
                         aim=lambda data: (float(data.xpos[1, 0]), 0.0, CAMERA_LOOKAT_Z))
         return self._renderers.replay(self.physics().model, rollout.replay, width, height, camera)
+
+
+    # ------------------------------------------------------------------ stepping (rba.gym)
+    def simulator(self) -> SkillSim:
+        from rba.domains.walker_steps import WalkerSim
+
+        return WalkerSim()
+
+    def skill_policy(self, params: dict[str, float]) -> SkillPolicy:
+        from rba.domains.walker_steps import WalkerSkillPolicy
+
+        return WalkerSkillPolicy(params)
+
+
+def start(physics: WalkerPhysics, params: dict[str, float], seed: int) -> GaitPlan:
+    """Reset ``physics`` to the skill's start (standing for the gait ``params`` plan, perturbed by ``seed``)."""
+    plan = GaitPlan.from_params(params, physics.geometry)
+    rng = np.random.default_rng(seed)  # a small seed-dependent perturbation of the start
+    pose = np.array(plan.start_pose(physics.geometry)) + np.concatenate([[0.0] * 3,
+                                                                          rng.normal(0.0, INIT_JOINT_NOISE, 6)])
+    physics.reset(pose, np.concatenate([[0.0] * 3, rng.normal(0.0, INIT_VEL_NOISE, 6)]))
+    return plan
 
 
 def run(physics: WalkerPhysics, controller: GaitController) -> Recording:

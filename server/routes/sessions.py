@@ -56,4 +56,5 @@ EXPORT_SAID = {404: "no such session", 409: "the session did not end satisfied, 
 def export_session(session_id: SessionId, svc: ServicesDep, db: DbDep) -> Response:
     profile, data = exporting.export_session(svc, db, session_id)
     name = f"rba-{profile.domain}-{session_id}.zip"
-    return Response(data, media_type="application/zip", headers={"Content-Disposition": f'attachment; filename="{name}"'})
+    return Response(data, media_type="application/zip",
+                    headers={"Content-Disposition": f'attachment; filename="{name}"'})

@@ -16,7 +16,8 @@ def _finish(client, session: dict, asks: int = 1) -> dict:
     """Answer ``asks`` rounds with "more amplitude", then "this is it"."""
     sid, now = session["id"], session
     for _ in range(asks):
-        r = client.post(f"/api/sessions/{sid}/feedback", json=more("amplitude", now["step"], clip=now["clip"]["rollout_id"]))
+        body = more("amplitude", now["step"], clip=now["clip"]["rollout_id"])
+        r = client.post(f"/api/sessions/{sid}/feedback", json=body)
         assert r.status_code == 200, r.text
         now = r.json()
     r = client.post(f"/api/sessions/{sid}/feedback", json={"step": now["step"], "satisfied": True})
