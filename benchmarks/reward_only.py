@@ -96,11 +96,13 @@ def search(path: Path, domain: Domain, box: tuple[np.ndarray, np.ndarray], budge
 
 
 def markdown(report: dict) -> str:
-    rows = ["| profile | target | found | within ε | evaluations |", "|---|---|---|---|---|"]
+    rows = ["| profile | target | found | within ε | return: found / profile's params | rollouts |",
+            "|---|---|---|---|---|---|"]
     for r in report["results"]:
         fmt = lambda d: ", ".join(f"{k} {v:.3f}" for k, v in d.items())  # noqa: E731
         rows.append(f"| {r['profile']} ({r['rollout_id']}) | {fmt(r['target'])} | {fmt(r['found'])} | "
-                    f"{'yes' if r['within'] else 'no'} | {r['evaluations']} |")
+                    f"{'yes' if r['within'] else 'no'} | {r['return_found']:.2f} / {r['return_profile']:.2f} | "
+                    f"{r['evaluations']} |")
     eps = ", ".join(f"{k} {v:.3f}" for k, v in report["epsilon"].items())
     budget = report["args"]["budget"]
     return (f"# Reward-only search\n\nA search that sees only an export's rθ(s | v*) (CMA-ES, {budget}"
@@ -108,7 +110,9 @@ def markdown(report: dict) -> str:
             f"{len(report['results'])}** profiles ({report['share']:.0%}).\n\n"
             f"- Setting: {report['args']['domain']}, RBA-Global/{report['args']['rep']}, profiles from simulated "
             f"sessions on `{report['args']['split']}` targets (paper user, normal precision), ε = {eps}.\n"
-            f"- Command: `{report['command']}` ({report['date']}, {report['machine']}).\n\n" + "\n".join(rows) + "\n")
+            f"- Command: `{report['command']}` ({report['date']}, {report['machine']}).\n"
+            "- A found return above the profile's own with the attributes outside ε is the reward's error, not the "
+            "search's.\n\n" + "\n".join(rows) + "\n")
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
