@@ -338,6 +338,8 @@ def _reward(profile: Profile, data: dict[str, bytes]) -> ExportedRewardModel | N
     spec = profile.reward
     if spec is None:
         return None
+    if not isinstance(spec, dict) or not isinstance(spec.get("condition"), dict):
+        raise ExportError(f"{PROFILE} reward must be null or an object with kind, rep, condition and arrays")
     if spec.get("kind") not in CONDITIONS or REWARD_WEIGHTS not in profile.members:
         raise ExportError(f"reward kind {spec.get('kind')!r} unknown or its weights missing; valid kinds: "
                           f"{', '.join(CONDITIONS)}")

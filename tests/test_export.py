@@ -161,3 +161,69 @@ def test_reading_an_export_calls_no_pickle_loader(exported, monkeypatch):
     assert export.reward is not None and export.clip[4:8] == b"ftyp"
     with zipfile.ZipFile(exported) as zf:
         assert io.BytesIO(zf.read("reward.pt")).read(2) == b"PK"  # torch's zip format, read with weights_only=True
+
+
+def _local_source(toy_roots, tmp_path, rounds_of):
+    """An RBA-Local export source over an untrained local reward saved under ``tmp_path`` (and the model)."""
+    import torch
+
+    from rba.artifacts import save_model
+    from rba.export import ExportSource
+    from rba.learn.local_reward import LocalReward
+    from rba.training import weights_sha
+
+    torch.manual_seed(0)
+    arch = {"state_dim": 4, "num_attributes": 2, "embed_dim": 2, "hidden": 16, "layers": 2, "lstm_hidden": 8,
+            "lstm_layers": 1, "anchor_stride": 2}
+    model = LocalReward(4, torch.eye(2), 16, 2, 8, 1, 2).eval()
+    card = {"domain": "toy", "kind": "local_reward", "representation": "onehot", "weights_sha": weights_sha(model),
+            "attributes": [{"name": "amplitude"}, {"name": "pace"}], "architecture": arch}
+    save_model(model, card, tmp_path / "models")
+    serve = SkillLibrary.load("toy", "serve", toy_roots[0])
+    rounds, chosen = rounds_of(serve.ids)
+    return ExportSource("toy", "local", "onehot", card["weights_sha"], "builtin", tmp_path / "models", serve, chosen,
+                        rounds, clip=b"clip"), model, serve
+
+
+def test_a_local_export_conditions_on_the_last_asked_change(toy_roots, tmp_path):
+    import numpy as np
+    import torch
+
+    from rba.export import write_export
+    from rba.learn.common import Ragged
+
+    def rounds_of(ids):
+        less_amp_more_pace = [{"attribute": "amplitude", "direction": "less"},
+                              {"attribute": "pace", "direction": "more"}]
+        return [{"step": 0, "feedback": [{"attribute": "pace", "direction": "more"}], "rollout_before": ids[1],
+                 "rollout_after": ids[2]},
+                {"step": 1, "feedback": less_amp_more_pace, "rollout_before": ids[2], "rollout_after": ids[4]},
+                {"step": 2, "feedback": "satisfied", "rollout_before": ids[4], "rollout_after": ids[4]}], ids[4]
+
+    src, model, serve = _local_source(toy_roots, tmp_path, rounds_of)
+    write_export(tmp_path / "local.zip", src)
+    export = read_export(tmp_path / "local.zip")
+    assert export.profile.zeta is None  # RBA-Local has no ranker
+    assert export.profile.reward["condition"] == {"anchor_rollout": serve.ids[2], "changes": [
+        {"attribute": "amplitude", "direction": -1}, {"attribute": "pace", "direction": 1}]}
+    anchor, states = serve.trajectory(2), torch.as_tensor(serve.trajectory(4))
+    with torch.no_grad():
+        phi = model.encode(Ragged.from_numpy(anchor, np.array([0, len(anchor)])), torch.tensor([0]))
+        expected = sum(model(states, model.condition(phi, torch.tensor([a]), torch.tensor([h])),
+                             torch.zeros(len(states), dtype=torch.int64)) for a, h in ((0, -1), (1, 1))) / 2
+    np.testing.assert_allclose(export.reward.rewards(serve.trajectory(4)), expected.numpy(), rtol=1e-5, atol=1e-6)
+
+
+def test_a_local_session_satisfied_at_once_exports_no_reward(toy_roots, tmp_path):
+    from rba.export import write_export
+
+    def rounds_of(ids):
+        return [{"step": 0, "feedback": "satisfied", "rollout_before": ids[0], "rollout_after": ids[0]}], ids[0]
+
+    src, _, _ = _local_source(toy_roots, tmp_path, rounds_of)
+    write_export(tmp_path / "local.zip", src)
+    export = read_export(tmp_path / "local.zip")
+    assert export.reward is None and export.profile.reward is None
+    assert "satisfied with its first clip" in export.profile.reward_note
+    with zipfile.ZipFile(tmp_path / "local.zip") as zf:
+        assert sorted(zf.namelist()) == ["clip.mp4", "profile.json"]
