@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from rba.artifacts import BUILDERS, load_model
+from rba.artifacts import BUILDERS, ModelNotFoundError, load_model
 from rba.domains import Domain, domain_names, get_domain
 from rba.learn.common import Ragged
 from rba.library import SkillLibrary
@@ -189,7 +189,10 @@ def _versions() -> tuple[dict[str, str | None], str]:
 def build_export(src: ExportSource) -> tuple[Profile, RewardPart | None]:
     """The profile and reward of a finished session; ``ExportError`` if its models are no longer the session's."""
     method = get_method(src.method)
-    arts = {kind: load_model(src.domain, kind, src.rep, src.models_root) for kind in method.model_kinds}
+    try:
+        arts = {kind: load_model(src.domain, kind, src.rep, src.models_root) for kind in method.model_kinds}
+    except ModelNotFoundError as exc:
+        raise ExportError(f"the models of set {src.model_set!r} this session used are gone ({exc})") from None
     stale = [k for k, a in arts.items() if a.card["weights_sha"] not in src.model_version]
     if stale:
         raise ExportError(f"the {', '.join(stale)} model of set {src.model_set!r} is no longer the one session "
