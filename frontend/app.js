@@ -15,7 +15,7 @@ const els = {
   measured: $("measured"), path: $("path"), pathPlots: $("path-plots"), announce: $("announce"),
   attributes: $("attributes"), satisfied: $("satisfied"),
   controlsTitle: $("controls-title"), controlsHint: $("controls-hint"), sessionMeta: $("session-meta"),
-  done: $("done"), doneTitle: $("done-title"), doneText: $("done-text"), again: $("again"),
+  done: $("done"), doneTitle: $("done-title"), doneText: $("done-text"), again: $("again"), exportLink: $("export"),
   history: $("history"), historyEmpty: $("history-empty"), historyCount: $("history-count"), keyList: $("key-list"),
   words: $("words"), wordsText: $("words-text"), wordsGo: $("words-go"), wordsConfirm: $("words-confirm"),
   wordsUnderstood: $("words-understood"), wordsYes: $("words-yes"), wordsNo: $("words-no"), wordsError: $("words-error"),
@@ -429,6 +429,8 @@ function renderStatus(session) {
   els.satisfied.hidden = !active;
   els.words.hidden = !active;
   els.done.hidden = active;
+  els.exportLink.hidden = session.status !== "satisfied";
+  els.exportLink.href = session.status === "satisfied" ? `/api/sessions/${encodeURIComponent(session.id)}/export` : "#";
   els.controlsTitle.textContent = active ? "How should it change?" : session.status === "satisfied" ? "Done" : "Session closed";
   if (!active) {
     els.controlsHint.textContent = "This session takes no more feedback.";

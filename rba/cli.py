@@ -1,4 +1,4 @@
-"""`rba build | train | eval | render | cache | serve`: the command line over the library.
+"""`rba build | train | eval | render | cache | serve | export | replay`: the command line over the library.
 
 Bad input prints one line naming the valid choices and exits with status 2.
 """
@@ -159,15 +159,44 @@ def cmd_cache(args) -> int:
 
 
 SERVER_ENTRY = "server.main:run"  # the web app, imported only by `rba serve`: the library never imports it
+EXPORT_ENTRY = "server.exporting:export_to_file"  # `rba export` reads the app's database with the app's settings
+
+
+def _server_function(entry: str):
+    """A function of the app by its import path: the library never imports ``server`` itself."""
+    import importlib
+
+    module, name = entry.split(":")
+    return getattr(importlib.import_module(module), name)
 
 
 def cmd_serve(args) -> int:
-    import importlib
-
-    module, name = SERVER_ENTRY.split(":")
-    run = getattr(importlib.import_module(module), name)
-    run(host=args.host, port=args.port, ray_address=args.ray)
+    _server_function(SERVER_ENTRY)(host=args.host, port=args.port, ray_address=args.ray)
     return 0
+
+
+def cmd_export(args) -> int:
+    """Write a satisfied session's export zip (``rba.export``) from the app's database and files."""
+    profile = _server_function(EXPORT_ENTRY)(args.session_id, Path(args.out))
+    reward = profile.reward["kind"] if profile.reward else f"none ({profile.reward_note})"
+    print(f"wrote {args.out}: {profile.domain} {profile.rollout_id} (seed {profile.seed}), {profile.method}/"
+          f"{profile.rep}, reward {reward}")
+    return 0
+
+
+def cmd_replay(args) -> int:
+    """Simulate an export's behaviour again from its params and seed: 0 if its attributes match, 1 if not."""
+    from rba.export import replay
+
+    result = replay(Path(args.zip))
+    p = result.profile
+    print(f"{p.domain} {p.rollout_id}, seed {p.seed}, params {p.params}")
+    print(f"{'attribute':<16} {'profile':>14} {'replayed':>14}")
+    for name, want in p.proxies.items():
+        print(f"{name:<16} {want:>14.6g} {result.measured[name]:>14.6g}")
+    print("match" if result.matches else "MISMATCH: the replayed attributes differ from the profile's "
+          f"(simulators then: {p.simulators})")
+    return 0 if result.matches else 1
 
 
 def _ray_option(parser: argparse.ArgumentParser) -> None:
@@ -274,6 +303,17 @@ def _serve_command(sub) -> argparse.ArgumentParser:
     return s
 
 
+def _export_commands(sub) -> None:
+    e = sub.add_parser("export", help="write a satisfied session's behaviour (profile, clip, reward) to a zip")
+    e.add_argument("session_id", help="the session's id (the page's URL and the API name it)")
+    e.add_argument("out", help="output .zip path (written atomically)")
+    e.set_defaults(func=cmd_export)
+    r = sub.add_parser("replay", help="re-simulate an export's behaviour and compare its attributes (exit 1 if "
+                                      "they differ)")
+    r.add_argument("zip", help="a zip `rba export` or the page wrote")
+    r.set_defaults(func=cmd_replay)
+
+
 DOMAIN_COMMANDS = (_build_command, _train_command, _cache_command, _eval_command, _render_command)
 
 
@@ -285,6 +325,7 @@ def build_parser() -> argparse.ArgumentParser:
         add_command(sub).add_argument("--states", default="kinematic",
                                       help="kinematic (default) or another registered view, e.g. image for lane_change")
     _serve_command(sub)
+    _export_commands(sub)
     return p
 
 

@@ -9,7 +9,7 @@ Import direction (no cycles, function-level imports included), lowest first:
    per-key locks are the library's (``rba.clips``, ``rba.locks``), and so is the compute layer (``rba.compute``);
 2. this module, which holds those parts and imports nothing above it;
 3. operations that take a ``Services``: ``versions``, ``views``, ``prerender``, ``sessions``,
-   ``labelling``, ``training`` (each imports only those before it in this list);
+   ``labelling``, ``training``, ``exporting`` (each imports only those before it in this list);
 4. ``deps``, ``auth`` and ``routes.*``; then ``main``.
 
 Nothing in 1 imports this module or anything in 3-4 (``tests/test_architecture.py`` checks it).

@@ -10,7 +10,7 @@ from types import MappingProxyType
 
 import numpy as np
 
-from rba.domains.base import AttributeSpec, Domain, FeedbackPhrases, Rollout
+from rba.domains.base import AttributeSpec, Domain, FeedbackPhrases, Rollout, SkillPolicy, SkillSim
 
 T = 24  # states per rollout
 
@@ -53,9 +53,55 @@ class Toy(Domain):
         return Rollout("", self.name, dict(params), seed, states, x[:, None].astype(np.float64),
                        {"amplitude": float(a), "pace": float(f)}, success=True)
 
+    def simulator(self) -> SkillSim:
+        return ToySim()
+
+    def skill_policy(self, params: dict[str, float]) -> SkillPolicy:
+        return ToyPolicy(params)
+
     def render(self, rollout: Rollout, width: int, height: int):
         for (x,) in rollout.replay:
             frame = np.full((height, width, 3), 255, np.uint8)
             cx = int((x / 4 + 0.5) * (width - 1))
             frame[height // 2 - 4 : height // 2 + 4, max(cx - 4, 0) : cx + 4] = (200, 30, 30)
             yield frame
+
+
+class ToySim:
+    """The dot stepped by actions (amplitude, pace): each step shows where it is, then its phase moves on.
+
+    The reset observation (the dot at rest) is not a recorded state; the T after each step are, with the
+    seed's sensor noise on the amplitude and pace they show, as in ``Toy.rollout``.
+    """
+
+    action_low = np.array([0.0, 0.0])
+    action_high = np.array([4.0, 6.0])
+    max_steps = T
+
+    def reset(self, params: dict[str, float], seed: int) -> tuple[np.ndarray, bool]:
+        rng = np.random.default_rng(seed)
+        self._noise = 0.05 * rng.standard_normal(T), 0.05 * rng.standard_normal(T)
+        self._k = 0
+        return np.array([0.0, 0.0, 0.0, 1.0]), False
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, bool]:
+        a, f = (float(x) for x in action)
+        phase = 2 * np.pi * f * (self._k / Toy.frame_rate)
+        obs = np.array([a + self._noise[0][self._k], f + self._noise[1][self._k], a * np.sin(phase), np.cos(phase)])
+        self._k += 1
+        return obs, True
+
+
+class ToyPolicy:
+    """Open loop: the same (amplitude, pace) every step; the time is the simulator's."""
+
+    done = False
+
+    def __init__(self, params: dict[str, float]) -> None:
+        self._action = np.array([params["amplitude"], params["pace"]])
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        return self._action.copy()
+
+    def measured(self) -> dict[str, float]:
+        return {"amplitude": float(self._action[0]), "pace": float(self._action[1])}

@@ -12,6 +12,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
+from typing import Protocol
 
 import numpy as np
 
@@ -77,6 +78,40 @@ class Rollout:
     info: dict[str, float] = field(default_factory=dict)  # extra diagnostics (not a contract)
 
 
+class SkillSim(Protocol):
+    """A domain's simulator, stepped by its scripted skill's actions (``rba.gym`` wraps it as a Gymnasium env).
+
+    Observations are the domain's state vector (``Rollout.states`` rows, in float64 before they are stored
+    as float32); ``recorded`` says whether an observation is one the rollout keeps as a state (a domain may
+    step faster than it records). Equal params, seed and actions give equal observations.
+    """
+
+    action_low: np.ndarray  # float64[A]
+    action_high: np.ndarray
+    max_steps: int  # the episode is cut here (the rollout's own time limit)
+
+    def reset(self, params: dict[str, float], seed: int) -> tuple[np.ndarray, bool]:
+        """Start an episode where ``rollout(params, seed)`` starts; the first observation and ``recorded``."""
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, bool]:
+        """Apply one action; the next observation and ``recorded``."""
+
+
+class SkillPolicy(Protocol):
+    """The scripted skill with fixed parameters, acting on observations alone: ``policy(obs) -> action``.
+
+    Made fresh for each episode (it keeps the skill's phase and its own clock: one call per step).
+    ``done`` turns True when the skill has finished (the rollout ends there); ``measured()`` gives the
+    attribute proxies of the episode so far, measured from what the policy observed.
+    """
+
+    done: bool
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray: ...
+
+    def measured(self) -> dict[str, float]: ...
+
+
 class Domain(ABC):
     """A simulator plus a scripted skill; subclasses are registered in ``rba.domains``."""
 
@@ -104,6 +139,14 @@ class Domain(ABC):
     @abstractmethod
     def render(self, rollout: Rollout, width: int, height: int) -> Iterator[np.ndarray]:
         """Yield HxWx3 uint8 frames off-screen, deterministically, from ``rollout.replay``."""
+
+    def simulator(self) -> SkillSim:
+        """A new simulator stepped by the skill's actions (``rba.gym``); domains without one raise."""
+        raise NotImplementedError(f"domain {self.name!r} has no step interface for rba.gym yet")
+
+    def skill_policy(self, params: dict[str, float]) -> SkillPolicy:
+        """The scripted skill with ``params`` as a policy over ``simulator()``'s observations."""
+        raise NotImplementedError(f"domain {self.name!r} has no step interface for rba.gym yet")
 
     @property
     def attribute_names(self) -> tuple[str, ...]:

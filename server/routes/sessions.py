@@ -1,12 +1,13 @@
-"""Sessions: create one, read it, answer its clip with more/less feedback or "this is it"."""
+"""Sessions: create one, read it, answer its clip with more/less feedback or "this is it", export what was chosen."""
 
 from __future__ import annotations
 
 from typing import Annotated
 
 from fastapi import APIRouter, Path
+from fastapi.responses import Response
 
-from server import prerender, sessions, views
+from server import exporting, prerender, sessions, views
 from server.deps import DbDep, ServicesDep
 from server.errors import responses
 from server.models import FeedbackCreate, SessionCreate, SessionPublic
@@ -43,3 +44,17 @@ def give_feedback(session_id: SessionId, body: FeedbackCreate, svc: ServicesDep,
              summary="Stop a session without choosing a behaviour")
 def abandon_session(session_id: SessionId, svc: ServicesDep, db: DbDep) -> SessionPublic:
     return sessions.abandon_session(svc, db, session_id)
+
+
+EXPORT_SAID = {404: "no such session", 409: "the session did not end satisfied, or its models changed since"}
+
+
+@router.get("/{session_id}/export", response_class=Response, responses={
+    200: {"content": {"application/zip": {}}, "description": "the export zip (rba.export): profile.json, clip.mp4, "
+          "the reward for the chosen behaviour"}, **responses(404, 409, said=EXPORT_SAID)},
+    summary="Download a satisfied session's chosen behaviour: profile, clip and reward model (a zip)")
+def export_session(session_id: SessionId, svc: ServicesDep, db: DbDep) -> Response:
+    profile, data = exporting.export_session(svc, db, session_id)
+    name = f"rba-{profile.domain}-{session_id}.zip"
+    return Response(data, media_type="application/zip",
+                    headers={"Content-Disposition": f'attachment; filename="{name}"'})

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 
+from rba.export import read_export
 from server.catalog import Catalog
 from server.settings import Settings
 from tests.browser.conftest import axe_violations
@@ -158,7 +159,7 @@ def test_no_serious_accessibility_violations(url, browser):
     page.close()
 
 
-def test_the_address_bar_and_the_finished_screen(url, browser):
+def test_the_address_bar_and_the_finished_screen(url, browser, tmp_path):
     page, errors = new_page(browser, url)
     first = start(page)
     one = page.evaluate("location.hash")
@@ -183,6 +184,15 @@ def test_the_address_bar_and_the_finished_screen(url, browser):
     assert page.locator("#done-text").inner_text() == "You chose clip 2 after 1 round of feedback."
     assert page.locator("#step-badge").inner_text() == "✓ Chosen after 1 round"
     assert page.locator("#history-count").inner_text() == "1 round of feedback · chosen"
+    link = page.get_by_role("link", name="Download this behaviour (.zip)")  # the finished screen's export
+    session_id = one.removeprefix("#session=")
+    assert link.is_visible() and link.get_attribute("href") == f"/api/sessions/{session_id}/export"
+    with page.expect_download() as download:
+        link.click()
+    assert download.value.suggested_filename == f"rba-walker-{session_id}.zip"
+    download.value.save_as(tmp_path / "export.zip")
+    profile = read_export(tmp_path / "export.zip").profile
+    assert profile.rollout_id == page.eval_on_selector("#video", "v => v.dataset.rollout") != first
     assert page.request.get(f"{url}/favicon.ico").status == 200
     assert not errors, errors
     page.close()

@@ -1,0 +1,159 @@
+"""Is the exported reward usable on its own? A parameter search that sees only rθ(s | v*) of an export.
+
+Profiles come from simulated-user sessions (``rba.evaluate.simulate``, the paper's user at normal precision):
+each trial that ends satisfied within ε is exported (``rba.export.write_export``) and read back
+(``read_export``). CMA-ES (the ``cma`` package) then searches the skill's parameters, with the profile's
+seed, for the largest return Σ_t rθ(s_t | v*) of the simulated rollout: no proxies, no library (the box it
+searches is the skill prior's, from ``Domain.sample_params``). A profile is reproduced when the best
+parameters' measured attributes are within ε (``Domain.epsilons(serve proxies, "normal")``) of the profile's.
+
+    python benchmarks/reward_only.py --domain walker --profiles 5 --split val
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import platform
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import cma
+import numpy as np
+
+from rba.domains import Domain, get_domain
+from rba.evaluate import simulate
+from rba.export import ExportSource, read_export, write_export
+from rba.interact import load_context, new_agent
+from rba.library import HELD_OUT, SkillLibrary
+from rba.storage import save_report
+from rba.store import model_files
+
+log = logging.getLogger("reward_only")
+RESULTS = Path(__file__).resolve().parent / "results"
+PRIOR_SAMPLES = 2000  # draws of sample_params that bound the searched box
+
+
+def prior_box(domain: Domain, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """The skill prior's parameter box (min / max of many ``sample_params`` draws), in ``param_names`` order."""
+    rng = np.random.default_rng(seed)
+    draws = np.array([[p[k] for k in domain.param_names] for p in (domain.sample_params(rng)
+                                                                   for _ in range(PRIOR_SAMPLES))])
+    return draws.min(0), draws.max(0)
+
+
+def profiles(args: argparse.Namespace, folder: Path) -> list[Path]:
+    """Exports of simulated sessions that ended satisfied within ε, ``args.profiles`` of them at most."""
+    domain = get_domain(args.domain)
+    ctx = load_context(args.domain, "global", args.rep)
+    serve, targets = ctx.serve, SkillLibrary.load(args.domain, args.split)
+    eps = domain.epsilons(serve.proxies, "normal")
+    version = ctx.model_version
+    out = []
+    for n, t in enumerate(np.random.default_rng(args.seed).permutation(len(targets))):
+        if len(out) == args.profiles:
+            break
+        trial = simulate(new_agent("global", ctx), targets.proxies[t], eps, serve, "paper", args.seed * 1000 + n)
+        if not trial.success:
+            continue
+        shown = trial.shown_ids
+        rounds = [{"step": i, "feedback": "simulated user (paper)", "rollout_before": a, "rollout_after": b}
+                  for i, (a, b) in enumerate(zip(shown, [*shown[1:], shown[-1]], strict=True))]
+        src = ExportSource(args.domain, "global", args.rep, version, "builtin", model_files().root, serve,
+                           shown[-1], rounds, clip=b"")
+        path = folder / f"profile-{len(out):02d}.zip"
+        write_export(path, src)
+        out.append(path)
+    return out
+
+
+def search(path: Path, domain: Domain, box: tuple[np.ndarray, np.ndarray], budget: int, seed: int) -> dict:
+    """CMA-ES over the box (scaled to [0, 1]) maximising the export's return; the best params' attributes."""
+    export = read_export(path)
+    p, lo, hi = export.profile, *box
+
+    def params_of(x: np.ndarray) -> dict[str, float]:
+        return dict(zip(domain.param_names, (lo + np.clip(x, 0, 1) * (hi - lo)).tolist(), strict=True))
+
+    def loss(x: np.ndarray) -> float:
+        return -export.reward.total(domain.rollout(params_of(np.asarray(x)), p.seed).states)
+
+    es = cma.CMAEvolutionStrategy(np.full(len(lo), 0.5), 0.3,
+                                  {"bounds": [0, 1], "maxfevals": budget, "seed": seed + 1, "verbose": -9})
+    start = time.perf_counter()
+    while not es.stop():
+        xs = es.ask()
+        es.tell(xs, [loss(x) for x in xs])
+    best = params_of(es.result.xbest)
+    measured = domain.rollout(best, p.seed).proxies
+    return {"profile": path.name, "rollout_id": p.rollout_id, "target": p.proxies, "found": measured,
+            "params": best, "evaluations": int(es.result.evaluations), "seconds": round(time.perf_counter() - start, 1),
+            "return_found": -float(es.result.fbest),
+            "return_profile": export.reward.total(domain.rollout(p.params, p.seed).states)}
+
+
+def markdown(report: dict) -> str:
+    rows = ["| profile | target | found | within ε | return: found / profile's params | rollouts |",
+            "|---|---|---|---|---|---|"]
+    for r in report["results"]:
+        fmt = lambda d: ", ".join(f"{k} {v:.3f}" for k, v in d.items())  # noqa: E731
+        rows.append(f"| {r['profile']} ({r['rollout_id']}) | {fmt(r['target'])} | {fmt(r['found'])} | "
+                    f"{'yes' if r['within'] else 'no'} | {r['return_found']:.2f} / {r['return_profile']:.2f} | "
+                    f"{r['evaluations']} |")
+    eps = ", ".join(f"{k} {v:.3f}" for k, v in report["epsilon"].items())
+    budget = report["args"]["budget"]
+    return (f"# Reward-only search\n\nA search that sees only an export's rθ(s | v*) (CMA-ES, {budget}"
+            f" rollouts) finds skill parameters within ε of the profile in **{report['within']} of "
+            f"{len(report['results'])}** profiles ({report['share']:.0%}).\n\n"
+            f"- Setting: {report['args']['domain']}, RBA-Global/{report['args']['rep']}, profiles from simulated "
+            f"sessions on `{report['args']['split']}` targets (paper user, normal precision), ε = {eps}.\n"
+            f"- Command: `{report['command']}` ({report['date']}, {report['machine']}).\n"
+            "- A found return above the profile's own with the attributes outside ε is the reward's error, not the "
+            "search's.\n\n" + "\n".join(rows) + "\n")
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--domain", default="walker")
+    p.add_argument("--rep", default="onehot")
+    p.add_argument("--profiles", type=int, default=20)
+    p.add_argument("--split", choices=HELD_OUT, default="test", help="where the sessions' targets come from")
+    p.add_argument("--budget", type=int, default=120, help="simulated rollouts per search")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", type=Path, default=RESULTS / "reward_only")
+    return p.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+    domain = get_domain(args.domain)
+    run = {"command": "python benchmarks/reward_only.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+           "date": time.strftime("%Y-%m-%d %H:%M"),
+           "machine": f"{os.cpu_count()} cores, {platform.machine()}, Python {platform.python_version()}"}
+    eps = domain.epsilons(SkillLibrary.load(args.domain, "serve").proxies, "normal")
+    box = prior_box(domain, args.seed)
+    with tempfile.TemporaryDirectory(prefix="rba-reward-only-") as folder:
+        paths = profiles(args, Path(folder))
+        results = []
+        for path in paths:
+            r = search(path, domain, box, args.budget, args.seed)
+            r["within"] = bool(np.all(np.abs(np.array(list(r["found"].values()))
+                                             - np.array(list(r["target"].values()))) <= eps))
+            log.info("%s: within ε %s after %d rollouts (%.0f s)", path.name, r["within"], r["evaluations"],
+                     r["seconds"])
+            results.append(r)
+    within = sum(r["within"] for r in results)
+    report = {**run, "args": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
+              "epsilon": dict(zip(domain.attribute_names, eps.tolist(), strict=True)), "results": results,
+              "within": within, "share": within / len(results) if results else 0.0}
+    save_report(args.out, report, markdown(report))
+    log.info("wrote %s.json and %s.md", args.out, args.out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

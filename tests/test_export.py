@@ -1,0 +1,229 @@
+"""The export zip: `rba export` from a toy session, `rba replay` of it, and every bad zip refused with one line."""
+
+from __future__ import annotations
+
+import io
+import json
+import pickle
+import zipfile
+from pathlib import Path
+
+import pytest
+
+from rba.cli import main
+from rba.export import FORMAT_VERSION, read_export
+from rba.library import SkillLibrary
+from rba.storage import load_json
+
+
+@pytest.fixture
+def app_env(toy_roots, tmp_path, monkeypatch) -> dict:
+    """The app's settings as `rba export` reads them (RBA_* variables) and a database holding toy sessions."""
+    from sqlmodel import Session
+
+    from server.db import make_engine
+    from server.models import FeedbackEvent, TuningSession
+
+    data, models, _ = toy_roots
+    url = f"sqlite:///{tmp_path / 'rba.db'}"
+    for name, value in {"RBA_DATA_DIR": data, "RBA_MODELS_DIR": models, "RBA_CACHE_DIR": tmp_path / "clips",
+                        "RBA_DATABASE_URL": url}.items():
+        monkeypatch.setenv(name, str(value))
+    serve = SkillLibrary.load("toy", "serve", data)
+    version = "-".join(load_json(models / "toy" / f"{kind}-onehot.json")["weights_sha"]
+                       for kind in ("ranker", "global_reward"))
+    first, chosen = serve.ids[3], serve.ids[7]
+    engine = make_engine(url)
+    with Session(engine) as db:
+        for sid, status in (("done", "satisfied"), ("open", "active")):
+            db.add(TuningSession(id=sid, domain="toy", method="global", rep="onehot", model_version=version,
+                                 status=status, step=2, current_rollout_id=chosen, agent_state={}))
+        db.commit()
+        db.add(FeedbackEvent(session_id="done", step=0, feedback=[{"attribute": "pace", "direction": "less"}],
+                             rollout_before=first, rollout_after=chosen))
+        db.add(FeedbackEvent(session_id="done", step=1, feedback="satisfied", rollout_before=chosen,
+                             rollout_after=chosen))
+        db.commit()
+    engine.dispose()
+    return {"serve": serve, "chosen": chosen, "version": version}
+
+
+@pytest.fixture
+def exported(app_env, tmp_path) -> Path:
+    out = tmp_path / "out.zip"
+    assert main(["export", "done", str(out)]) == 0
+    return out
+
+
+def test_export_then_replay_matches(app_env, exported, capsys):
+    profile = read_export(exported).profile
+    serve, i = app_env["serve"], app_env["serve"].index_of(app_env["chosen"])
+    assert profile.rollout_id == app_env["chosen"] and profile.seed == int(serve.seeds[i])
+    assert profile.params == dict(zip(serve.param_names, serve.params[i].tolist(), strict=True))
+    assert profile.proxies == serve.proxies_of(i)
+    assert profile.model["version"] == app_env["version"]
+    assert [r["feedback"] for r in profile.feedback] == [[{"attribute": "pace", "direction": "less"}], "satisfied"]
+    assert not list(exported.parent.glob(".out.zip.*"))  # written atomically: no temporary left
+    capsys.readouterr()
+    assert main(["replay", str(exported)]) == 0
+    out = capsys.readouterr().out
+    assert out.strip().endswith("match") and "amplitude" in out and "pace" in out
+
+
+def test_replay_of_a_profile_that_differs_from_its_simulation_exits_1(exported, tmp_path, capsys):
+    bad = _rewrite(exported, tmp_path,
+                   profile=lambda p: {**p, "proxies": {k: v + 1.0 for k, v in p["proxies"].items()}})
+    assert main(["replay", str(bad)]) == 1
+    assert "MISMATCH" in capsys.readouterr().out
+
+
+def test_export_of_an_unknown_or_unfinished_session_exits_2(app_env, tmp_path, capsys):
+    assert main(["export", "ghost", str(tmp_path / "x.zip")]) == 2
+    assert "rba: error: no session 'ghost'" in capsys.readouterr().err
+    assert main(["export", "open", str(tmp_path / "x.zip")]) == 2
+    assert 'session open is active: only a session that ended satisfied ("This is it") can be exported' in \
+        capsys.readouterr().err
+    assert not (tmp_path / "x.zip").exists()
+
+
+def _rewrite(src: Path, tmp_path: Path, drop: str | None = None, replace: dict[str, bytes] | None = None,
+             profile=None) -> Path:
+    """A copy of the export ``src`` without ``drop``, with members replaced, or with its profile edited."""
+    with zipfile.ZipFile(src) as zf:
+        members = {n: zf.read(n) for n in zf.namelist()}
+    if profile is not None:
+        members["profile.json"] = json.dumps(profile(json.loads(members["profile.json"]))).encode()
+    members.update(replace or {})
+    members.pop(drop, None)
+    out = tmp_path / "bad.zip"
+    with zipfile.ZipFile(out, "w") as zf:
+        for name, data in members.items():
+            zf.writestr(name, data)
+    return out
+
+
+def _bad_cases(exported: Path, tmp_path: Path) -> dict[str, tuple[Path, str]]:
+    raw = exported.read_bytes()
+    foreign = tmp_path / "foreign.zip"
+    with zipfile.ZipFile(foreign, "w") as zf:
+        zf.writestr("readme.txt", "hello")
+    cases = {
+        "truncated": (raw[: len(raw) // 2], "is not a zip archive (truncated or not an export)"),
+        "not a zip": (b"hello", "is not a zip archive"),
+    }
+    out = {}
+    for name, (data, message) in cases.items():
+        path = tmp_path / f"{name.replace(' ', '_')}.zip"
+        path.write_bytes(data)
+        out[name] = (path, message)
+    out["foreign"] = (foreign, "missing member profile.json: not an RBA export")
+    return out
+
+
+@pytest.mark.parametrize("case", [
+    "truncated", "not a zip", "foreign", "missing clip", "missing reward", "wrong version", "unknown domain",
+    "wrong params", "pickled reward", "pickled profile", "tampered clip", "unknown field",
+])
+def test_bad_zips_exit_2_with_a_message(exported, tmp_path, case, capsys):
+    edits = {
+        "missing clip": ({"drop": "clip.mp4"}, "missing member clip.mp4"),
+        "missing reward": ({"drop": "reward.pt"}, "missing member reward.pt"),
+        "wrong version": ({"profile": lambda p: {**p, "format_version": FORMAT_VERSION + 1}},
+                          f"unsupported format version {FORMAT_VERSION + 1}; this rba reads version {FORMAT_VERSION}"),
+        "unknown domain": ({"profile": lambda p: {**p, "domain": "atlantis"}}, "unknown domain 'atlantis'; valid: "),
+        "wrong params": ({"profile": lambda p: {**p, "params": {"amplitude": 1.0, "speed": 2.0}}},
+                         "params ['amplitude', 'speed'] do not match domain 'toy''s param_names ['amplitude', 'pace']"),
+        "pickled reward": ({"replace": {"reward.pt": pickle.dumps({"w": 1})}},
+                           "member reward.pt is a pickle; exports hold no pickles"),
+        "pickled profile": ({"replace": {"profile.json": pickle.dumps({"format": "rba-export"})}},
+                            "member profile.json is a pickle; exports hold no pickles"),
+        "tampered clip": ({"replace": {"clip.mp4": b"\0\0\0\x20ftypisom-other"}},
+                          "member clip.mp4 does not match its sha256 in profile.json: the zip was changed"),
+        "unknown field": ({"profile": lambda p: {**p, "extra": 1}}, "unknown ['extra']"),
+    }
+    if case in edits:
+        kwargs, message = edits[case]
+        path = _rewrite(exported, tmp_path, **kwargs)
+    else:
+        path, message = _bad_cases(exported, tmp_path)[case]
+    assert main(["replay", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("rba: error: ") and message in err and err.count("\n") == 1
+
+
+def test_reading_an_export_calls_no_pickle_loader(exported, monkeypatch):
+    def refuse(*args, **kwargs):
+        raise AssertionError("pickle.load called")
+
+    monkeypatch.setattr(pickle, "load", refuse)
+    monkeypatch.setattr(pickle, "loads", refuse)
+    export = read_export(exported)
+    assert export.reward is not None and export.clip[4:8] == b"ftyp"
+    with zipfile.ZipFile(exported) as zf:
+        assert io.BytesIO(zf.read("reward.pt")).read(2) == b"PK"  # torch's zip format, read with weights_only=True
+
+
+def _local_source(toy_roots, tmp_path, rounds_of):
+    """An RBA-Local export source over an untrained local reward saved under ``tmp_path`` (and the model)."""
+    import torch
+
+    from rba.artifacts import save_model
+    from rba.export import ExportSource
+    from rba.learn.local_reward import LocalReward
+    from rba.training import weights_sha
+
+    torch.manual_seed(0)
+    arch = {"state_dim": 4, "num_attributes": 2, "embed_dim": 2, "hidden": 16, "layers": 2, "lstm_hidden": 8,
+            "lstm_layers": 1, "anchor_stride": 2}
+    model = LocalReward(4, torch.eye(2), 16, 2, 8, 1, 2).eval()
+    card = {"domain": "toy", "kind": "local_reward", "representation": "onehot", "weights_sha": weights_sha(model),
+            "attributes": [{"name": "amplitude"}, {"name": "pace"}], "architecture": arch}
+    save_model(model, card, tmp_path / "models")
+    serve = SkillLibrary.load("toy", "serve", toy_roots[0])
+    rounds, chosen = rounds_of(serve.ids)
+    return ExportSource("toy", "local", "onehot", card["weights_sha"], "builtin", tmp_path / "models", serve, chosen,
+                        rounds, clip=b"clip"), model, serve
+
+
+def test_a_local_export_conditions_on_the_last_asked_change(toy_roots, tmp_path):
+    import numpy as np
+    import torch
+
+    from rba.export import write_export
+    from rba.learn.common import Ragged
+
+    def rounds_of(ids):
+        less_amp_more_pace = [{"attribute": "amplitude", "direction": "less"},
+                              {"attribute": "pace", "direction": "more"}]
+        return [{"step": 0, "feedback": [{"attribute": "pace", "direction": "more"}], "rollout_before": ids[1],
+                 "rollout_after": ids[2]},
+                {"step": 1, "feedback": less_amp_more_pace, "rollout_before": ids[2], "rollout_after": ids[4]},
+                {"step": 2, "feedback": "satisfied", "rollout_before": ids[4], "rollout_after": ids[4]}], ids[4]
+
+    src, model, serve = _local_source(toy_roots, tmp_path, rounds_of)
+    write_export(tmp_path / "local.zip", src)
+    export = read_export(tmp_path / "local.zip")
+    assert export.profile.zeta is None  # RBA-Local has no ranker
+    assert export.profile.reward["condition"] == {"anchor_rollout": serve.ids[2], "changes": [
+        {"attribute": "amplitude", "direction": -1}, {"attribute": "pace", "direction": 1}]}
+    anchor, states = serve.trajectory(2), torch.as_tensor(serve.trajectory(4))
+    with torch.no_grad():
+        phi = model.encode(Ragged.from_numpy(anchor, np.array([0, len(anchor)])), torch.tensor([0]))
+        expected = sum(model(states, model.condition(phi, torch.tensor([a]), torch.tensor([h])),
+                             torch.zeros(len(states), dtype=torch.int64)) for a, h in ((0, -1), (1, 1))) / 2
+    np.testing.assert_allclose(export.reward.rewards(serve.trajectory(4)), expected.numpy(), rtol=1e-5, atol=1e-6)
+
+
+def test_a_local_session_satisfied_at_once_exports_no_reward(toy_roots, tmp_path):
+    from rba.export import write_export
+
+    def rounds_of(ids):
+        return [{"step": 0, "feedback": "satisfied", "rollout_before": ids[0], "rollout_after": ids[0]}], ids[0]
+
+    src, _, _ = _local_source(toy_roots, tmp_path, rounds_of)
+    write_export(tmp_path / "local.zip", src)
+    export = read_export(tmp_path / "local.zip")
+    assert export.reward is None and export.profile.reward is None
+    assert "satisfied with its first clip" in export.profile.reward_note
+    with zipfile.ZipFile(tmp_path / "local.zip") as zf:
+        assert sorted(zf.namelist()) == ["clip.mp4", "profile.json"]

@@ -1,0 +1,81 @@
+"""rba.gym: the envs pass Gymnasium's checker, and the skill policy in its env reproduces the rollout."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import rba.gym
+from rba.domains import get_domain
+from rba.gym import ExportedReward, SkillEnv, env_id, run_policy, skill_policy
+
+rba.gym.register_envs()  # the tests' toy domain was registered after rba.gym may have been imported
+
+
+def test_every_domain_with_a_step_interface_has_an_env():
+    assert env_id("walker") == "rba/Walker-v0" and env_id("lane_change") == "rba/LaneChange-v0"
+    assert {"rba/Walker-v0", "rba/Toy-v0"} <= set(gym.registry)
+    assert "rba/Snake-v0" not in gym.registry  # no step interface yet
+
+
+@pytest.mark.parametrize("domain", ["toy", "walker"])
+def test_env_passes_the_checker(domain):
+    check_env(SkillEnv(domain), skip_render_check=True)
+
+
+@pytest.mark.parametrize(("domain", "seed"), [("toy", 3), ("walker", 11)])
+def test_skill_policy_reproduces_the_rollout(domain, seed):
+    d = get_domain(domain)
+    params = d.sample_params(np.random.default_rng(seed))
+    rollout = d.rollout(params, seed)
+    policy = d.skill_policy(params)
+    states = run_policy(gym.make(env_id(domain)), policy, seed, params)
+    assert states.shape == rollout.states.shape
+    np.testing.assert_allclose(states.astype(np.float32), rollout.states, rtol=1e-6, atol=1e-6)
+    measured = policy.measured()
+    for name, value in rollout.proxies.items():
+        assert measured[name] == pytest.approx(value, rel=1e-9, abs=1e-12)
+
+
+def test_params_that_are_not_the_domains_are_refused():
+    env = SkillEnv("toy")
+    with pytest.raises(ValueError, match=r"options\['params'\] must name exactly 'toy''s param_names"):
+        env.reset(seed=0, options={"params": {"amplitude": 1.0}})
+
+
+def test_exported_reward_pays_the_return_of_the_recorded_states(exported_toy):
+    export = rba.gym.read_export(exported_toy)
+    p = export.profile
+    env = ExportedReward(exported_toy)
+    policy = skill_policy(exported_toy)
+    obs, _ = env.reset(seed=p.seed, options={"params": p.params})
+    total, done = 0.0, False
+    while not done:
+        obs, reward, terminated, truncated, _ = env.step(policy(obs))
+        total += reward
+        done = terminated or truncated
+    rollout = get_domain("toy").rollout(p.params, p.seed)
+    assert total == pytest.approx(export.reward.total(rollout.states), rel=1e-5)
+
+
+@pytest.fixture
+def exported_toy(toy_roots, tmp_path):
+    """An export of a toy serve rollout chosen after one "less pace" round (written without the app)."""
+    from rba.export import ExportSource, write_export
+    from rba.library import SkillLibrary
+    from rba.storage import load_json
+
+    data, models, _ = toy_roots
+    serve = SkillLibrary.load("toy", "serve", data)
+    version = "-".join(load_json(models / "toy" / f"{kind}-onehot.json")["weights_sha"]
+                       for kind in ("ranker", "global_reward"))
+    rounds = [{"step": 0, "feedback": [{"attribute": "pace", "direction": "less"}], "rollout_before": serve.ids[0],
+               "rollout_after": serve.ids[5]},
+              {"step": 1, "feedback": "satisfied", "rollout_before": serve.ids[5], "rollout_after": serve.ids[5]}]
+    src = ExportSource("toy", "global", "onehot", version, "builtin", models, serve, serve.ids[5], rounds,
+                       clip=b"\0\0\0\x20ftypisom")
+    out = tmp_path / "toy.zip"
+    write_export(out, src)
+    return out
