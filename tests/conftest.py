@@ -33,7 +33,8 @@ def toy_roots(tmp_path_factory):
 
     root = tmp_path_factory.mktemp("toy")
     data, models = root / "data", root / "models"
-    build_all("toy", seed=0, sizes={"train": 120, "serve": 300, "val": 40, "test": 40}, workers=1, root=data, progress=False)
+    build_all("toy", seed=0, sizes={"train": 120, "serve": 300, "val": 40, "test": 40}, workers=1, root=data,
+              progress=False)
     cfg = GlobalTrainConfig(RankerConfig(steps=200, hidden=64), GlobalRewardConfig(steps=400, hidden=64))
     metrics = train_global("toy", "onehot", cfg, data_root=data, models_root=models)
     return data, models, metrics

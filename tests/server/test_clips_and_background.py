@@ -214,7 +214,8 @@ def test_prerender_library_renders_every_serve_clip_once(make_settings, toy_root
     from rba.library import build_all
 
     data = tmp_path / "small"  # a 24-clip serve library: the test is about coverage, not volume
-    build_all("toy", seed=3, sizes={"train": 12, "serve": 24, "val": 4, "test": 4}, workers=1, root=data, progress=False)
+    build_all("toy", seed=3, sizes={"train": 12, "serve": 24, "val": 4, "test": 4}, workers=1, root=data,
+              progress=False)
     settings = make_settings(data_dir=data, warm_start=True, prerender=True, prerender_library=True,
                              clip_width=32, clip_height=24)
     with TestClient(create_app(settings)) as c:
