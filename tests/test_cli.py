@@ -46,9 +46,9 @@ def test_unknown_rollout_id_exits_2(capsys, tmp_path, monkeypatch):
 def test_states_pick_the_registered_view(capsys, tmp_path, monkeypatch):
     monkeypatch.setenv("RBA_DATA_DIR", str(tmp_path))
     assert main(["eval", "--domain", "walker", "--states", "image"]) == 2
-    assert capsys.readouterr().err == "rba: error: domain 'walker' has no 'image' states; valid: kinematic\n"
+    assert capsys.readouterr().err == "rba: error: domain 'walker' has no 'image' states; valid: kinematic, raw\n"
     assert main(["eval", "--domain", "lane_change", "--states", "colour"]) == 2
-    assert "valid: kinematic, image" in capsys.readouterr().err
+    assert "valid: kinematic, image, raw" in capsys.readouterr().err
     # --states image reaches the lane_change_image domain (whose library this empty data dir lacks)
     assert main(["render", "lane_change", "serve-00001", str(tmp_path / "x.mp4"), "--states", "image"]) == 2
     assert "run `rba build lane_change_image`" in capsys.readouterr().err

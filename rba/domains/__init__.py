@@ -27,6 +27,10 @@ REGISTRY = Registry("domain", {
     "lane_change_image": "rba.domains.lane_change_image:LaneChangeImage",
     "manipulator": "rba.domains.manipulator:Manipulator",
     "snake": "rba.domains.snake:Snake",
+    "walker_raw": "rba.domains.walker:WalkerRaw",
+    "manipulator_raw": "rba.domains.manipulator:ManipulatorRaw",
+    "lane_change_raw": "rba.domains.lane_change:LaneChangeRaw",
+    "snake_raw": "rba.domains.snake:SnakeRaw",
 }, UnknownDomainError, on_change=lambda: get_domain.cache_clear())
 domain_names = REGISTRY.names
 domain_target = REGISTRY.target

@@ -112,6 +112,17 @@ class SkillPolicy(Protocol):
     def measured(self) -> dict[str, float]: ...
 
 
+def stack_samples(samples: list | np.ndarray, per_state: int) -> np.ndarray:
+    """float32[T, per_state * D]: consecutive groups of ``per_state`` raw samples [N, D], one group a state.
+
+    A frame stack (a trailing partial group is dropped): the states keep the fast motion that their own rate
+    would alias away, without anything being computed from the samples.
+    """
+    samples = np.asarray(samples, dtype=np.float64)
+    n = len(samples) // per_state
+    return samples[: n * per_state].reshape(n, per_state * samples.shape[1]).astype(np.float32)
+
+
 class Domain(ABC):
     """A simulator plus a scripted skill; subclasses are registered in ``rba.domains``."""
 
@@ -125,6 +136,10 @@ class Domain(ABC):
     # (kind, rep) of a learned model the states come from (models/<name>/<kind>-<rep>.pt): loaded, never trained
     # here; `rba build` makes it when missing (rba.training.prepare_states)
     state_encoder: tuple[str, str] | None = None
+    # the raw view (`<domain>_raw`, `--states raw`): states are the simulator's own positions and velocities,
+    # sampled at the domain's raw rate and stacked (``stack_samples``); nothing computed from them. The
+    # skill, params, seeds, proxies and replay are the base domain's: only ``states`` differ
+    raw_states: bool = False
     # attribute name -> FeedbackPhrases: free-text feedback's anchors (an attribute without any is matched by name)
     feedback_phrases: Mapping[str, FeedbackPhrases] = MappingProxyType({})
 

@@ -22,7 +22,7 @@ from types import MappingProxyType
 
 import numpy as np
 
-from rba.domains.base import AttributeSpec, Domain, FeedbackPhrases, Rollout
+from rba.domains.base import AttributeSpec, Domain, FeedbackPhrases, Rollout, stack_samples
 
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")  # 'dummy' renders black frames in highway-env 1.12
 
@@ -144,7 +144,7 @@ class LaneChange(Domain):
         replay = np.zeros((steps, 6))
         headings = np.zeros(steps + 1)
         headings[0] = ego.heading
-        states, gap_at_change = [], float("nan")
+        states, raw, gap_at_change = [], [], float("nan")
         crashed = False
         for k in range(steps):
             if k % DECIDE_EVERY == 0:
@@ -156,6 +156,8 @@ class LaneChange(Domain):
             crashed |= bool(ego.crashed or follower.crashed)
             headings[k + 1] = ego.heading
             replay[k] = (*ego.position, ego.heading, *follower.position, follower.heading)
+            raw.append([*ego.position, *ego.velocity, ego.heading, *follower.position, *follower.velocity,
+                        follower.heading])
             if (k + 1) % DECIDE_EVERY == 0:
                 yaw = np.abs(np.diff(headings[max(k + 1 - DECIDE_EVERY, 0): k + 2])).max() * SIM_HZ
                 states.append([ego.position[1], ego.speed * np.sin(ego.heading), ego.heading, yaw, ego.speed,
@@ -164,7 +166,8 @@ class LaneChange(Domain):
         yaw_rate = np.abs(np.diff(headings)) * SIM_HZ
         final_y = replay[-1, 1]
         success = not crashed and abs(final_y - LANE_WIDTH) < 0.5 and abs(replay[-1, 2]) < 0.1
-        return Rollout("", self.name, dict(params), seed, np.asarray(states, dtype=np.float32), replay,
+        states = stack_samples(raw, DECIDE_EVERY) if self.raw_states else np.asarray(states, dtype=np.float32)
+        return Rollout("", self.name, dict(params), seed, states, replay,
                        {"sharpness": float(yaw_rate.max()), "gap": gap_at_change}, bool(success),
                        info={"final_lateral_m": float(final_y), "crashed": float(crashed)})
 
@@ -179,3 +182,16 @@ class LaneChange(Domain):
             ego.position, ego.heading = np.array([ex, ey]), float(eh)
             follower.position, follower.heading = np.array([fx, fy]), float(fh)
             yield _draw(env)
+
+
+class LaneChangeRaw(LaneChange):
+    """Lane change's raw view (``--states raw``): each 5 Hz state is both cars' x, y, vx, vy and heading as
+    highway-env holds them (ego, then follower) at the three 15 Hz simulation steps it spans.
+
+    No yaw rate and no offsets: ``sharpness`` (the peak yaw rate) is in the headings 1/15 s apart, ``gap`` in
+    the two cars' x at the 2 s state when the change starts.
+    """
+
+    name = "lane_change_raw"
+    raw_states = True
+    state_dim = DECIDE_EVERY * 10

@@ -26,7 +26,7 @@ from types import MappingProxyType
 import mujoco
 import numpy as np
 
-from rba.domains.base import AttributeSpec, Domain, FeedbackPhrases, Rollout
+from rba.domains.base import AttributeSpec, Domain, FeedbackPhrases, Rollout, stack_samples
 from rba.domains.mujoco_render import Camera, ThreadRenderers
 
 CONTROL_EVERY = 10  # physics steps (1 ms) per control step: 100 Hz
@@ -51,6 +51,7 @@ PARAM_RANGES = {
     "tremor": (0.0, 0.04),  # rad, std of the noise on joint targets
 }
 RAW_FEATURES = ("hand_x", "hand_z", "hand_angle", "ball_x", "ball_z", "shoulder", "elbow", "wrist")
+N_QPOS = 11  # the suite model's qpos and qvel: 4 arm joints, 4 finger joints, the ball's x, z and rotation
 
 
 def min_jerk(s: np.ndarray) -> np.ndarray:
@@ -188,7 +189,7 @@ class Manipulator(Domain):
                                     model.actuator_gear[:4, 0])
         dt_control = model.opt.timestep * CONTROL_EVERY
         n_control = round((HOLD_BEFORE + controller.duration + HOLD_AFTER) / dt_control)
-        raw, replay = [], []
+        raw, sim, replay = [], [], []
         for k in range(n_control):
             data.ctrl[:4] = controller.control(k * dt_control, k, data)
             mujoco.mj_step(model, data, nstep=CONTROL_EVERY)
@@ -196,14 +197,30 @@ class Manipulator(Domain):
                 r = data.site_xmat[pinch].reshape(3, 3)
                 raw.append([data.site_xpos[pinch][0], data.site_xpos[pinch][2], np.arctan2(r[2, 2], r[0, 2]),
                             data.xpos[ball][0], data.xpos[ball][2], *data.qpos[1:4]])
+                sim.append(np.concatenate([data.qpos, data.qvel]))
             if k % FRAME_EVERY == 0:
                 replay.append(data.qpos.copy())
         states, proxies, success, info = measure(np.asarray(raw, dtype=np.float64))
+        if self.raw_states:
+            states = stack_samples(sim, STACK)
         return Rollout("", self.name, dict(params), seed, states, np.asarray(replay), proxies, success, info)
 
     def render(self, rollout: Rollout, width: int, height: int) -> Iterator[np.ndarray]:
         camera = Camera(CAMERA_DISTANCE, CAMERA_ELEVATION, CAMERA_LOOKAT)
         return self._renderers.replay(self._physics(), rollout.replay, width, height, camera)
+
+
+class ManipulatorRaw(Manipulator):
+    """The manipulator's raw view (``--states raw``): each 10 Hz state is MuJoCo's ``qpos`` and ``qvel`` (11 + 11)
+    at five 50 Hz samples (the feature view's own stack), without the hand's path or its third differences.
+
+    ``instability`` is the hand's jitter within 0.1 s; here the models must find it in the joint rates
+    themselves (the tremor is on joint targets, so it shows in ``qvel``), not in a ready-made jitter feature.
+    """
+
+    name = "manipulator_raw"
+    raw_states = True
+    state_dim = STACK * 2 * N_QPOS
 
 
 CAMERA_LOOKAT = (0.15, 0.0, 0.42)  # m: between the low and the raised hand

@@ -28,7 +28,7 @@ from types import MappingProxyType
 import mujoco
 import numpy as np
 
-from rba.domains.base import AttributeSpec, Domain, FeedbackPhrases, Rollout
+from rba.domains.base import AttributeSpec, Domain, FeedbackPhrases, Rollout, stack_samples
 from rba.domains.mujoco_render import Camera, Sky, ThreadRenderers
 
 XML = Path(__file__).resolve().parent / "assets" / "snake.xml"
@@ -125,6 +125,7 @@ class SnakeRecording:
 
     prev_com: np.ndarray  # centre of mass at the previous state (m)
     states: list[list[float]] = field(default_factory=list)
+    raw: list[np.ndarray] = field(default_factory=list)  # qpos + qvel per state (10 Hz): the raw view
     replay: list[np.ndarray] = field(default_factory=list)
     widths: list[float] = field(default_factory=list)
     compressions: list[float] = field(default_factory=list)
@@ -145,6 +146,7 @@ class SnakeRecording:
             head_tail = np.linalg.norm(points[0] - points[-1]) / BODY_LENGTH
             width_now = body_metrics(points)[0]
             self.states.append([*data.qpos[7:], *vel, head_tail, width_now, anchor])
+            self.raw.append(np.concatenate([data.qpos, data.qvel]))
         self.coms.append(data.subtree_com[bodies[0]][:2].copy())
 
 
@@ -246,7 +248,8 @@ class Snake(Domain):
             mujoco.mj_step(model, data, nstep=CONTROL_EVERY)
             rec.record(k, t, dt, data, bodies, anchor)
         proxies, success, info = measure(rec, controller.period, dt, data, bodies)
-        return Rollout("", self.name, dict(params), seed, np.asarray(rec.states, dtype=np.float32),
+        states = stack_samples(rec.raw, 1) if self.raw_states else np.asarray(rec.states, dtype=np.float32)
+        return Rollout("", self.name, dict(params), seed, states,
                        np.asarray(rec.replay, dtype=np.float32),  # qpos for rendering: float32 halves the library
                        proxies, success, info)
 
@@ -255,6 +258,20 @@ class Snake(Domain):
         camera = Camera(CAMERA_DISTANCE, CAMERA_ELEVATION,  # follows the centre of mass forward
                         aim=lambda data: (float(data.subtree_com[1][0]) - 0.1, y0, 0.0))
         return self._renderers.replay(self._physics(), rollout.replay, width, height, camera)
+
+
+class SnakeRaw(Snake):
+    """The snake's raw view (``--states raw``): each 10 Hz state is MuJoCo's ``qpos`` and ``qvel`` (20 + 19: the
+    head link's free joint, position and quaternion, and the 13 hinge angles; their rates), nothing else.
+
+    No width, no head-tail distance, no anchor phase: ``bend_width`` and ``compression`` are shape measures
+    (an extent in the body's principal frame, a head-tail distance) the models must rebuild from 13 angles;
+    with the width among the features ζσ's held-out accuracy on ``bend_width`` rose from 0.92 to 0.96.
+    """
+
+    name = "snake_raw"
+    raw_states = True
+    state_dim = 20 + 19
 
 
 CAMERA_DISTANCE = 1.4  # m

@@ -65,7 +65,16 @@ from typing import NamedTuple
 import mujoco
 import numpy as np
 
-from rba.domains.base import AttributeSpec, Domain, FeedbackPhrases, Reading, Rollout, SkillPolicy, SkillSim
+from rba.domains.base import (
+    AttributeSpec,
+    Domain,
+    FeedbackPhrases,
+    Reading,
+    Rollout,
+    SkillPolicy,
+    SkillSim,
+    stack_samples,
+)
 from rba.domains.mujoco_render import Camera, Sky, ThreadRenderers
 
 # ---------------------------------------------------------------- controller constants
@@ -103,6 +112,7 @@ MAX_PITCH = 1.0  # |torso pitch| (rad)
 
 # ---------------------------------------------------------------- sampling & recording
 STATE_EVERY = 40  # physics steps per state sample (10 Hz: foot speed features carry the fast part)
+RAW_EVERY = 10  # physics steps per raw sample (40 Hz): the raw view stacks STATE_EVERY // RAW_EVERY per state
 FRAME_RATE = 30.0  # replay / rendered frames per second
 
 PARAM_RANGES = {
@@ -270,6 +280,7 @@ class WalkerPhysics:
         self._qpos, self._qvel, self._ctrl = data.qpos, data.qvel, data.ctrl
         self._applied, self._bias = data.qfrc_applied, data.qfrc_bias
         self._q: list[float] = []
+        self._v: list[float] = []
         self._joints: list[float] = []
         self._joint_vel: list[float] = []
         self._torso = self._torso_vel = (0.0, 0.0, 0.0)  # height, x, pitch and their rates
@@ -304,7 +315,7 @@ class WalkerPhysics:
     def observe(self) -> None:
         """Read this step's state; foot velocities are differences to the previous reading."""
         q, v = self._qpos.tolist(), self._qvel.tolist()
-        self._q = q
+        self._q, self._v = q, v
         (iz, ix, iy), legs = self._root, self._legs
         self._joints, self._joint_vel = q[legs:legs + 6], v[legs:legs + 6]
         kin = self.geometry.kinematics(q[iz], q[ix], q[iy], self._joints)
@@ -352,6 +363,9 @@ class WalkerPhysics:
 
     def qpos(self) -> list[float]:
         return self._q
+
+    def qvel(self) -> list[float]:
+        return self._v
 
     def joint_angles(self) -> list[float]:
         """Right hip, knee, ankle, left hip, knee, ankle (rad)."""
@@ -671,6 +685,7 @@ class Recording:
     x_start: float  # torso x at the start (m)
     frames: list[list[float]] = field(default_factory=list)  # qpos per replay frame
     states: list[list[float]] = field(default_factory=list)  # STATE_FEATURES per state sample
+    raw: list[list[float]] = field(default_factory=list)  # qpos + qvel per raw sample (40 Hz): the raw view
     fall_reason: str = ""  # empty while standing
     assist_sq: float = 0.0  # sum over physics steps of the assist's vertical force squared (N²)
     n_steps: int = 0  # physics steps simulated
@@ -686,6 +701,8 @@ class Recording:
         if step == self._next_frame:
             self.frames.append(physics.qpos())
             self._next_frame = round(len(self.frames) / FRAME_RATE / physics.timestep())
+        if step % RAW_EVERY == 0:
+            self.raw.append(physics.qpos() + physics.qvel())
         if step % STATE_EVERY == 0:
             self.states.append(state_features(physics, peaks[0], peaks[1], self.x_start))
             peaks[:] = [0.0, 0.0]
@@ -818,8 +835,10 @@ class Walker(Domain):
         controller = GaitController(plan, physics)
         recording = run(physics, controller)
         m = measure(recording, controller.touchdowns, plan, physics.body_weight(), physics.timestep())
+        states = (stack_samples(recording.raw, STATE_EVERY // RAW_EVERY) if self.raw_states
+                  else np.asarray(recording.states, dtype=np.float32))
         return Rollout(id="", domain=self.name, params={k: float(params[k]) for k in self.param_names},
-                       seed=int(seed), states=np.asarray(recording.states, dtype=np.float32),
+                       seed=int(seed), states=states,
                        replay=np.asarray(recording.frames, dtype=np.float64), proxies=m.proxies,
                        success=m.success, info=m.info)
 
@@ -828,7 +847,6 @@ class Walker(Domain):
         camera = Camera(CAMERA_DISTANCE, CAMERA_ELEVATION,  # follows the torso along x
                         aim=lambda data: (float(data.xpos[1, 0]), 0.0, CAMERA_LOOKAT_Z))
         return self._renderers.replay(self.physics().model, rollout.replay, width, height, camera)
-
 
     # ------------------------------------------------------------------ stepping (rba.gym)
     def simulator(self) -> SkillSim:
@@ -846,6 +864,21 @@ def start(physics: WalkerPhysics, params: dict[str, float], seed: int) -> GaitPl
                                                                           rng.normal(0.0, INIT_JOINT_NOISE, 6)])
     physics.reset(pose, np.concatenate([[0.0] * 3, rng.normal(0.0, INIT_VEL_NOISE, 6)]))
     return plan
+
+
+class WalkerRaw(Walker):
+    """The walker's raw view (``--states raw``): each 10 Hz state is the MuJoCo ``qpos`` and ``qvel`` (9 + 9: root
+    z, x, pitch and the six leg joints) at four 40 Hz samples, nothing computed from them.
+
+    ``softness`` is the harder attribute here: it is the foot's peak speed in the 50 ms before touchdown, and a
+    40 Hz sample falls in that window once or twice per landing, where the foot's speed is a function of the
+    whole leg's angles and rates (its Jacobian) for the models to learn; the feature view hands it over as
+    the peak foot speed. ``step_size`` is in the positions (root x and the leg angles at touchdown).
+    """
+
+    name = "walker_raw"
+    raw_states = True
+    state_dim = (STATE_EVERY // RAW_EVERY) * 2 * 9
 
 
 def run(physics: WalkerPhysics, controller: GaitController) -> Recording:
