@@ -77,9 +77,9 @@ PRESETS = tuple(_PRESETS)  # 'quick': full ζσ, a shorter rθ; 'tiny': seconds-
 LOCAL_PRESETS = tuple(name for name, p in _PRESETS.items() if not p.global_only)
 
 
-def get_preset(name: str) -> Preset:
-    if name not in _PRESETS:
-        raise ValueError(f"unknown preset {name!r}; valid: {', '.join(PRESETS)}")
+def get_preset(name: str, valid: tuple[str, ...] = PRESETS) -> Preset:
+    if name not in valid:
+        raise ValueError(f"unknown preset {name!r}; valid: {', '.join(valid)}")
     return _PRESETS[name]
 
 
@@ -107,7 +107,7 @@ class LocalTrainConfig:
     @classmethod
     def preset(cls, name: str, seed: int = 0) -> LocalTrainConfig:
         """A preset of ``PRESETS`` (``quick`` and ``tiny`` share a short rθ)."""
-        return cls(LocalLabelConfig(seed=seed), replace(get_preset(name).local_reward, seed=seed))
+        return cls(LocalLabelConfig(seed=seed), replace(get_preset(name, LOCAL_PRESETS).local_reward, seed=seed))
 
 
 def weights_sha(model: torch.nn.Module) -> str:
