@@ -70,13 +70,15 @@ def run_one(domain: str, labels_cfg: GlobalLabelConfig, steps: int | None, seed:
 
 
 def trained_rows(models_dir: Path, domains: list[str]) -> list[dict]:
-    """The full-preset ζσ cards in ``models_dir`` (val accuracy, how their labels were made)."""
+    """The full-preset pairwise ζσ cards in ``models_dir`` (val accuracy, how their labels were made)."""
     rows = []
     for d in domains:
         path = models_dir / d / "ranker-onehot.json"
         if not path.exists():
             continue
         card = load_json(path)
+        if card["training"].get("labels", {}).get("mode") != "pairwise":
+            continue
         acc = {n: card["held_out"][n]["pairwise_accuracy"] for n in get_domain(d).attribute_names}
         rows.append({"domain": d, "labels": card["training"].get("labels", {}), "steps": card["training"]["config"]
                      ["steps"], "val_pairwise_accuracy": acc, "mean_accuracy": round(sum(acc.values()) / len(acc), 4)})
@@ -145,8 +147,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--trained", type=Path, help="a models folder with full-preset pairwise ζσ cards to list")
     ap.add_argument("--out", type=Path, default=RESULTS / "label_noise")
+    ap.add_argument("--replot", action="store_true", help="only redraw the figure and table from <out>.json")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+    if args.replot:  # e.g. after an interrupted run: its JSON holds every finished run
+        report = load_json(args.out.with_suffix(".json"))
+        report["trained"] = trained_rows(args.trained, report["args"]["domains"]) if args.trained else []
+        plot(report, args.out.with_suffix(".png"))
+        save_report(args.out, report, markdown(report))
+        return 0
     report = {"command": "python benchmarks/label_noise.py " + " ".join(argv if argv is not None else sys.argv[1:]),
               "date": f"{dt.datetime.now(dt.UTC):%Y-%m-%d %H:%M}",
               "machine": f"{os.cpu_count()} cores, {platform.machine()}, Python {platform.python_version()}",
