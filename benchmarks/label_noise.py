@@ -98,12 +98,16 @@ def plot(report: dict, out: Path) -> None:
         for r in rows:
             if r["mode"] == "ordering":
                 ax.axhline(r["mean_accuracy"], color="k", ls="--", lw=1, label="perfect ordering (19,900 pairs)")
+        for r in report["trained"]:
+            if r["domain"] == d:
+                ax.plot(r["labels"]["max_pairs"], r["mean_accuracy"], "r*", ms=10,
+                        label=f"{r['labels']['noise']:.0%} flipped, `rba train --preset pairwise`")
         ax.set_title(d, fontsize=10)
         ax.set_xlabel("pairs answered by the annotator")
         ax.set_xscale("log")
         ax.set_xticks(report["args"]["pairs"], [str(p) for p in report["args"]["pairs"]])
     axes[0][0].set_ylabel("ζσ pairwise accuracy on val")
-    axes[0][-1].legend(fontsize=7, loc="lower right")
+    axes[0][0].legend(fontsize=7, loc="lower right")
     fig.tight_layout()
     fig.savefig(out, dpi=110)
     plt.close(fig)
@@ -125,6 +129,9 @@ def markdown(report: dict) -> str:
         lines.append(f"| {r['domain']} | {r['mode']} | {r['noise']:.0%} | {r['pairs']} | "
                      f"{'/'.join(map(str, r['answered']))} | {'/'.join(map(str, r['flipped'])) or '–'} | "
                      f"{r['mean_accuracy']:.3f} | {per} | {r['seconds']:.0f} |")
+    expected = len(a["domains"]) * (1 + len(a["noises"]) * len(a["pairs"]))
+    if len(report["runs"]) < expected:
+        lines += ["", f"Interrupted after {len(report['runs'])} of {expected} runs (see the JSON's `runs`)."]
     if report["trained"]:
         lines += ["", f"Full training (`rba train D --method global --rep onehot --preset pairwise`, default steps; "
                   f"cards in `{a['trained']}`):", "",
