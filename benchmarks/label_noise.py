@@ -86,7 +86,8 @@ def trained_rows(models_dir: Path, domains: list[str]) -> list[dict]:
 
 
 def plot(report: dict, out: Path) -> None:
-    domains = report["args"]["domains"]
+    measured = {r["domain"] for r in report["runs"] + report["trained"]}
+    domains = [d for d in report["args"]["domains"] if d in measured]  # an interrupted run: only what it measured
     fig, axes = plt.subplots(1, len(domains), figsize=(3.6 * len(domains), 3.3), squeeze=False)
     for ax, d in zip(axes[0], domains, strict=True):
         rows = [r for r in report["runs"] if r["domain"] == d]
