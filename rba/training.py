@@ -344,7 +344,8 @@ def train_global(domain_name: str, rep: str, cfg: GlobalTrainConfig | None = Non
     save_model(reward, {**common, "kind": "global_reward", "weights_sha": weights_sha(reward),
                         "architecture": {**arch, "hidden": cfg.reward.hidden, "layers": cfg.reward.layers},
                         "zeta_bounds": np.stack([train_zeta.min(0), train_zeta.max(0)]).tolist(),
-                        "training": {**gstats, "seconds": reward_seconds, "labels": "zeta of train+serve (no proxies)"},
+                        "training": {**gstats, "seconds": reward_seconds, "labels": "zeta of train+serve (no proxies)",
+                                     "ranker_labels": how["mode"]},
                         "held_out": {"split": "val", "rollouts": len(inputs.val),
                                      "argmax_within_epsilon": match["normal"],
                                      "argmax_within_high_precision_epsilon": match["high"]}}, models_root)
