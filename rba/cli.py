@@ -236,7 +236,8 @@ def _train_command(sub) -> argparse.ArgumentParser:
                    help="which models to train")
     t.add_argument("--rep", choices=(*REPRESENTATIONS, "all"), default="all")
     t.add_argument("--preset", choices=train_presets(), default="default",
-                   help="'quick': a shorter rθ; 'tiny': the CI smoke preset")
+                   help="'quick': a shorter rθ; 'tiny': the CI smoke preset; 'pairwise' (global only): "
+                        "ζσ from a simulated annotator's 1,000 noisy pairs instead of a perfect ordering")
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--remeasure", action="store_true",
                    help="train nothing: recompute the saved models' held-out card numbers on val with today's ε")

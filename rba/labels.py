@@ -3,6 +3,9 @@
 * ``AttributeLabels``: for one attribute, which trajectory shows more of it than which
   (RBA-Global's ζσ learns from these). ``proxy_labels`` orders ``max_labelled`` train clips by
   proxy, the stand-in for an agent designer's labels.
+* ``GlobalLabelConfig`` / ``annotator_labels``: the same labels as a person can give them: a seeded
+  simulated annotator's answers to at most ``max_pairs`` pairs of those clips, with Bradley–Terry
+  flips (a set share of the answers) and "can't tell" for pairs too close to tell apart.
 * ``LocalPairs``: local-change pairs (τ_c, τ_t, α, h) for RBA-Local (paper §4.3): "τ_t is τ_c with
   a little more (h = +1) or less (h = −1) of α, everything else kept". "A little" is expressed in
   units of each attribute's ε, the user's resolution: the user only asks for a change when the
@@ -36,6 +39,8 @@ from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from scipy.optimize import brentq
+from scipy.special import expit
 
 if TYPE_CHECKING:
     from rba.library import SkillLibrary
@@ -101,6 +106,93 @@ def proxy_labels(lib: SkillLibrary, max_labelled: int, seed: int) -> list[Attrib
     """Every attribute's ordering, by proxy, of the same ``max_labelled`` clips of ``lib``."""
     idx = labelled_subset(lib, max_labelled, seed)
     return [AttributeLabels.from_values(idx, lib.proxies[idx, a]) for a in range(lib.proxies.shape[1])]
+
+
+# --- a simulated annotator's pairwise answers (ζσ's labels as a person can give them) ---
+
+
+@dataclass(frozen=True)
+class GlobalLabelConfig:
+    """Where ζσ's labels come from: ``ordering`` (every pair of the labelled clips, ordered by proxy: the
+    paper's stand-in, which no person can give) or ``pairwise`` (a simulated annotator's answers).
+
+    The annotator is shown at most ``max_pairs`` distinct pairs of the labelled clips and answers each for
+    every attribute: "can't tell" for the ``cant_tell`` share of pairs closest by proxy (a just-noticeable
+    difference; those answers are dropped, see ``annotate_pairs``), otherwise "the first shows more" with
+    probability sigmoid((p_i − p_j) / T), T calibrated so that an expected ``noise`` share is flipped.
+    """
+
+    mode: Literal["ordering", "pairwise"] = "ordering"
+    max_pairs: int = 1000  # pairs shown (each answered for every attribute)
+    noise: float = 0.1  # expected share of the more/less answers that contradict the proxy
+    cant_tell: float = 0.1  # share of the shown pairs, per attribute, answered "can't tell"
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("ordering", "pairwise"):
+            raise ValueError(f"label mode must be 'ordering' or 'pairwise', got {self.mode!r}")
+        if not 0 <= self.noise < 0.5:
+            raise ValueError(f"label noise is a share of flipped answers in [0, 0.5), got {self.noise}")
+        if not 0 <= self.cant_tell < 1:
+            raise ValueError(f"the can't-tell share must be in [0, 1), got {self.cant_tell}")
+        if self.max_pairs < 1:
+            raise ValueError(f"max_pairs must be at least 1, got {self.max_pairs}")
+
+
+def sample_pairs(m: int, max_pairs: int, rng: np.random.Generator) -> np.ndarray:
+    """int64[P, 2]: min(max_pairs, m(m−1)/2) distinct unordered pairs (i < j) of range(m), uniformly."""
+    i, j = np.triu_indices(m, 1)
+    pick = np.sort(rng.choice(len(i), size=min(max_pairs, len(i)), replace=False))
+    return np.stack([i[pick], j[pick]], 1).astype(np.int64)
+
+
+def flip_temperature(abs_diffs: np.ndarray, noise: float) -> float:
+    """T with mean(sigmoid(−|Δp| / T)) = ``noise`` over ``abs_diffs``: the expected flip share asked (0: none)."""
+    d = np.asarray(abs_diffs, dtype=np.float64)
+    if noise == 0 or not len(d) or not d.any():
+        return 0.0
+    scale = float(np.median(d[d > 0]))
+    return float(np.exp(brentq(lambda lt: float(np.mean(expit(-d / np.exp(lt)))) - noise,
+                               np.log(scale * 1e-6), np.log(scale * 1e6), xtol=1e-10)))
+
+
+def annotate_pairs(values: np.ndarray, pairs: np.ndarray, cfg: GlobalLabelConfig, rng: np.random.Generator
+                   ) -> tuple[list[tuple[int, int]], dict]:
+    """One attribute's answers to ``pairs`` (indices into ``values``): (more, less) pairs and their stats.
+
+    "Can't tell" (the ``cant_tell`` share closest by proxy, and every exact tie) is dropped rather than
+    kept as a tie: ζσ only has to order clips, a tie's loss would pull apart-by-a-little clips onto one
+    score, and the pairs a person cannot tell apart are the ones a flip would make wrong anyway.
+    """
+    d = values[pairs[:, 0]] - values[pairs[:, 1]]
+    unsure = np.zeros(len(d), dtype=bool)
+    unsure[np.argsort(np.abs(d), kind="stable")[: round(cfg.cant_tell * len(d))]] = True
+    unsure |= d == 0
+    d, answered = d[~unsure], pairs[~unsure]
+    temp = flip_temperature(np.abs(d), cfg.noise)
+    p_first = expit(d / temp) if temp > 0 else (d > 0).astype(np.float64)
+    first = rng.random(len(d)) < p_first
+    out = [(int(a), int(b)) if f else (int(b), int(a)) for (a, b), f in zip(answered, first, strict=True)]
+    stats = {"answered": len(out), "cant_tell": int(unsure.sum()), "flipped": int(np.sum(first != (d > 0))),
+             "temperature": temp}
+    return out, stats
+
+
+def annotator_labels(lib: SkillLibrary, max_labelled: int, cfg: GlobalLabelConfig, seed: int
+                     ) -> tuple[list[AttributeLabels], dict]:
+    """Every attribute's answers of a seeded simulated annotator over the same labelled clips and pairs.
+
+    The clips are ``labelled_subset`` (at most ``max_labelled``), the pairs ``sample_pairs`` of them;
+    returns the labels (row indices of ``lib``) and what the annotator did (a list: one entry per attribute).
+    """
+    idx = labelled_subset(lib, max_labelled, seed)
+    rng = np.random.default_rng([seed, 1])
+    pairs = sample_pairs(len(idx), cfg.max_pairs, rng)
+    labels, stats = [], []
+    for a in range(lib.proxies.shape[1]):
+        answered, st = annotate_pairs(lib.proxies[idx, a], pairs, cfg, rng)
+        stats.append(st)
+        labels.append(AttributeLabels.from_pairs([(int(idx[hi]), int(idx[lo])) for hi, lo in answered]))
+    return labels, {"pairs_shown": len(pairs), "clips": len(idx), "per_attribute": stats}
 
 
 def merge_pairs(pair_lists: Iterable[Iterable[tuple[int, int]]]) -> AttributeLabels:

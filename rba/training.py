@@ -22,10 +22,12 @@ from rba.domains import Domain, get_domain
 from rba.embed import attribute_embeddings, check_rep
 from rba.labels import (
     AttributeLabels,
+    GlobalLabelConfig,
     LabelSet,
     LocalLabelConfig,
     LocalPairs,
     NewAttribute,
+    annotator_labels,
     local_pairs,
     merge_pairs,
     pair_counts,
@@ -61,20 +63,25 @@ class Preset:
     global_reward: GlobalRewardConfig = field(default_factory=GlobalRewardConfig)
     local_reward: LocalRewardConfig = field(default_factory=LocalRewardConfig)
     domain_ranker_steps: bool = False  # ζσ takes the domain's steps (``Domain.ranker_steps``) if it sets them
+    global_only: bool = False  # it only changes RBA-Global's ζσ (RBA-Local does not offer it)
 
 
 _SHORT_LOCAL = LocalRewardConfig(steps=150, hidden=64, lstm_hidden=32)
 _PRESETS = {
     "default": Preset(domain_ranker_steps=True),
+    # ζσ from what a person can give: 1,000 pairs of 200 clips, 10 % flipped, 10 % "can't tell"
+    "pairwise": Preset(RankerConfig(labels=GlobalLabelConfig(mode="pairwise")), domain_ranker_steps=True,
+                       global_only=True),
     "quick": Preset(global_reward=GlobalRewardConfig(steps=300, hidden=128), local_reward=_SHORT_LOCAL),  # full ζσ
     "tiny": Preset(RankerConfig(steps=200, hidden=64), GlobalRewardConfig(steps=120, hidden=64), _SHORT_LOCAL),  # CI
 }
 PRESETS = tuple(_PRESETS)  # 'quick': full ζσ, a shorter rθ; 'tiny': seconds-long smoke runs
+LOCAL_PRESETS = tuple(name for name, p in _PRESETS.items() if not p.global_only)
 
 
-def get_preset(name: str) -> Preset:
-    if name not in _PRESETS:
-        raise ValueError(f"unknown preset {name!r}; valid: {', '.join(PRESETS)}")
+def get_preset(name: str, valid: tuple[str, ...] = PRESETS) -> Preset:
+    if name not in valid:
+        raise ValueError(f"unknown preset {name!r}; valid: {', '.join(valid)}")
     return _PRESETS[name]
 
 
@@ -120,7 +127,7 @@ class LocalTrainConfig:
     @classmethod
     def preset(cls, name: str, seed: int = 0) -> LocalTrainConfig:
         """A preset of ``PRESETS`` (``quick`` and ``tiny`` share a short rθ)."""
-        return cls(LocalLabelConfig(seed=seed), replace(get_preset(name).local_reward, seed=seed))
+        return cls(LocalLabelConfig(seed=seed), replace(get_preset(name, LOCAL_PRESETS).local_reward, seed=seed))
 
 
 def weights_sha(model: torch.nn.Module) -> str:
@@ -267,14 +274,30 @@ def _split_pairs(labels: AttributeLabels, seed: int, held_out: float = 0.2) -> t
     return AttributeLabels.from_pairs([tuple(p) for p in pairs[~test]]), pairs[test]
 
 
+def _builtin_labels(train: SkillLibrary, names: tuple[str, ...], cfg: RankerConfig
+                    ) -> tuple[list[AttributeLabels], dict]:
+    """The domain's attributes' labels made from proxies (``cfg.labels.mode``) and the card's ``training.labels``."""
+    card: dict = {**asdict(cfg.labels), "max_labelled": cfg.max_labelled}
+    if cfg.labels.mode == "ordering":
+        labels = proxy_labels(train, cfg.max_labelled, cfg.seed)
+        return labels, {**card, "made_by": "every pair of the labelled train clips, ordered by the true proxy"}
+    labels, stats = annotator_labels(train, cfg.max_labelled, cfg.labels, cfg.seed)
+    per_attribute = dict(zip(names, stats.pop("per_attribute"), strict=True))
+    return labels, {**card, **stats, "per_attribute": per_attribute,
+                    "made_by": "a simulated annotator's answers to pairs of train clips: P(i > j) = "
+                               "sigmoid((p_i - p_j) / T), T set per attribute for the noise share; "
+                               "can't-tell answers (the closest pairs) dropped"}
+
+
 def _global_labels(inputs: _Inputs, pool: _Pool, sources: list[LabelSource], cfg: RankerConfig
-                   ) -> tuple[list[AttributeLabels], dict[str, np.ndarray]]:
-    """Each attribute's ζσ labels, and the held-out pairs of the attributes the sources declare new.
+                   ) -> tuple[list[AttributeLabels], dict[str, np.ndarray], dict]:
+    """Each attribute's ζσ labels, the held-out pairs of the attributes the sources declare new, and how
+    the domain's attributes were labelled (for the card).
 
     The domain's attributes: their proxy labels, overridden by what the sources say of the same pairs.
     New attributes: the sources' labels alone, minus a held-out share.
     """
-    builtin = proxy_labels(inputs.train, cfg.max_labelled, cfg.seed)
+    builtin, how = _builtin_labels(inputs.train, inputs.domain.attribute_names, cfg)
     labels, held_out = [], {}
     for a, name in enumerate(inputs.names):
         given = pool.pairs(sources, name)
@@ -283,7 +306,7 @@ def _global_labels(inputs: _Inputs, pool: _Pool, sources: list[LabelSource], cfg
         else:
             fit, held_out[name] = _split_pairs(merge_pairs(given), cfg.seed)
             labels.append(fit)
-    return labels, held_out
+    return labels, held_out, how
 
 
 def _ranker_metrics(ranker: AttributeRanker, inputs: _Inputs, pool: _Pool, held_out: dict[str, np.ndarray]
@@ -314,7 +337,7 @@ def train_global(domain_name: str, rep: str, cfg: GlobalTrainConfig | None = Non
     declared = _declared(sources, lambda labels, name: bool(labels.pairs(name)))
     inputs = _Inputs.load(domain_name, rep, data_root, declared.values())
     pool = _Pool(inputs.train, inputs.serve, sources)
-    labels, held_out = _global_labels(inputs, pool, sources, cfg.ranker)
+    labels, held_out, how = _global_labels(inputs, pool, sources, cfg.ranker)
     (ranker, rstats), ranker_seconds = _timed(train_ranker, pool.data, labels, inputs.embed, cfg.ranker,
                                               progress=_progress(stage_name("ranker", rep), on_progress))
     rmetrics, val_zeta, pool_zeta = _ranker_metrics(ranker, inputs, pool, held_out)
@@ -327,7 +350,8 @@ def train_global(domain_name: str, rep: str, cfg: GlobalTrainConfig | None = Non
     save_model(ranker, {**common, "kind": "ranker", "weights_sha": weights_sha(ranker),
                         "architecture": {**arch, "embed_dim": int(inputs.embed.shape[1]), "hidden": cfg.ranker.hidden,
                                          "layers": cfg.ranker.layers, "clip": cfg.ranker.clip},
-                        "training": {**rstats, "seconds": ranker_seconds}, "tuning": tuning_record("ranker"),
+                        "training": {**rstats, "seconds": ranker_seconds, "labels": how},
+                        "tuning": tuning_record("ranker"),
                         "held_out": {"split": "val", "rollouts": len(inputs.val), **rmetrics}}, models_root)
     # rθ learns from ζσ labels only: every pooled trajectory (train, serve, uploaded), no proxies.
     (reward, gstats), reward_seconds = _timed(train_global_reward, pool.data, pool_zeta, cfg.reward,
@@ -341,7 +365,8 @@ def train_global(domain_name: str, rep: str, cfg: GlobalTrainConfig | None = Non
     save_model(reward, {**common, "kind": "global_reward", "weights_sha": weights_sha(reward),
                         "architecture": {**arch, "hidden": cfg.reward.hidden, "layers": cfg.reward.layers},
                         "zeta_bounds": np.stack([train_zeta.min(0), train_zeta.max(0)]).tolist(),
-                        "training": {**gstats, "seconds": reward_seconds, "labels": "zeta of train+serve (no proxies)"},
+                        "training": {**gstats, "seconds": reward_seconds, "labels": "zeta of train+serve (no proxies)",
+                                     "ranker_labels": how["mode"]},
                         "tuning": tuning_record("global_reward"),
                         "held_out": {"split": "val", "rollouts": len(inputs.val),
                                      "argmax_within_epsilon": match["normal"],

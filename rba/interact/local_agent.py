@@ -39,7 +39,7 @@ from rba.learn.common import Ragged
 from rba.learn.local_reward import LocalLibraryScorer
 from rba.library import SkillLibrary
 from rba.methods import Method
-from rba.training import PRESETS, LocalTrainConfig, train_local
+from rba.training import LOCAL_PRESETS, LocalTrainConfig, train_local
 
 if TYPE_CHECKING:
     from rba.training import LabelSource, StageProgress
@@ -129,4 +129,4 @@ def train(domain: str, rep: str, preset: str, seed: int = 0, data_root: Path | N
 
 
 METHOD = Method(agent=LocalAgent, label="RBA-Local", load_context=LocalContext.load, model_kinds=("local_reward",),
-                trainer=train, presets=PRESETS, reps=REPRESENTATIONS)
+                trainer=train, presets=LOCAL_PRESETS, reps=REPRESENTATIONS)

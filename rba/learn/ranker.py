@@ -7,19 +7,20 @@ once and never recovers. The last layer also starts small, so sums start near ze
 Trained with the Bradley-Terry loss (paper §4.2, eq. 3) on ``AttributeLabels``: for each
 attribute, which labelled trajectory shows more of it than which. By default they are the
 orderings by proxy of at most ``max_labelled`` ``train`` clips (the stand-in for an agent
-designer's labels); admins add orderings and comparisons of their own (``rba.labels``).
+designer's labels); ``RankerConfig.labels`` can ask for a simulated annotator's noisy pairwise
+answers instead; admins add orderings and comparisons of their own (``rba.labels``).
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 import torch
 from scipy.stats import kendalltau
 from torch import nn
 
-from rba.labels import AttributeLabels
+from rba.labels import AttributeLabels, GlobalLabelConfig
 from rba.learn.common import (
     Normalizer,
     Progress,
@@ -47,6 +48,7 @@ class RankerConfig:
     lr: float = 1e-3
     weight_decay: float = 1e-5
     seed: int = 0
+    labels: GlobalLabelConfig = field(default_factory=GlobalLabelConfig)  # proxy ordering or annotator pairs
 
 
 class AttributeRanker(nn.Module):
