@@ -64,7 +64,7 @@ from typing import NamedTuple
 import mujoco
 import numpy as np
 
-from rba.domains.base import AttributeSpec, Domain, FeedbackPhrases, Reading, Rollout
+from rba.domains.base import AttributeSpec, Domain, FeedbackPhrases, ParamSpace, Reading, Rollout
 from rba.domains.mujoco_render import Camera, Sky, ThreadRenderers
 
 # ---------------------------------------------------------------- controller constants
@@ -795,6 +795,9 @@ class Walker(Domain):
     # ------------------------------------------------------------------ skill
     def sample_params(self, rng: np.random.Generator) -> dict[str, float]:
         return {k: float(rng.uniform(lo, hi)) for k, (lo, hi) in PARAM_RANGES.items()}
+
+    def param_space(self) -> ParamSpace:
+        return ParamSpace.box(PARAM_RANGES)
 
     def rollout(self, params: dict[str, float], seed: int) -> Rollout:
         physics = self.physics()
