@@ -11,8 +11,8 @@ from functools import cache
 from rba.domains.base import AttributeSpec, Domain, ParamSpace, Rollout
 from rba.registry import Registry, import_object
 
-__all__ = ["AttributeSpec", "Domain", "ParamSpace", "Rollout", "domain_names", "domain_target", "domain_targets", "get_domain",
-           "load_domain", "register"]
+__all__ = ["AttributeSpec", "Domain", "ParamSpace", "Rollout", "domain_names", "domain_target", "domain_targets",
+           "get_domain", "load_domain", "register"]
 
 
 class UnknownDomainError(KeyError):
