@@ -278,7 +278,8 @@ def _eval_command(sub) -> argparse.ArgumentParser:
                         "(RBA-Global; default off until measured not to hurt)")
     e.add_argument("--gen-budget", type=_positive, default=48, help="simulations per generated clip at most")
     e.add_argument("--gen-threshold", type=float, default=None,
-                   help="ζσ distance (train range = 1) beyond which the agent generates; default: tuned on val")
+                   help="ζσ distance (train range = 1) beyond which the agent generates; default: "
+                        "rba.interact.generating.THRESHOLD (0.02); tune it on --split val")
     e.add_argument("--gen-workers", type=_positive, default=2,
                    help="local processes simulating candidates (1: this process)")
     _ray_option(e)
