@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
+    from rba.compute import Compute
     from rba.interact.users import UserSpec
 
 log = logging.getLogger("rba")
@@ -99,6 +100,10 @@ def cmd_eval(args) -> int:
     if args.all_methods:
         from rba.methods import methods
 
+        if args.generate:
+            raise ValueError("--generate compares one method with and without generation: give --method, "
+                             "not --all-methods")
+
         runs = [(m.name, r) for m in methods(include_reference=True) for r in m.run_reps]
         results = [evaluate(args.domain, m, r, args.targets, args.seed, args.precision, args.user, split=args.split)
                    for m, r in runs]
@@ -106,12 +111,39 @@ def cmd_eval(args) -> int:
         if args.json:
             save_json(Path(args.json), [r.to_json() for r in results])
         return 0
-    result = evaluate(args.domain, args.method, args.rep, args.targets, args.seed, args.precision, args.user,
-                      split=args.split)
+    options, compute = _generation(args)
+    try:
+        result = evaluate(args.domain, args.method, args.rep, args.targets, args.seed, args.precision, args.user,
+                          split=args.split, generate=args.generate, generate_options=options)
+    finally:
+        if compute is not None:
+            compute.close()
     print(format_table([result]))
+    if result.generation:
+        print("generation: " + ", ".join(f"{k} {v}" for k, v in result.generation.items()))
     if args.json:
         save_json(Path(args.json), result.to_json())
     return 0
+
+
+def _generation(args) -> tuple[dict, Compute | None]:
+    """``--generate``'s options for the agents' ``GenerationContext``, and the compute backend (to close) that
+    simulates the candidates: ``--gen-workers`` local processes or ``--ray``; one worker: this process."""
+    if not args.generate:
+        return {}, None
+    from rba.generate import SearchConfig
+
+    options: dict = {"config": SearchConfig(budget=args.gen_budget)}
+    if args.gen_threshold is not None:
+        options["threshold"] = args.gen_threshold
+    if not args.ray and args.gen_workers == 1:
+        return options, None
+    from rba.compute import make_compute
+    from rba.settings import LibrarySettings
+
+    compute = make_compute(LibrarySettings(compute_workers=args.gen_workers), args.ray)
+    options["simulate"] = compute.simulate
+    return options, compute
 
 
 def cmd_render(args) -> int:
@@ -280,6 +312,16 @@ def _eval_command(sub) -> argparse.ArgumentParser:
                    help="evaluate every method and representation, the random and oracle reference rows too "
                         "(ignores --method/--rep); JSON is a list")
     e.add_argument("--json", help="write the full result (trials included) here")
+    e.add_argument("--generate", action=argparse.BooleanOptionalAction, default=False,
+                   help="let the agent make clips beyond the serve library when none is close to its target "
+                        "(RBA-Global; default off until measured not to hurt)")
+    e.add_argument("--gen-budget", type=_positive, default=48, help="simulations per generated clip at most")
+    e.add_argument("--gen-threshold", type=float, default=None,
+                   help="ζσ distance (train range = 1) beyond which the agent generates; default: "
+                        "rba.interact.generating.THRESHOLD (0.02); tune it on --split val")
+    e.add_argument("--gen-workers", type=_positive, default=2,
+                   help="local processes simulating candidates (1: this process)")
+    _ray_option(e)
     e.set_defaults(func=cmd_eval)
     return e
 

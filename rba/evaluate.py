@@ -49,6 +49,8 @@ class EvalResult:
     seconds: float
     trials: list[Trial]
     split: str = "test"  # where the targets came from: "val" while tuning, "test" for reports
+    generate: bool = False  # the agent made clips beyond the serve library (rba.interact.generating)
+    generation: dict | None = None  # what generating cost and gave (``generation_summary``)
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -59,11 +61,21 @@ def _new_trial(serve: SkillLibrary, target) -> Trial:
                  success=False, feedback_count=0)
 
 
-def _record_shown(trial: Trial, serve: SkillLibrary, rollout_id: str) -> int:
-    """Log what the user is shown (id and true proxies); return its library index."""
-    i = serve.index_of(rollout_id)
+def _record_shown(trial: Trial, serve: SkillLibrary, rollout_id: str, agent: Agent | None = None,
+                  user: SimulatedUser | None = None) -> int:
+    """Log what the user is shown (id and true proxies); return its index among the clips the user judges.
+
+    A clip the agent generated (not in ``serve``) is measured by its own simulation (``agent.rollout``).
+    """
+    made = getattr(agent, "rollout", None)
+    if rollout_id in serve or made is None or user is None:
+        i = serve.index_of(rollout_id)
+        proxies = serve.proxies_of(i)
+    else:
+        proxies = dict(made(rollout_id).proxies)
+        i = user.add_clip(np.array([proxies[a] for a in serve.attribute_names]))
     trial.shown_ids.append(rollout_id)
-    trial.shown.append(serve.proxies_of(i))
+    trial.shown.append(proxies)
     return i
 
 
@@ -72,7 +84,7 @@ def run_trial(agent: Agent, user: SimulatedUser, serve: SkillLibrary, max_feedba
     trial = _new_trial(serve, user.target)
     rid = agent.first_query()
     while trial.rounds < MAX_ROUNDS:
-        i = _record_shown(trial, serve, rid)
+        i = _record_shown(trial, serve, rid, agent, user)
         trial.rounds += 1
         answer = user.respond(i)
         if answer == SATISFIED:
@@ -135,9 +147,11 @@ def simulate(agent: Agent, target: np.ndarray, epsilon: np.ndarray, serve: Skill
 
 def evaluate(domain_name: str, method: str, rep: str = "onehot", targets: int = 20, seed: int = 0,
              precision: str = "normal", user: str | UserSpec = "paper", data_root=None, models_root=None,
-             context=None, split: str = "test") -> EvalResult:
+             context=None, split: str = "test", generate: bool = False,
+             generate_options: dict | None = None) -> EvalResult:
     """SR / AF over ``targets`` targets drawn from ``split``: ``val`` for tuning and model selection,
-    ``test`` (the default) only for reported numbers."""
+    ``test`` (the default) only for reported numbers. ``generate``: the agent may make clips beyond the
+    serve library (``rba.interact.generating``; ``generate_options`` go to its ``GenerationContext``)."""
     if split not in HELD_OUT:
         raise ValueError(f"targets come from a held-out split; got {split!r}, valid: {', '.join(HELD_OUT)}")
     spec = parse_user(user)
@@ -146,17 +160,44 @@ def evaluate(domain_name: str, method: str, rep: str = "onehot", targets: int = 
     context = context or load_context(domain_name, method, rep, data_root, models_root)
     serve = context.serve
     eps = domain.epsilons(serve.proxies, precision)
+    make = _agents(method, context, spec, models_root, generate, generate_options)
     rng = np.random.default_rng(seed)
     chosen = rng.choice(len(test), size=min(targets, len(test)), replace=False)
     start = time.perf_counter()
-    trials = [simulate(new_agent(method, context), test.proxies[t], eps, serve, spec, seed * 1000 + n)
-              for n, t in enumerate(chosen)]
+    agents = [make() for _ in chosen]
+    trials = [simulate(agent, test.proxies[t], eps, serve, spec, seed * 1000 + n)
+              for n, (agent, t) in enumerate(zip(agents, chosen, strict=True))]
     fb = np.array([t.feedback_count for t in trials if t.success], dtype=float)
     return EvalResult(domain_name, method, rep, precision, str(spec), seed,
                       success_rate=float(np.mean([t.success for t in trials])),
                       avg_feedback=float(fb.mean()) if len(fb) else None,
                       std_feedback=float(fb.std()) if len(fb) else None,
-                      seconds=round(time.perf_counter() - start, 2), trials=trials, split=split)
+                      seconds=round(time.perf_counter() - start, 2), trials=trials, split=split,
+                      generate=generate, generation=generation_summary(agents) if generate else None)
+
+
+def _agents(method: str, context, spec: UserSpec, models_root, generate: bool,
+            options: dict | None) -> Callable[[], Agent]:
+    """A maker of fresh agents for the trials: generating ones if asked (and the user can judge their clips)."""
+    if not generate:
+        return lambda: new_agent(method, context)
+    from rba.interact.generating import generating_agents
+    from rba.interact.users import USER_KINDS
+
+    if not USER_KINDS[spec.kind].cls.judges_generated:
+        able = [k for k, kind in USER_KINDS.items() if kind.cls.judges_generated]
+        raise ValueError(f"a {spec.kind} user cannot judge generated clips; with generation use: {', '.join(able)}")
+    return generating_agents(method, context, models_root, **(options or {}))
+
+
+def generation_summary(agents: list) -> dict:
+    """Searches run, clips shown, and seconds per search (mean, p95) over every trial's agent."""
+    runs = [s for a in agents for s in a.searches]
+    seconds = np.array([s["seconds"] for s in runs], dtype=float)
+    return {"searches": len(runs), "shown": sum(s["shown"] for s in runs),
+            "simulations": int(sum(s["simulations"] for s in runs)),
+            "seconds_mean": round(float(seconds.mean()), 3) if len(runs) else None,
+            "seconds_p95": round(float(np.percentile(seconds, 95)), 3) if len(runs) else None}
 
 
 def format_table(results: list[EvalResult]) -> str:

@@ -10,9 +10,10 @@ from types import MappingProxyType
 
 import numpy as np
 
-from rba.domains.base import AttributeSpec, Domain, FeedbackPhrases, Rollout, SkillPolicy, SkillSim
+from rba.domains.base import AttributeSpec, Domain, FeedbackPhrases, ParamSpace, Rollout, SkillPolicy, SkillSim
 
 T = 24  # states per rollout
+PARAM_RANGES = {"amplitude": (0.2, 2.0), "pace": (0.5, 3.0)}
 
 
 # free-text feedback's anchors (rba.interpret): both sides written with the same nouns
@@ -41,7 +42,10 @@ class Toy(Domain):
     feedback_phrases = FEEDBACK_PHRASES
 
     def sample_params(self, rng: np.random.Generator) -> dict[str, float]:
-        return {"amplitude": float(rng.uniform(0.2, 2.0)), "pace": float(rng.uniform(0.5, 3.0))}
+        return {k: float(rng.uniform(lo, hi)) for k, (lo, hi) in PARAM_RANGES.items()}
+
+    def param_space(self) -> ParamSpace:
+        return ParamSpace.box(PARAM_RANGES)
 
     def rollout(self, params: dict[str, float], seed: int) -> Rollout:
         rng = np.random.default_rng(seed)

@@ -63,6 +63,48 @@ class FeedbackPhrases:
     names: tuple[str, ...] = ()
 
 
+@dataclass(frozen=True)
+class ParamSpace:
+    """Where a search over the skill may go: bounds per parameter, and those it must leave as they are.
+
+    ``low`` / ``high`` are the honest range of ``sample_params`` (the conformance test draws inside it);
+    a ``fixed`` parameter is kept at the starting clip's value (e.g. a discrete one a continuous search
+    would only round). ``rba.generate`` searches the free ones, scaled to [0, 1].
+    """
+
+    low: Mapping[str, float]
+    high: Mapping[str, float]
+    fixed: frozenset[str] = frozenset()
+
+    @classmethod
+    def box(cls, ranges: Mapping[str, tuple[float, float]], fixed: frozenset[str] = frozenset()) -> ParamSpace:
+        """The space of a domain whose ``sample_params`` draws each parameter uniformly in ``ranges``."""
+        return cls({k: float(lo) for k, (lo, _) in ranges.items()}, {k: float(hi) for k, (_, hi) in ranges.items()},
+                   fixed)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(self.low)
+
+    @property
+    def free(self) -> tuple[str, ...]:
+        return tuple(k for k in self.low if k not in self.fixed)
+
+    def contains(self, params: Mapping[str, float]) -> bool:
+        return set(params) == set(self.low) and all(self.low[k] <= params[k] <= self.high[k] for k in self.low)
+
+    def to_unit(self, params: Mapping[str, float]) -> np.ndarray:
+        """The free parameters of ``params`` scaled to [0, 1], float64[len(free)]."""
+        return np.array([(params[k] - self.low[k]) / (self.high[k] - self.low[k]) for k in self.free])
+
+    def from_unit(self, unit: np.ndarray, start: Mapping[str, float]) -> dict[str, float]:
+        """Parameters with the free ones at ``unit`` (clipped into the box) and the fixed ones from ``start``."""
+        out = {k: float(start[k]) for k in self.low}
+        for k, u in zip(self.free, np.clip(unit, 0.0, 1.0), strict=True):
+            out[k] = float(self.low[k] + u * (self.high[k] - self.low[k]))
+        return out
+
+
 @dataclass
 class Rollout:
     """One simulated behaviour clip."""
@@ -162,6 +204,11 @@ class Domain(ABC):
     def skill_policy(self, params: dict[str, float]) -> SkillPolicy:
         """The scripted skill with ``params`` as a policy over ``simulator()``'s observations."""
         raise NotImplementedError(f"domain {self.name!r} has no step interface for rba.gym yet")
+
+    def param_space(self) -> ParamSpace:
+        """The skill's parameter space (bounds, what is fixed): what ``rba.generate`` may search."""
+        raise NotImplementedError(f"domain {self.name!r} declares no parameter space: behaviours cannot be "
+                                  "generated for it (define param_space())")
 
     @property
     def attribute_names(self) -> tuple[str, ...]:

@@ -22,7 +22,7 @@ from types import MappingProxyType
 
 import numpy as np
 
-from rba.domains.base import AttributeSpec, Domain, FeedbackPhrases, Rollout, stack_samples
+from rba.domains.base import AttributeSpec, Domain, FeedbackPhrases, ParamSpace, Rollout, stack_samples
 
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")  # 'dummy' renders black frames in highway-env 1.12
 
@@ -117,6 +117,9 @@ class LaneChange(Domain):
 
     def sample_params(self, rng: np.random.Generator) -> dict[str, float]:
         return {k: float(rng.uniform(lo, hi)) for k, (lo, hi) in PARAM_RANGES.items()}
+
+    def param_space(self) -> ParamSpace:
+        return ParamSpace.box(PARAM_RANGES)
 
     def _scene(self, env, gap: float, gain: float):
         """The two cars, placed on a freshly reset road: (ego, follower)."""

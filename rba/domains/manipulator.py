@@ -26,7 +26,7 @@ from types import MappingProxyType
 import mujoco
 import numpy as np
 
-from rba.domains.base import AttributeSpec, Domain, FeedbackPhrases, Rollout, stack_samples
+from rba.domains.base import AttributeSpec, Domain, FeedbackPhrases, ParamSpace, Rollout, stack_samples
 from rba.domains.mujoco_render import Camera, ThreadRenderers
 
 CONTROL_EVERY = 10  # physics steps (1 ms) per control step: 100 Hz
@@ -174,6 +174,9 @@ class Manipulator(Domain):
 
     def sample_params(self, rng: np.random.Generator) -> dict[str, float]:
         return {k: float(rng.uniform(lo, hi)) for k, (lo, hi) in PARAM_RANGES.items()}
+
+    def param_space(self) -> ParamSpace:
+        return ParamSpace.box(PARAM_RANGES)
 
     def _ids(self, model):
         site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "pinch")

@@ -28,7 +28,7 @@ from types import MappingProxyType
 import mujoco
 import numpy as np
 
-from rba.domains.base import AttributeSpec, Domain, FeedbackPhrases, Rollout, stack_samples
+from rba.domains.base import AttributeSpec, Domain, FeedbackPhrases, ParamSpace, Rollout, stack_samples
 from rba.domains.mujoco_render import Camera, Sky, ThreadRenderers
 
 XML = Path(__file__).resolve().parent / "assets" / "snake.xml"
@@ -226,6 +226,16 @@ class Snake(Domain):
         period = ADVANCE_PER_CYCLE * reached[best, 1] * BODY_LENGTH / speed
         return {"amplitude": float(amplitude), "wavelength": float(wavelength), "span": float(span),
                 "period": float(np.clip(period, *PARAM_RANGES["period"]))}
+
+    def param_space(self) -> ParamSpace:
+        """``sample_params`` jitters the fold shape half a grid cell beyond the grid's ends; ``span`` (whole
+        joints) is fixed: a continuous search would only round it."""
+        lo = {k: low for k, (low, _) in PARAM_RANGES.items()}
+        hi = {k: high for k, (_, high) in PARAM_RANGES.items()}
+        for name, step in (("amplitude", AMPLITUDE_STEP), ("wavelength", WAVELENGTH_STEP)):
+            lo[name] -= step / 2
+            hi[name] += step / 2
+        return ParamSpace(lo, hi, frozenset({"span"}))
 
     def rollout(self, params: dict[str, float], seed: int) -> Rollout:
         model = copy.copy(self._physics())  # friction is switched per rollout: never on the shared model

@@ -69,6 +69,7 @@ from rba.domains.base import (
     AttributeSpec,
     Domain,
     FeedbackPhrases,
+    ParamSpace,
     Reading,
     Rollout,
     SkillPolicy,
@@ -828,6 +829,9 @@ class Walker(Domain):
     # ------------------------------------------------------------------ skill
     def sample_params(self, rng: np.random.Generator) -> dict[str, float]:
         return {k: float(rng.uniform(lo, hi)) for k, (lo, hi) in PARAM_RANGES.items()}
+
+    def param_space(self) -> ParamSpace:
+        return ParamSpace.box(PARAM_RANGES)
 
     def rollout(self, params: dict[str, float], seed: int) -> Rollout:
         physics = self.physics()

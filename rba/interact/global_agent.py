@@ -108,6 +108,8 @@ class GlobalAgent(Agent):
                        else np.array(target, dtype=np.float64))
         self.shown = shown
         self.rejected = list(rejected or [])
+        # set by rba.interact.generating for one update: the ζσ of the clip shown when it is a generated one
+        self.shown_zeta: np.ndarray | None = None
 
     def belief(self, a: int) -> np.ndarray:
         """Posterior over ``ctx.grid(a)`` given every answer about attribute ``a`` (normalised)."""
@@ -142,7 +144,7 @@ class GlobalAgent(Agent):
     def update(self, feedback: Feedback) -> str:
         if self._is_satisfied(feedback, self.ctx.attribute_names):
             return self.ctx.serve.ids[self.shown]
-        z = self.ctx.serve_zeta[self.shown]
+        z = self.ctx.serve_zeta[self.shown] if self.shown_zeta is None else self.shown_zeta
         asked = [(self.ctx.attribute_names.index(fb.attribute), fb.direction) for fb in feedback]
         for a, h in asked:
             self.answers.append((a, float(z[a]), h))

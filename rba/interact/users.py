@@ -51,6 +51,7 @@ class SimulatedUser:
     """
 
     kind: ClassVar[str] = "paper"
+    judges_generated: ClassVar[bool] = True  # can judge clips made during a trial (``add_clip``)
 
     def __init__(self, target: np.ndarray, epsilon: np.ndarray, attribute_names: tuple[str, ...],
                  proxies: np.ndarray, noise: float = 0.0, seed: int = 0) -> None:
@@ -68,6 +69,11 @@ class SimulatedUser:
                      seed: int) -> SimulatedUser:
         """The user of this kind at ``strength`` for a target, judging clips of ``serve``."""
         return cls(target, epsilon, serve.attribute_names, serve.proxies, seed=seed)
+
+    def add_clip(self, proxies: np.ndarray) -> int:
+        """One more clip to judge, beyond the library (a generated one, measured by its simulation): its index."""
+        self.proxies = np.vstack([self.proxies, np.asarray(proxies, np.float64)])
+        return len(self.proxies) - 1
 
     def signs(self, shown: np.ndarray) -> np.ndarray:
         """Noise-free answer per attribute: +1, −1 or 0."""
@@ -183,6 +189,7 @@ class MyopicUser(_KindUser):
     """Judges mostly the end: (1 − ``strength``) × the proxies + ``strength`` × the last quarter's proxies."""
 
     kind = "myopic"
+    judges_generated = False  # its clip ends come from a map fitted over the library (``last_part_proxies``)
 
     def __init__(self, target, epsilon, attribute_names, proxies, strength: float, seed: int = 0,
                  end_proxies: np.ndarray | None = None) -> None:

@@ -48,3 +48,16 @@ def test_render_is_deterministic_uint8(domain):
     for f, g in zip(first, again, strict=True):
         assert f.shape == (48, 64, 3) and f.dtype == np.uint8 and f.std() > 0
         np.testing.assert_array_equal(f, g)
+
+
+def test_sample_params_stay_inside_the_declared_parameter_space(domain):
+    """What ``rba.generate`` may search covers every parameter the domain's own sampler draws."""
+    space = domain.param_space()
+    assert space.names == domain.param_names and space.fixed <= set(space.names)
+    assert all(space.low[k] < space.high[k] for k in space.names) and space.free
+    rng = np.random.default_rng(11)
+    for _ in range(200):
+        params = domain.sample_params(rng)
+        assert space.contains(params), {k: (space.low[k], v, space.high[k]) for k, v in params.items()}
+        back = space.from_unit(space.to_unit(params), params)
+        np.testing.assert_allclose([back[k] for k in space.names], [params[k] for k in space.names], rtol=1e-12)

@@ -1,0 +1,173 @@
+"""Behaviours beyond the serve library: a CMA-ES search over a domain's skill parameters.
+
+The serve library caps what an agent can show. When no clip is close to the agent's current target,
+``search`` makes new ones: CMA-ES (the ``cma`` package) over the free parameters of
+``Domain.param_space()``, scaled to [0, 1], starting from the parameters of the library clips that score
+best, each generation's candidates simulated through the compute layer (``Compute.simulate``, or
+``in_process`` here) and scored by an objective that sees only what the agent's models see (states,
+never proxies): ``ZetaDistance`` (ζσ distance to the target vector) or ``RewardObjective`` (−Σ rθ(s | v_t)).
+
+A generated rollout is a first-class ``Rollout`` whose id ``gen-<hash>`` is a hash of (domain, params,
+seed): equal ids re-simulate to equal states (``replay``). Seeds are fixed (CMA-ES draws from its own
+generator, every candidate is simulated with one seed), so a search gives the same rollout every time.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import math
+import time
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
+
+import cma
+import numpy as np
+import torch
+
+from rba.compute import SimJob
+from rba.domains import ParamSpace, Rollout, domain_target, load_domain
+from rba.learn.common import Ragged
+from rba.learn.global_reward import GlobalReward, LibraryScorer
+from rba.learn.ranker import AttributeRanker
+
+log = logging.getLogger(__name__)
+
+ID_PREFIX = "gen-"
+FAILED = 1e6  # the objective of a rollout the skill failed (fell, stalled): worse than any finished one
+Simulate = Callable[[list[SimJob]], Iterable[Rollout]]  # Compute.simulate, or in_process
+Objective = Callable[[list[Rollout]], np.ndarray]  # one value per rollout, lower is better
+Progress = Callable[[int, int], None]  # (generations done k, of at most K)
+
+
+def generated_id(domain: str, params: dict[str, float], seed: int) -> str:
+    """``gen-<hash>`` of what a rollout is made from: the same id always names the same behaviour."""
+    key = json.dumps({"domain": domain, "params": {k: float(v) for k, v in sorted(params.items())},
+                      "seed": int(seed)}, sort_keys=True)
+    return ID_PREFIX + hashlib.sha256(key.encode()).hexdigest()[:16]
+
+
+def is_generated(rollout_id: str) -> bool:
+    return rollout_id.startswith(ID_PREFIX)
+
+
+def in_process(jobs: Iterable[SimJob]) -> Iterator[Rollout]:
+    """Simulate in this process (tests, and one-core machines): the same rollouts as any backend."""
+    return (load_domain(j.target).rollout(j.params, j.seed) for j in jobs)
+
+
+def replay(domain: str, params: dict[str, float], seed: int, simulate: Simulate = in_process) -> Rollout:
+    """The generated rollout of (domain, params, seed), simulated again; its id as ``search`` gave it."""
+    (rollout,) = simulate([SimJob(domain_target(domain), dict(params), int(seed))])
+    rollout.id = generated_id(domain, params, seed)
+    return rollout
+
+
+@dataclass(frozen=True)
+class SearchConfig:
+    """How hard to search: ``budget`` simulations in generations of ``popsize``; seeded."""
+
+    budget: int = 48
+    popsize: int = 8
+    sigma: tuple[float, float] = (0.05, 0.25)  # CMA-ES's first step (share of each range): the starts' spread, clipped
+    seed: int = 0  # CMA-ES's own draws
+    sim_seed: int = 0  # every candidate is simulated with this seed: candidates differ in parameters only
+    good_enough: float | None = None  # stop early once the best objective is at most this
+
+    @property
+    def generations(self) -> int:
+        return max(self.budget // self.popsize, 1)
+
+
+@dataclass
+class Generation:
+    """What a search found: the best candidate (None if every one failed) and what it cost."""
+
+    rollout: Rollout | None
+    objective: float
+    simulations: int
+    generations: int
+    seconds: float
+
+
+def _first_step(space: ParamSpace, starts: list[dict[str, float]], config: SearchConfig) -> tuple[np.ndarray, float]:
+    """CMA-ES's start: the best start's free parameters, and a step as wide as the starts are spread."""
+    units = np.array([space.to_unit(p) for p in starts])
+    spread = float(units.std(0).mean()) if len(units) > 1 else config.sigma[1]
+    return np.clip(units[0], 0.0, 1.0), float(np.clip(spread, *config.sigma))
+
+
+def search(domain: str, starts: list[dict[str, float]], objective: Objective, simulate: Simulate = in_process,
+           config: SearchConfig = SearchConfig(), on_progress: Progress | None = None) -> Generation:
+    """CMA-ES from ``starts`` (best first: library clips' parameters) to the candidate minimising ``objective``.
+
+    Fixed parameters keep the best start's values. Each generation's candidates are simulated together
+    (``simulate`` may run them in parallel); ``on_progress(k, K)`` after each generation.
+    """
+    if not starts:
+        raise ValueError("a search starts from at least one library clip's parameters")
+    space, target = load_domain(domain_target(domain)).param_space(), domain_target(domain)
+    x0, sigma0 = _first_step(space, starts, config)
+    rng = np.random.default_rng(config.seed)
+    es = cma.CMAEvolutionStrategy(x0, sigma0, {
+        "bounds": [0.0, 1.0], "popsize": config.popsize, "seed": math.nan,  # nan: leave numpy's global seed alone
+        "randn": lambda *shape: rng.standard_normal(shape), "verbose": -9, "verb_log": 0, "verb_disp": 0})
+    best, best_f, done, clock = None, math.inf, 0, time.perf_counter()
+    for k in range(config.generations):
+        units = es.ask()
+        params = [space.from_unit(u, starts[0]) for u in units]
+        rollouts = list(simulate([SimJob(target, p, config.sim_seed) for p in params]))
+        f = np.where([r.success for r in rollouts], objective(rollouts), FAILED)
+        es.tell(units, f.tolist())
+        done += len(rollouts)
+        i = int(np.argmin(f))
+        if f[i] < best_f and rollouts[i].success:
+            best, best_f = rollouts[i], float(f[i])
+            best.id = generated_id(domain, best.params, best.seed)
+        if on_progress:
+            on_progress(k + 1, config.generations)
+        if config.good_enough is not None and best_f <= config.good_enough:
+            break
+    seconds = time.perf_counter() - clock
+    log.info("%s: generated %s (objective %.4f) from %d simulations in %.2f s", domain,
+             best.id if best else "nothing", best_f, done, seconds)
+    return Generation(best, best_f, done, k + 1, seconds)
+
+
+def _data(rollouts: list[Rollout]) -> Ragged:
+    offsets = np.concatenate([[0], np.cumsum([len(r.states) for r in rollouts])])
+    return Ragged.from_numpy(np.concatenate([r.states for r in rollouts]), offsets)
+
+
+@dataclass
+class ZetaDistance:
+    """The largest per-attribute ζσ distance to ``target``, each attribute's train range scaled to 1.
+
+    The max, not the sum: success is every attribute within ε, and a box is what the max measures.
+    """
+
+    ranker: AttributeRanker
+    target: np.ndarray  # float64[k]: the agent's ζσ target vector v_t
+    scale: np.ndarray  # float64[k]: each attribute's ζσ range over train
+
+    def distances(self, zeta: np.ndarray) -> np.ndarray:
+        return np.max(np.abs(np.atleast_2d(zeta) - self.target) / self.scale, axis=1)
+
+    def zeta(self, rollouts: list[Rollout]) -> np.ndarray:
+        return self.ranker.score(_data(rollouts))
+
+    def __call__(self, rollouts: list[Rollout]) -> np.ndarray:
+        return self.distances(self.zeta(rollouts))
+
+
+@dataclass
+class RewardObjective:
+    """−Σ_t rθ(s_t | v_t): the learned reward's own ranking of the candidates (the paper's objective)."""
+
+    reward: GlobalReward
+    target: np.ndarray
+
+    def __call__(self, rollouts: list[Rollout]) -> np.ndarray:
+        with torch.no_grad():
+            return -LibraryScorer(self.reward, _data(rollouts)).returns(self.target)

@@ -1,0 +1,218 @@
+"""RBA-Global that makes a clip when the serve library has none close to its target (``rba.generate``).
+
+``GeneratingGlobalAgent`` wraps a ``GlobalAgent``: the inner agent keeps the belief and picks a library
+clip as always; when that clip's ζσ (the agent's own models, never proxies) is farther than ``threshold``
+from the target v_t in some attribute (ζσ ranges scaled to 1), a CMA-ES search makes a clip for v_t,
+starting from the nearest library and session clips, and shows it instead if it is nearer and moves the
+asked attributes the asked way. Feedback about a generated clip updates the belief at that clip's ζσ.
+
+State: the agent's JSON keeps, per generated clip, its params, seed and ζσ (a few numbers), not its
+states: the id is content-addressed (``gen-<hash of domain, params, seed>``), so anything that needs the
+clip itself (the simulated user, a render) asks ``GenerationContext.rollout``, which keeps recent ones in
+memory and re-simulates the rest, bit for bit. A restored agent never simulates to continue: ζσ is stored.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import OrderedDict
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from rba.artifacts import load_model
+from rba.domains import Rollout
+from rba.generate import (
+    Generation,
+    Progress,
+    RewardObjective,
+    SearchConfig,
+    Simulate,
+    ZetaDistance,
+    in_process,
+    replay,
+    search,
+)
+from rba.interact.base import SATISFIED, Agent, Feedback
+from rba.interact.global_agent import GlobalAgent, GlobalContext
+from rba.learn.ranker import AttributeRanker
+from rba.methods import get_method, methods
+
+# ζσ distance (max over attributes, train range = 1) above which the agent generates: about the high-precision ε
+# (1/42 of a range); so far checked on walker val targets only
+THRESHOLD = 0.02
+STARTS = 4  # nearest clips whose parameters start (and spread) the search
+STORE_SIZE = 256  # generated rollouts kept in memory per context; older ones are re-simulated when asked for
+OBJECTIVES = ("zeta", "reward")
+
+
+class GeneratedStore:
+    """Recent generated rollouts by id (thread-safe): a cache, since (params, seed) remake any of them."""
+
+    def __init__(self, size: int = STORE_SIZE) -> None:
+        self.size = size
+        self._items: OrderedDict[str, Rollout] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def put(self, rollout: Rollout) -> None:
+        with self._lock:
+            self._items[rollout.id] = rollout
+            self._items.move_to_end(rollout.id)
+            while len(self._items) > self.size:
+                self._items.popitem(last=False)
+
+    def get(self, rollout_id: str) -> Rollout | None:
+        with self._lock:
+            return self._items.get(rollout_id)
+
+
+@dataclass
+class GenerationContext:
+    """A ``GlobalContext`` plus what generating needs: the ζσ ranker for new clips, a simulator, a store."""
+
+    base: GlobalContext
+    ranker: AttributeRanker
+    simulate: Simulate = in_process  # Compute.simulate on the local pools or Ray
+    config: SearchConfig = field(default_factory=SearchConfig)
+    threshold: float = THRESHOLD
+    objective: str = "zeta"
+    on_progress: Progress | None = None  # (generation k, of K) of the running search
+    store: GeneratedStore = field(default_factory=GeneratedStore)
+
+    def __post_init__(self) -> None:
+        if self.objective not in OBJECTIVES:
+            raise ValueError(f"unknown objective {self.objective!r}; valid: {', '.join(OBJECTIVES)}")
+
+    @classmethod
+    def load(cls, base: GlobalContext, models_root=None, **options) -> GenerationContext:
+        return cls(base, load_model(base.domain, "ranker", base.rep, models_root).model, **options)
+
+    def distance(self, target: np.ndarray) -> ZetaDistance:
+        return ZetaDistance(self.ranker, np.asarray(target, np.float64),
+                            np.maximum(self.base.bounds[1] - self.base.bounds[0], 1e-9))
+
+    def generate(self, target: np.ndarray, starts: list[dict[str, float]], seed: int) -> tuple[Generation, np.ndarray]:
+        """The best clip a search finds for ``target`` and its ζσ (the search's own result is in the store)."""
+        dist = self.distance(target)
+        objective = dist if self.objective == "zeta" else RewardObjective(self.base.scorer.model, dist.target)
+        good = self.threshold if self.objective == "zeta" else None
+        found = search(self.base.domain, starts, objective, self.simulate,
+                       replace(self.config, seed=self.config.seed + seed, good_enough=good), self.on_progress)
+        if found.rollout is None:
+            return found, np.full(len(dist.target), np.nan)
+        self.store.put(found.rollout)
+        return found, dist.zeta([found.rollout])[0]
+
+    def rollout(self, rollout_id: str, params: dict[str, float], seed: int) -> Rollout:
+        """A generated rollout: from the store, else simulated again from its params and seed."""
+        found = self.store.get(rollout_id)
+        if found is None:
+            found = replay(self.base.domain, params, seed, self.simulate)
+            if found.id != rollout_id:
+                raise ValueError(f"params and seed make {found.id}, not {rollout_id}")
+            self.store.put(found)
+        return found
+
+
+class GeneratingGlobalAgent(Agent):
+    """RBA-Global over the serve library and the clips it generates when none is close (module docstring)."""
+
+    method = "global"
+    feedback_kind = "attribute"
+
+    def __init__(self, ctx: GenerationContext, inner: GlobalAgent | None = None,
+                 generated: dict[str, dict] | None = None, showing: str | None = None,
+                 searches: list[dict] | None = None) -> None:
+        self.ctx = ctx
+        self.inner = inner or GlobalAgent(ctx.base)
+        self.generated = dict(generated or {})  # id -> {"params", "seed", "zeta"}
+        self.showing = showing  # the generated clip shown now (None: the inner agent's library clip)
+        self.searches = list(searches or [])  # per search: simulations, seconds, whether its clip was shown
+
+    @property
+    def shown(self) -> int | None:
+        return self.inner.shown
+
+    def _zeta_shown(self) -> np.ndarray:
+        if self.showing is not None:
+            return np.array(self.generated[self.showing]["zeta"])
+        return self.ctx.base.serve_zeta[self.inner.shown]
+
+    def first_query(self) -> str:
+        self.inner.first_query()
+        return self._choose(None, [])
+
+    def update(self, feedback: Feedback) -> str:
+        before = self._zeta_shown()
+        self.inner.shown_zeta = before if self.showing is not None else None
+        try:
+            library = self.inner.update(feedback)
+        finally:
+            self.inner.shown_zeta = None
+        if feedback == SATISFIED:
+            return self.showing or library
+        names = self.ctx.base.attribute_names
+        return self._choose(before, [(names.index(fb.attribute), fb.direction) for fb in feedback])
+
+    def _starts(self, dist: ZetaDistance) -> list[dict[str, float]]:
+        """Parameters of the ``STARTS`` clips nearest the target, library and this session's generated ones."""
+        base = self.ctx.base
+        lib = dist.distances(base.serve_zeta)
+        order = np.argsort(lib, kind="stable")[:STARTS]
+        pool = [(float(lib[i]), dict(zip(base.serve.param_names, map(float, base.serve.params[i]), strict=True)))
+                for i in order]
+        pool += [(float(dist.distances(np.array(g["zeta"]))[0]), g["params"]) for g in self.generated.values()]
+        return [p for _, p in sorted(pool, key=lambda x: x[0])[:STARTS]]
+
+    def _choose(self, before: np.ndarray | None, asked: list[tuple[int, int]]) -> str:
+        """The inner agent's library clip, or a generated one when that is too far from the target."""
+        base, self.showing = self.ctx.base, None
+        library = base.serve.ids[self.inner.shown]
+        dist = self.ctx.distance(self.inner.target)
+        near = float(dist.distances(base.serve_zeta[self.inner.shown])[0])
+        if near <= self.ctx.threshold:
+            return library
+        found, zeta = self.ctx.generate(self.inner.target, self._starts(dist), len(self.searches))
+        moves = before is None or all(h * (zeta[a] - before[a]) > 0 for a, h in asked)
+        shown = found.rollout is not None and bool(dist.distances(zeta)[0] < near) and moves
+        self.searches.append({"simulations": found.simulations, "seconds": round(found.seconds, 3), "shown": shown})
+        if not shown:
+            return library
+        r = found.rollout
+        self.generated[r.id] = {"params": dict(r.params), "seed": int(r.seed), "zeta": [float(v) for v in zeta]}
+        self.showing = r.id
+        return r.id
+
+    def rollout(self, rollout_id: str) -> Rollout:
+        """A clip this agent generated (its true proxies are the simulation's: what the evaluation's user sees)."""
+        g = self.generated[rollout_id]
+        return self.ctx.rollout(rollout_id, g["params"], g["seed"])
+
+    def target_ranks(self, mass: float = 0.5) -> dict[str, tuple[float, float]]:
+        return self.inner.target_ranks(mass)
+
+    def state_dict(self) -> dict:
+        return {**self.inner.state_dict(), "generation": {
+            "generated": self.generated, "showing": self.showing, "searches": self.searches}}
+
+    @classmethod
+    def from_state(cls, state: dict, context: GenerationContext) -> GeneratingGlobalAgent:
+        inner = {k: v for k, v in state.items() if k != "generation"}
+        gen = state.get("generation", {})
+        return cls(context, GlobalAgent.from_state(inner, context.base), gen.get("generated"), gen.get("showing"),
+                   gen.get("searches"))
+
+
+GENERATING = {GlobalAgent: GeneratingGlobalAgent}  # an agent class -> its generating form
+
+
+def generating_agents(method: str, context, models_root=None, **options) -> Callable[[], GeneratingGlobalAgent]:
+    """New generating agents of ``method`` over ``context`` (one ``GenerationContext`` for all of them);
+    ValueError naming the methods that can generate."""
+    agent = get_method(method).agent
+    if agent not in GENERATING:
+        able = [m.name for m in methods() if m.agent in GENERATING]
+        raise ValueError(f"method {method!r} cannot generate behaviours; valid with generation: {', '.join(able)}")
+    gctx = GenerationContext.load(context, models_root, **options)
+    return lambda: GENERATING[agent](gctx)

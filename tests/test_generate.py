@@ -1,0 +1,172 @@
+"""Behaviours beyond the library (rba.generate, rba.interact.generating) on the toy domain.
+
+The toy serve library gets a gap: no clip within ε of a target inside it. RBA-Global over the library
+alone cannot succeed there; with generation it makes a clip that does, seeded and deterministically.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from rba.cli import main
+from rba.domains import ParamSpace, get_domain
+from rba.evaluate import evaluate, simulate
+from rba.generate import SearchConfig, ZetaDistance, generated_id, is_generated, replay, search
+from rba.interact.generating import GeneratingGlobalAgent, GenerationContext, generating_agents
+from rba.interact.global_agent import GlobalAgent, GlobalContext
+from rba.interact.users import parse_user
+from rba.library import SkillLibrary
+from tests.conftest import own_copy
+from tests.toy import Toy
+
+TARGET = np.array([0.7, 2.4])  # amplitude, pace: inside the gap, away from where the first query lands
+BUDGET = 30  # attribute feedbacks a trial may use
+
+
+def _in_gap(proxies: np.ndarray) -> np.ndarray:
+    return (proxies[:, 0] > 0.3) & (proxies[:, 0] < 1.1) & (proxies[:, 1] > 1.9) & (proxies[:, 1] < 2.9)
+
+
+@pytest.fixture(scope="module")
+def gap_roots(toy_roots, tmp_path_factory):
+    """The toy data with a serve library that lacks every clip of the gap; the toy models."""
+    data, models = own_copy(toy_roots, tmp_path_factory.mktemp("gap"))
+    serve = SkillLibrary.load("toy", "serve", data)
+    lib = serve.subset(np.flatnonzero(~_in_gap(serve.proxies)))
+    lib.split = "serve"
+    lib.save(data)
+    return data, models
+
+
+@pytest.fixture(scope="module")
+def ctx(gap_roots) -> GlobalContext:
+    return GlobalContext.load("toy", "onehot", *gap_roots)
+
+
+def _gen(ctx, gap_roots, **options) -> GenerationContext:
+    return GenerationContext.load(ctx, gap_roots[1], **options)
+
+
+def _eps(ctx) -> np.ndarray:
+    return get_domain("toy").epsilons(ctx.serve.proxies, "normal")
+
+
+def test_the_library_lacks_the_target_and_library_only_fails(ctx):
+    eps = _eps(ctx)
+    assert not (np.abs(ctx.serve.proxies - TARGET) <= eps).all(1).any()
+    trial = simulate(GlobalAgent(ctx), TARGET, eps, ctx.serve, seed=0, max_feedback=BUDGET)
+    assert not trial.success and trial.feedback_count >= BUDGET
+
+
+def test_generation_reaches_the_target_the_library_lacks(ctx, gap_roots):
+    agent = GeneratingGlobalAgent(_gen(ctx, gap_roots))
+    trial = simulate(agent, TARGET, _eps(ctx), ctx.serve, seed=0, max_feedback=BUDGET)
+    assert trial.success and trial.feedback_count < BUDGET
+    assert is_generated(trial.shown_ids[-1]) and trial.shown_ids[-1] in agent.generated
+    made = agent.rollout(trial.shown_ids[-1])
+    assert trial.shown[-1] == made.proxies  # the user judged the generated clip's own measured proxies
+    assert all(np.abs(np.array([made.proxies["amplitude"], made.proxies["pace"]]) - TARGET) <= _eps(ctx))
+    again = simulate(GeneratingGlobalAgent(_gen(ctx, gap_roots)), TARGET, _eps(ctx), ctx.serve, seed=0,
+                     max_feedback=BUDGET)
+    assert again.shown_ids == trial.shown_ids and again.shown == trial.shown  # seeded: the same every time
+
+
+def test_a_generated_id_replays_to_identical_states(ctx, gap_roots):
+    progress: list[tuple[int, int]] = []
+    start = dict(zip(ctx.serve.param_names, map(float, ctx.serve.params[0]), strict=True))
+    dist = _gen(ctx, gap_roots).distance(ctx.serve_zeta[0] + 0.1)
+    found = search("toy", [start], dist, config=SearchConfig(budget=16, popsize=8), on_progress=
+                   lambda k, n: progress.append((k, n)))
+    assert progress == [(1, 2), (2, 2)] and found.simulations == 16
+    r = found.rollout
+    assert r.id == generated_id("toy", r.params, r.seed) and is_generated(r.id)
+    again = replay("toy", json.loads(json.dumps(r.params)), r.seed)
+    assert again.id == r.id
+    np.testing.assert_array_equal(again.states, r.states)
+    np.testing.assert_array_equal(again.replay, r.replay)
+    assert generated_id("toy", {**r.params, "pace": r.params["pace"] + 1e-12}, r.seed) != r.id
+
+
+def test_fixed_parameters_keep_the_start_clips_value(ctx, gap_roots, monkeypatch):
+    monkeypatch.setattr(Toy, "param_space",
+                        lambda self: ParamSpace.box({"amplitude": (0.2, 2.0), "pace": (0.5, 3.0)}, frozenset({"pace"})))
+    start = {"amplitude": 0.5, "pace": 1.234}
+    found = search("toy", [start], _gen(ctx, gap_roots).distance(np.zeros(2)), config=SearchConfig(budget=16))
+    assert found.rollout.params["pace"] == 1.234 and found.rollout.params["amplitude"] != 0.5
+
+
+def test_state_round_trips_through_json_and_continues_identically(ctx, gap_roots):
+    agent = GeneratingGlobalAgent(_gen(ctx, gap_roots, threshold=0.0))  # generate at every round
+    user = parse_user("paper").build(TARGET, _eps(ctx) / 6, ctx.serve, 0)
+    rid = agent.first_query()
+    for _ in range(2):
+        i = ctx.serve.index_of(rid) if not is_generated(rid) else user.add_clip(
+            [agent.rollout(rid).proxies[a] for a in ctx.serve.attribute_names])
+        rid = agent.update(user.respond(i))
+    assert is_generated(rid) and agent.showing == rid
+    fresh = _gen(ctx, gap_roots, threshold=0.0)  # a restarted process: nothing in its store
+    restored = GeneratingGlobalAgent.from_state(json.loads(json.dumps(agent.state_dict())), fresh)
+    assert restored.state_dict() == agent.state_dict()
+    np.testing.assert_array_equal(restored.rollout(rid).states, agent.rollout(rid).states)  # re-simulated
+    answer = user.respond(user.add_clip([agent.rollout(rid).proxies[a] for a in ctx.serve.attribute_names]))
+    assert restored.update(answer) == agent.update(answer)
+    assert _without_seconds(restored.state_dict()) == _without_seconds(agent.state_dict())
+
+
+def _without_seconds(state: dict) -> dict:
+    """The state but the searches' wall-clock seconds (a measurement, not a decision)."""
+    searches = [{k: v for k, v in s.items() if k != "seconds"} for s in state["generation"]["searches"]]
+    return {**state, "generation": {**state["generation"], "searches": searches}}
+
+
+def test_the_stored_zeta_is_the_rankers(ctx, gap_roots):
+    gen = _gen(ctx, gap_roots, threshold=0.0)
+    agent = GeneratingGlobalAgent(gen)
+    rid = agent.first_query()
+    assert is_generated(rid)
+    zeta = ZetaDistance(gen.ranker, np.zeros(2), np.ones(2)).zeta([agent.rollout(rid)])[0]
+    np.testing.assert_allclose(agent.generated[rid]["zeta"], zeta)
+
+
+def test_evaluate_with_and_without_generation(gap_roots):
+    data, models = gap_roots
+    off = evaluate("toy", "global", targets=4, data_root=data, models_root=models, split="test")
+    on = evaluate("toy", "global", targets=4, data_root=data, models_root=models, split="test", generate=True,
+                  generate_options={"config": SearchConfig(budget=16)})
+    assert off.generate is False and off.generation is None
+    assert on.generate and set(on.generation) >= {"searches", "simulations", "seconds_mean", "seconds_p95"}
+    assert on.generation["shown"] == sum(is_generated(r) for t in on.trials for r in t.shown_ids)
+    assert on.success_rate >= off.success_rate
+    assert [t.target for t in on.trials] == [t.target for t in off.trials]
+
+
+def test_generation_is_refused_where_it_cannot_work(ctx, gap_roots):
+    with pytest.raises(ValueError, match="valid with generation: global"):
+        generating_agents("local", ctx, gap_roots[1])
+    with pytest.raises(ValueError, match="a myopic user cannot judge generated clips; with generation use: paper"):
+        evaluate("toy", "global", targets=1, data_root=gap_roots[0], models_root=gap_roots[1], user="myopic",
+                 generate=True)
+    with pytest.raises(ValueError, match="unknown objective 'proxies'; valid: zeta, reward"):
+        _gen(ctx, gap_roots, objective="proxies")
+
+
+def test_reward_objective_also_generates(ctx, gap_roots):
+    agent = GeneratingGlobalAgent(_gen(ctx, gap_roots, objective="reward"))
+    trial = simulate(agent, TARGET, _eps(ctx), ctx.serve, seed=0, max_feedback=BUDGET)
+    assert agent.searches and any(is_generated(r) for r in trial.shown_ids)
+
+
+def test_cli_generate_flag(gap_roots, monkeypatch, capsys, tmp_path):
+    monkeypatch.setenv("RBA_DATA_DIR", str(gap_roots[0]))
+    monkeypatch.setenv("RBA_MODELS_DIR", str(gap_roots[1]))
+    out = tmp_path / "r.json"
+    assert main(["eval", "--domain", "toy", "--targets", "2", "--generate", "--gen-workers", "1",
+                 "--gen-budget", "16", "--json", str(out)]) == 0
+    assert json.loads(out.read_text())["generate"] is True and "generation: searches" in capsys.readouterr().out
+    assert main(["eval", "--domain", "toy", "--all-methods", "--generate"]) == 2
+    assert "give --method, not --all-methods" in capsys.readouterr().err
+    assert main(["eval", "--domain", "toy", "--method", "pbrl", "--generate", "--gen-workers", "1"]) == 2
+    assert "method 'pbrl' cannot generate behaviours; valid with generation: global" in capsys.readouterr().err
