@@ -92,7 +92,8 @@ def test_answers_wait_until_both_clips_played_and_focus_stays(url, page, tmp_pat
     assert page.locator("#attribute").input_value() == "step_size"
     methods = page.eval_on_selector_all("#train-method option", "o => o.map((x) => [x.value, x.textContent])")
     assert methods == [["global", "RBA-Global"], ["local", "RBA-Local"]]  # from the server's method registry
-    assert page.eval_on_selector_all("#preset option", "o => o.map((x) => x.value)") == ["default", "quick", "tiny"]
+    assert page.eval_on_selector_all("#preset option", "o => o.map((x) => x.value)") == ["default", "pairwise", "quick",
+                                                                                     "tiny"]
     # the key hints show beside the labels the script sets
     assert [page.locator(f"#{b} kbd").inner_text() for b in ("left-more", "skip", "right-more")] == ["←", "↓", "→"]
     assert page.locator("#skip").evaluate("b => getComputedStyle(b).borderTopWidth") == "1px"  # looks like a button
