@@ -34,6 +34,9 @@ class LibrarySettings(BaseSettings):
     background_nice: int = Field(default=15, ge=0, le=19, description="CPU niceness of the guess pool (prerender, "
                                  "rba cache): below the urgent pool")
 
+    train_threads: int = Field(default=2, ge=1, le=64, description="torch threads while training ζσ, rθ and the "
+                               "VAE; 1 lets two trainings share 2 cores side by side")
+
     @field_validator("data_dir", "models_dir", "cache_dir")
     @classmethod
     def _absolute(cls, value: Path | None) -> Path | None:

@@ -29,6 +29,7 @@ from rba.learn.common import (
     seed_everything,
     segment_sum,
 )
+from rba.settings import LibrarySettings
 
 
 @dataclass
@@ -142,7 +143,7 @@ def train_global_reward(data: Ragged, zeta: np.ndarray, cfg: GlobalRewardConfig,
     (target, pair of trajectories) whose distances to the target differ by more than ξ.
     """
     gen = seed_everything(cfg.seed)
-    torch.set_num_threads(2)
+    torch.set_num_threads(LibrarySettings().train_threads)
     n, k = zeta.shape
     model = GlobalReward(data.states.shape[1], k, cfg.hidden, cfg.layers)
     model.norm.fit(data.states.numpy())

@@ -33,6 +33,7 @@ from rba.learn.common import (
     segment_sum,
 )
 from rba.library import SkillLibrary
+from rba.settings import LibrarySettings
 
 
 @dataclass
@@ -111,7 +112,7 @@ def train_ranker(data: Ragged, labels: list[AttributeLabels], attr_embed: np.nda
     if empty := [a for a, lab in enumerate(labels) if lab.num_pairs == 0]:
         raise ValueError(f"attributes {empty} have no labelled pairs")
     gen = seed_everything(cfg.seed)
-    torch.set_num_threads(2)
+    torch.set_num_threads(LibrarySettings().train_threads)
     model = AttributeRanker(data.states.shape[1], torch.as_tensor(attr_embed), cfg.hidden, cfg.layers, cfg.clip)
     used = torch.as_tensor(np.unique(np.concatenate([lab.clips for lab in labels])))
     model.norm.fit(data.select(used)[0].numpy())

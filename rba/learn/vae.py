@@ -14,6 +14,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from rba.learn.common import Progress, StepLoop, check_shape, seed_everything
+from rba.settings import LibrarySettings
 
 SIZE = 64  # frame side, pixels
 STACK = 3  # frames per input
@@ -67,7 +68,7 @@ class FrameVAE(nn.Module):
 def train_vae(frames: np.ndarray, cfg: VAEConfig, progress: Progress | None = None) -> tuple[FrameVAE, dict]:
     """Fit the VAE on uint8 frames [N, 3, 64, 64]; returns the model and its final losses."""
     gen = seed_everything(cfg.seed)
-    torch.set_num_threads(2)
+    torch.set_num_threads(LibrarySettings().train_threads)
     model = FrameVAE(cfg.latent)
     data = torch.as_tensor(frames)
     n = len(data)
