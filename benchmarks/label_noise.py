@@ -9,11 +9,12 @@ accuracy on ``val``: over every pair of val rollouts, ordered by their true prox
 
 The ranker is the default preset's (``--steps`` can shorten it on a busy machine). Runs go
 domain by domain, the perfect ordering and the 1,000-pair runs first, and the report is rewritten
-after every run, so an interrupted run still reports what it measured. ``--trained`` names a models
-folder whose ``ranker-onehot`` cards (the full ``pairwise`` preset) are listed beside the grid.
+after every run, so an interrupted run still reports what it measured. ``--trained`` names models
+folders whose ``ranker-onehot`` cards (the full ``pairwise`` preset; the first folder with one wins) are
+listed beside the grid.
 Writes ``benchmarks/results/label_noise.{json,md,png}``.
 
-    python benchmarks/label_noise.py --domains manipulator lane_change walker snake --trained /tmp/pairs_models
+    python benchmarks/label_noise.py --domains manipulator lane_change walker snake --trained models /tmp/pairs_models
 """
 
 from __future__ import annotations
@@ -69,16 +70,18 @@ def run_one(domain: str, labels_cfg: GlobalLabelConfig, steps: int | None, seed:
     return row
 
 
-def trained_rows(models_dir: Path, domains: list[str]) -> list[dict]:
-    """The full-preset pairwise ζσ cards in ``models_dir`` (val accuracy, how their labels were made)."""
+def trained_rows(models_dirs: list[Path], domains: list[str]) -> list[dict]:
+    """The full-preset pairwise ζσ cards in ``models_dirs`` (val accuracy, how their labels were made).
+
+    Per domain, the first folder that holds a pairwise card wins (e.g. the shipped models, then a trial folder).
+    """
     rows = []
     for d in domains:
-        path = models_dir / d / "ranker-onehot.json"
-        if not path.exists():
+        path = next((p for m in models_dirs if (p := m / d / "ranker-onehot.json").exists()
+                     and load_json(p)["training"].get("labels", {}).get("mode") == "pairwise"), None)
+        if path is None:
             continue
         card = load_json(path)
-        if card["training"].get("labels", {}).get("mode") != "pairwise":
-            continue
         acc = {n: card["held_out"][n]["pairwise_accuracy"] for n in get_domain(d).attribute_names}
         rows.append({"domain": d, "labels": card["training"].get("labels", {}), "steps": card["training"]["config"]
                      ["steps"], "val_pairwise_accuracy": acc, "mean_accuracy": round(sum(acc.values()) / len(acc), 4)})
@@ -135,7 +138,7 @@ def markdown(report: dict) -> str:
         lines += ["", f"Interrupted after {len(report['runs'])} of {expected} runs (see the JSON's `runs`)."]
     if report["trained"]:
         lines += ["", f"Full training (`rba train D --method global --rep onehot --preset pairwise`, default steps; "
-                  f"cards in `{a['trained']}`):", "",
+                  f"cards in {', '.join(f'`{p}`' for p in a['trained'])}):", "",
                   "| domain | labels | steps | val accuracy (mean) | per attribute |", "|---|---|---|---|---|"]
         for r in report["trained"]:
             lab = r["labels"]
@@ -153,7 +156,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cant-tell", type=float, default=GlobalLabelConfig.cant_tell)
     ap.add_argument("--steps", type=int, help="ζσ gradient steps (default: the default preset's)")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--trained", type=Path, help="a models folder with full-preset pairwise ζσ cards to list")
+    ap.add_argument("--trained", type=Path, nargs="+", default=[],
+                    help="models folders whose full-preset pairwise ζσ cards are listed (first folder wins)")
     ap.add_argument("--out", type=Path, default=RESULTS / "label_noise")
     ap.add_argument("--replot", action="store_true", help="only redraw the figure and table from <out>.json")
     args = ap.parse_args(argv)
@@ -168,7 +172,7 @@ def main(argv: list[str] | None = None) -> int:
               "date": f"{dt.datetime.now(dt.UTC):%Y-%m-%d %H:%M}",
               "machine": f"{os.cpu_count()} cores, {platform.machine()}, Python {platform.python_version()}",
               "args": {**{k: v for k, v in vars(args).items() if k not in ("trained", "out")},
-                       "trained": str(args.trained) if args.trained else None}, "runs": [], "trained": []}
+                       "trained": [str(p) for p in args.trained]}, "runs": [], "trained": []}
     cfgs = [GlobalLabelConfig("ordering")] + [GlobalLabelConfig("pairwise", n, noise, args.cant_tell)
                                               for n in sorted(args.pairs, reverse=True) for noise in args.noises]
     for d in args.domains:
