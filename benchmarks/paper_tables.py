@@ -108,7 +108,9 @@ def _result_cell(r: EvalResult | None) -> str:
 def _jobs(domain: str, label: str, precisions: list[str], labels: list[str],
           users: list[UserSpec]) -> list[tuple[str, str]]:
     """(user, precision) to measure for one domain and row: the paper's user, then each teacher kind."""
-    jobs = [(PAPER_USER, p) for p in precisions] if label in labels else []
+    if label not in labels:
+        return []
+    jobs = [(PAPER_USER, p) for p in precisions]
     if domain in USER_DOMAINS and label in USER_LABELS:
         jobs += [(str(u), USER_PRECISION) for u in users if (str(u), USER_PRECISION) not in jobs]
     return jobs
@@ -301,8 +303,9 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--precisions", nargs="+", default=list(PRECISIONS), choices=PRECISIONS)
     ap.add_argument("--methods", nargs="+", default=LABELS, choices=LABELS)
     ap.add_argument("--users", nargs="+", type=_user_spec, default=[], metavar="KIND[:param]",
-                    help=f"one table per teacher kind ({', '.join(USER_KINDS)}): {', '.join(USER_LABELS)} one-hot, "
-                         f"{USER_PRECISION} precision, on {', '.join(USER_DOMAINS)} (of --domains)")
+                    help=f"one table per teacher kind ({', '.join(USER_KINDS)}): {', '.join(USER_LABELS)} one-hot "
+                         f"(those of --methods), {USER_PRECISION} precision, on {', '.join(USER_DOMAINS)} "
+                         "(of --domains)")
     ap.add_argument("--targets", type=int, default=20)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=RESULTS / "paper_tables.md")

@@ -116,8 +116,10 @@ def test_teacher_kinds_are_measured_for_the_global_and_local_rows_of_the_paper_d
     assert paper_tables._jobs("walker", "RBA-Local", ["high"], ["RBA-Local"], users) == \
            [("paper", "high"), ("skip:0.2", "normal")]
     assert paper_tables._jobs("walker", "PbRL", ["high"], ["PbRL"], users) == [("paper", "high")]
-    assert paper_tables._jobs("walker_raw", "RBA-Global", ["high"], [], users) == []
-    assert paper_tables._jobs("snake", "RBA-Global", ["normal"], [], users) == [("skip:0.2", "normal")]
+    assert paper_tables._jobs("walker_raw", "RBA-Global", ["high"], ["RBA-Global"], users) == [("paper", "high")]
+    assert paper_tables._jobs("snake", "RBA-Global", ["normal"], ["RBA-Global"], users) == \
+           [("paper", "normal"), ("skip:0.2", "normal")]
+    assert paper_tables._jobs("snake", "RBA-Local", ["normal"], ["RBA-Global"], users) == []  # --methods limits kinds
 
 
 def test_raw_state_views_sit_beside_the_hand_made_view_only_where_measured():
