@@ -108,25 +108,22 @@ class ExportedReward(gym.Wrapper):
 def skill_policy(profile: Profile | Export | str | Path) -> SkillPolicy:
     """The domain's scripted skill with the profile's parameters, as ``policy(obs) -> action`` (one per episode)."""
     p = profile if isinstance(profile, Profile) else _as_export(profile).profile
-    return get_domain(p.domain).skill_policy(p.params)
+    return get_domain(p.domain).skill_policy(p.params, p.seed)
 
 
 def run_policy(env: gym.Env, policy: SkillPolicy, seed: int, params: dict[str, float]) -> np.ndarray:
     """Run ``policy`` in ``env`` from the skill's start until the skill is done or the episode ends; the recorded
     observations, float64[T, state_dim] (the rollout's states)."""
     obs, info = env.reset(seed=seed, options={"params": params})
-    states = []
-    while True:
+    states, ended = [], False
+    while True:  # rba.domains.base.run_skill's loop, over the env: the policy sees the last observation too
         if info["recorded"]:
             states.append(obs)
         action = policy(obs)
-        if policy.done:
+        if policy.done or ended:
             break
         obs, _, terminated, truncated, info = env.step(action)
-        if terminated or truncated:
-            if info["recorded"]:
-                states.append(obs)
-            break
+        ended = terminated or truncated
     return np.array(states)
 
 

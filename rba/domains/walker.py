@@ -856,7 +856,7 @@ class Walker(Domain):
     def simulator(self) -> SkillSim:
         return WalkerSim()
 
-    def skill_policy(self, params: dict[str, float]) -> SkillPolicy:
+    def skill_policy(self, params: dict[str, float], seed: int) -> SkillPolicy:
         return WalkerSkillPolicy(params)
 
 
