@@ -241,7 +241,7 @@ class SnakeSim:
         mujoco.mj_forward(self.model, data)
         self.recording = SnakeRecording()
         self._k, self._state_com = 0, self._com()
-        return self._observe(0.0)[0], False
+        return self._observe(0.0, 0, self._state_com)[0], False
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, bool]:
         a = np.asarray(action, dtype=np.float64)
@@ -250,7 +250,8 @@ class SnakeSim:
         self.data.ctrl[:] = a[:LINKS - 1]
         mujoco.mj_step(self.model, self.data, nstep=CONTROL_EVERY)
         k, self._k = self._k, self._k + 1
-        obs, (width, compression) = self._observe(anchor_phase(friction), k)
+        com = self._com()
+        obs, (width, compression) = self._observe(anchor_phase(friction), k, com)
         rec, data = self.recording, self.data
         if k * CONTROL_DT - SETTLE >= 0:
             rec.widths.append(width)
@@ -259,21 +260,21 @@ class SnakeSim:
             rec.replay.append(data.qpos.copy())
         recorded = k % STATE_EVERY == 0
         if recorded:
-            self._state_com = self._com()
+            self._state_com = com
             rec.raw.append(np.concatenate([data.qpos, data.qvel]))
-        rec.coms.append(self._com())
+        rec.coms.append(com)
         return obs, recorded
 
     def _com(self) -> np.ndarray:
         return self.data.subtree_com[self.bodies[0]][:2].copy()
 
-    def _observe(self, anchor: float, step: int = 0) -> tuple[np.ndarray, tuple[float, float]]:
-        """The state vector after control step ``step`` (the velocity: the mean since the last recorded state,
-        0 at the first) and the body's (width, compression)."""
+    def _observe(self, anchor: float, step: int, com: np.ndarray) -> tuple[np.ndarray, tuple[float, float]]:
+        """The state vector after control step ``step`` with the centre of mass at ``com`` (the velocity: the
+        mean since the last recorded state, 0 at the first) and the body's (width, compression)."""
         data, bodies = self.data, self.bodies
         points = data.xpos[bodies][:, :2] + 0.5 * LINK_LENGTH * -_forward(data.xmat[bodies])
         since = step % STATE_EVERY or STATE_EVERY
-        vel = (self._com() - self._state_com) / (since * CONTROL_DT) if step else np.zeros(2)
+        vel = (com - self._state_com) / (since * CONTROL_DT) if step else np.zeros(2)
         head_tail = np.linalg.norm(points[0] - points[-1]) / BODY_LENGTH
         shape = body_metrics(points)
         return np.array([*data.qpos[7:], *vel, head_tail, shape[0], anchor]), shape
