@@ -883,6 +883,8 @@ class WalkerRaw(Walker):
     name = "walker_raw"
     raw_states = True
     state_dim = (STATE_EVERY // RAW_EVERY) * 2 * 9
+    # no rba.gym env: the gait's policy reads the feature view's observations (foot positions and speeds)
+    simulator, skill_policy = Domain.simulator, Domain.skill_policy
 
 
 def run(physics: WalkerPhysics, controller: GaitController) -> Recording:
