@@ -109,7 +109,8 @@ class ExportedReward(gym.Wrapper):
 
 
 def skill_policy(profile: Profile | Export | str | Path) -> SkillPolicy:
-    """The domain's scripted skill with the profile's parameters, as ``policy(obs) -> action`` (one per episode)."""
+    """The domain's scripted skill with the profile's parameters and seed, as ``policy(obs) -> action`` (one per
+    episode)."""
     p = profile if isinstance(profile, Profile) else _as_export(profile).profile
     return get_domain(p.domain).skill_policy(p.params, p.seed)
 
