@@ -47,7 +47,8 @@ wraps model and data with named getters (``torso_height()``, ``hip_position()``,
 :class:`WalkerSim` steps the physics under those commands and records (:class:`Recording`), and :func:`measure`
 turns the recording into proxies, success and diagnostics. The rollout is ``run_skill`` of the sim and a
 :class:`GaitPolicy` reading the sim's own physics; :class:`WalkerSkillPolicy` (the last section) is the same
-gait reading observations alone, for ``rba.gym``: one loop, two readers.
+gait reading observations alone, for ``rba.gym``: one loop, two readers. The raw view gets no env: that
+policy reads the feature view's observations (foot positions and speeds), which raw states do not hold.
 """
 
 
