@@ -301,7 +301,7 @@ class LaneScene:
 
     def frames(self, rollout: Rollout, times: dict[str, float] | None) -> Iterator[np.ndarray]:
         watch = Stopwatch()
-        ego, follower = self.domain._scene(self.env, 10.0, 1.0)
+        ego, follower = lane._scene(self.env, 10.0)
         watch.lap("replay")
         for ex, ey, eh, fx, fy, fh in rollout.replay:
             watch.restart()

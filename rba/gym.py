@@ -1,10 +1,12 @@
 """``import rba.gym``: a Gymnasium environment per registered domain with a step interface, the exported reward
 as a wrapper, and the scripted skill with a profile's parameters as a policy.
 
-* ``rba/<Domain>-v0`` (e.g. ``rba/Walker-v0``, ``rba/Toy-v0`` once the tests registered ``toy``): the
-  domain's :class:`~rba.domains.base.SkillSim`; the observation is the project's state vector (float64),
-  the action the scripted skill's (the walker: six motor commands and the torso assist per 2.5 ms physics
-  step). ``reset(seed=profile.seed, options={"params": profile.params})`` starts where the rollout starts
+* ``rba/<Domain>-v0``: ``rba/Walker-v0``, ``rba/Manipulator-v0``, ``rba/Snake-v0``, ``rba/LaneChange-v0`` (and
+  ``rba/Toy-v0`` once the tests registered ``toy``): the domain's :class:`~rba.domains.base.SkillSim`; the
+  observation is the project's state vector (float64), the action the scripted skill's (the walker: six motor
+  commands and the torso assist per 2.5 ms physics step; the manipulator: four joint targets per 10 ms; the
+  snake: 13 joint targets and 14 link frictions per 10 ms; the lane change: the ego's acceleration and steering
+  per 1/15 s). ``reset(seed=profile.seed, options={"params": profile.params})`` starts where the rollout starts
   (without params: params sampled from the env's generator). ``info["recorded"]``: this observation is one
   of the rollout's states; ``info["step"]``: steps since reset (open-loop skills may read the time there).
   The env's own reward is 0: it has no task; the reward is the export's.
@@ -12,7 +14,8 @@ as a wrapper, and the scripted skill with a profile's parameters as a policy.
   the models were trained on those), so an episode's return is Σ_t rθ(s_t | v*) over the rollout's states.
 * :func:`skill_policy`: ``policy(obs) -> action``; :func:`run_policy` runs it and returns the recorded states.
 
-Domains without a step interface yet (``Domain.simulator`` raises) get no environment.
+Domains without a step interface (``Domain.simulator`` raises) get no environment: the raw views and
+``lane_change_image``, whose states are not what the skill's policy reads (each domain module says why).
 """
 
 from __future__ import annotations
@@ -106,27 +109,25 @@ class ExportedReward(gym.Wrapper):
 
 
 def skill_policy(profile: Profile | Export | str | Path) -> SkillPolicy:
-    """The domain's scripted skill with the profile's parameters, as ``policy(obs) -> action`` (one per episode)."""
+    """The domain's scripted skill with the profile's parameters and seed, as ``policy(obs) -> action`` (one per
+    episode)."""
     p = profile if isinstance(profile, Profile) else _as_export(profile).profile
-    return get_domain(p.domain).skill_policy(p.params)
+    return get_domain(p.domain).skill_policy(p.params, p.seed)
 
 
 def run_policy(env: gym.Env, policy: SkillPolicy, seed: int, params: dict[str, float]) -> np.ndarray:
     """Run ``policy`` in ``env`` from the skill's start until the skill is done or the episode ends; the recorded
     observations, float64[T, state_dim] (the rollout's states)."""
     obs, info = env.reset(seed=seed, options={"params": params})
-    states = []
-    while True:
+    states, ended = [], False
+    while True:  # rba.domains.base.run_skill's loop, over the env: the policy sees the last observation too
         if info["recorded"]:
             states.append(obs)
         action = policy(obs)
-        if policy.done:
+        if policy.done or ended:
             break
         obs, _, terminated, truncated, info = env.step(action)
-        if terminated or truncated:
-            if info["recorded"]:
-                states.append(obs)
-            break
+        ended = terminated or truncated
     return np.array(states)
 
 

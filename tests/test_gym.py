@@ -8,35 +8,39 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import rba.gym
-from rba.domains import get_domain
-from rba.gym import ExportedReward, SkillEnv, env_id, run_policy, skill_policy
+from rba.domains import domain_names, get_domain
+from rba.gym import ExportedReward, SkillEnv, env_id, has_simulator, run_policy, skill_policy
 
 rba.gym.register_envs()  # the tests' toy domain was registered after rba.gym may have been imported
+ENV_DOMAINS = [name for name in domain_names() if has_simulator(name)]  # the toy among them
 
 
 def test_every_domain_with_a_step_interface_has_an_env():
     assert env_id("walker") == "rba/Walker-v0" and env_id("lane_change") == "rba/LaneChange-v0"
-    assert {"rba/Walker-v0", "rba/Toy-v0"} <= set(gym.registry)
-    assert "rba/Snake-v0" not in gym.registry  # no step interface yet
+    assert {"walker", "manipulator", "snake", "lane_change", "toy"} <= set(ENV_DOMAINS)
+    for name in domain_names():  # the views whose states are not the policies' observations have none
+        assert (env_id(name) in gym.registry) == has_simulator(name), name
+    assert "rba/WalkerRaw-v0" not in gym.registry and "rba/LaneChangeImage-v0" not in gym.registry
 
 
-@pytest.mark.parametrize("domain", ["toy", "walker"])
+@pytest.mark.parametrize("domain", ENV_DOMAINS)
 def test_env_passes_the_checker(domain):
     check_env(SkillEnv(domain), skip_render_check=True)
 
 
-@pytest.mark.parametrize(("domain", "seed"), [("toy", 3), ("walker", 11)])
-def test_skill_policy_reproduces_the_rollout(domain, seed):
-    d = get_domain(domain)
+@pytest.mark.parametrize("domain", ENV_DOMAINS)
+def test_skill_policy_reproduces_the_rollout(domain):
+    d, seed = get_domain(domain), 11
     params = d.sample_params(np.random.default_rng(seed))
     rollout = d.rollout(params, seed)
-    policy = d.skill_policy(params)
+    policy = d.skill_policy(params, seed)
     states = run_policy(gym.make(env_id(domain)), policy, seed, params)
     assert states.shape == rollout.states.shape
     np.testing.assert_allclose(states.astype(np.float32), rollout.states, rtol=1e-6, atol=1e-6)
     measured = policy.measured()
+    assert set(measured) == set(rollout.proxies)
     for name, value in rollout.proxies.items():
-        assert measured[name] == pytest.approx(value, rel=1e-9, abs=1e-12)
+        assert measured[name] == pytest.approx(value, rel=1e-9, abs=1e-12), name
 
 
 def test_params_that_are_not_the_domains_are_refused():

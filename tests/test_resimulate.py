@@ -1,8 +1,11 @@
 """The shipped libraries re-simulate bit-identically: a refactor of a domain must not change a single bit.
 
 For every registered domain with libraries under ``data/``, a deterministic sample of stored rollouts
-of each split is simulated again from its parameters and seed; states, replay, proxies and success
-must equal the stored ones exactly (replay is stored as float32, so it is compared at float32).
+of each split is simulated again from its parameters and seed; states, replay and success must equal the
+stored ones exactly (replay is stored as float32, so it is compared at float32), proxies within ``PROXY_RTOL``:
+they are float64 all the way, and float64 reductions (numpy's SIMD paths, libm) round differently across
+CPUs and builds in the last bit (the manipulator's instability and lane_change's sharpness differ by
+≈ 1e-15 relative on another machine than the one that built the libraries, the float32 states not at all).
 
 One exception: lane_change_image's states are VAE latents, and the shipped library's latents were computed
 by a torch build/CPU whose float32 convolutions round differently from this machine's (≈ 5e-7 apart,
@@ -19,6 +22,7 @@ from rba.library import SPLITS, SkillLibrary
 from rba.store import Store
 
 PER_SPLIT = 4  # rollouts re-simulated per split: first, last and two in between (~2 s per domain)
+PROXY_RTOL = 1e-9  # proxies: float64, equal but for the last bits across machines (the module docstring)
 ENCODED_ATOL = 1e-5  # states a learned encoder makes (float32 network outputs): not bitwise across torch builds
 
 
@@ -48,5 +52,5 @@ def test_stored_rollouts_resimulate_exactly(domain_name: str, split: str) -> Non
             np.testing.assert_array_equal(again.states, stored.states, err_msg=f"{stored.id} states")
         np.testing.assert_array_equal(np.asarray(again.replay, dtype=np.float32), stored.replay,
                                       err_msg=f"{stored.id} replay")
-        assert again.proxies == stored.proxies, stored.id
+        assert again.proxies == pytest.approx(stored.proxies, rel=PROXY_RTOL, abs=0.0), stored.id
         assert again.success == stored.success, stored.id

@@ -60,7 +60,7 @@ class Toy(Domain):
     def simulator(self) -> SkillSim:
         return ToySim()
 
-    def skill_policy(self, params: dict[str, float]) -> SkillPolicy:
+    def skill_policy(self, params: dict[str, float], seed: int) -> SkillPolicy:
         return ToyPolicy(params)
 
     def render(self, rollout: Rollout, width: int, height: int):

@@ -142,9 +142,10 @@ class SkillSim(Protocol):
 class SkillPolicy(Protocol):
     """The scripted skill with fixed parameters, acting on observations alone: ``policy(obs) -> action``.
 
-    Made fresh for each episode (it keeps the skill's phase and its own clock: one call per step).
-    ``done`` turns True when the skill has finished (the rollout ends there); ``measured()`` gives the
-    attribute proxies of the episode so far, measured from what the policy observed.
+    Made fresh for each episode, with the episode's seed (the skill's own randomness, e.g. the manipulator's
+    tremor, is drawn from it); it keeps the skill's phase and its own clock: one call per step. ``done`` turns
+    True when the skill has finished (the rollout ends there); ``measured()`` gives the attribute proxies of the
+    episode so far, measured from the observations it was called with.
     """
 
     done: bool
@@ -152,6 +153,22 @@ class SkillPolicy(Protocol):
     def __call__(self, obs: np.ndarray) -> np.ndarray: ...
 
     def measured(self) -> dict[str, float]: ...
+
+
+def run_skill(sim: SkillSim, policy: SkillPolicy, params: dict[str, float], seed: int) -> list[np.ndarray]:
+    """The rollout loop: reset, then the policy's actions stepped until it is done (or ``max_steps``); the
+    recorded observations. ``Domain.rollout`` runs it on its own simulator, so the rollout and ``rba.gym``'s
+    step interface are one code path. The policy sees every observation, the last one included."""
+    obs, recorded = sim.reset(params, seed)
+    states = []
+    for step in range(sim.max_steps + 1):
+        if recorded:
+            states.append(obs)
+        action = policy(obs)
+        if policy.done or step == sim.max_steps:
+            break
+        obs, recorded = sim.step(action)
+    return states
 
 
 def stack_samples(samples: list | np.ndarray, per_state: int) -> np.ndarray:
@@ -201,8 +218,9 @@ class Domain(ABC):
         """A new simulator stepped by the skill's actions (``rba.gym``); domains without one raise."""
         raise NotImplementedError(f"domain {self.name!r} has no step interface for rba.gym yet")
 
-    def skill_policy(self, params: dict[str, float]) -> SkillPolicy:
-        """The scripted skill with ``params`` as a policy over ``simulator()``'s observations."""
+    def skill_policy(self, params: dict[str, float], seed: int) -> SkillPolicy:
+        """The scripted skill with ``params`` as a policy over ``simulator()``'s observations (``seed``: the
+        episode's, for the skill's own randomness)."""
         raise NotImplementedError(f"domain {self.name!r} has no step interface for rba.gym yet")
 
     def param_space(self) -> ParamSpace:

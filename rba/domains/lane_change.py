@@ -11,6 +11,14 @@ lateral): highway-env has no tyre limits.
 
 States (5 Hz, kinematic): ego lateral position, lateral speed, heading, peak yaw rate over the
 last 0.2 s, speed; follower offset (dx, dy) and speed. Replay (15 fps): both cars' x, y, heading.
+
+Stepping (``rba.gym``): :class:`LaneChangeSim` is the scene under the ego's (acceleration, steering) per
+15 Hz simulation step, applied as given (the follower drives itself); :class:`LaneChangePolicy` is the skill:
+highway-env's own lane keeping with the gain, on a mirror car set to the observed lateral position, heading
+and speed (on the straight road it reads nothing else), told to change lanes at 2 s. The observation at
+each step is the state vector then; every 3rd is one the rollout records. ``rollout`` is ``run_skill`` of the
+two: one code path. The raw view and ``lane_change_image`` get no env: the mirror car needs the ego's speed,
+which their states hold only as a velocity (raw) or not at all (image latents).
 """
 
 from __future__ import annotations
@@ -22,7 +30,17 @@ from types import MappingProxyType
 
 import numpy as np
 
-from rba.domains.base import AttributeSpec, Domain, FeedbackPhrases, ParamSpace, Rollout, stack_samples
+from rba.domains.base import (
+    AttributeSpec,
+    Domain,
+    FeedbackPhrases,
+    ParamSpace,
+    Rollout,
+    SkillPolicy,
+    SkillSim,
+    run_skill,
+    stack_samples,
+)
 
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")  # 'dummy' renders black frames in highway-env 1.12
 
@@ -44,6 +62,11 @@ STATE_FEATURES = (
     "ego_y", "ego_vy", "ego_heading", "ego_peak_yaw_rate", "ego_speed",  # m, m/s, rad, rad/s, m/s
     "follower_dx", "follower_dy", "follower_speed",  # m (follower − ego), m, m/s
 )
+STEPS = int(DURATION * SIM_HZ)  # simulation steps per clip
+CHANGE_STEP = int(CHANGE_AT * SIM_HZ)
+EGO_Y, EGO_HEADING, EGO_SPEED, FOLLOWER_DX = (STATE_FEATURES.index(name) for name in
+                                              ("ego_y", "ego_heading", "ego_speed", "follower_dx"))
+ACCELERATION, STEERING = 0, 1  # the action's columns
 
 
 def _make_env(width: int = 320, height: int = 240, view: float = VIEW_METRES, ego_at: float = 0.5):
@@ -57,6 +80,115 @@ def _make_env(width: int = 320, height: int = 240, view: float = VIEW_METRES, eg
     env = gym.make("highway-v0", render_mode="rgb_array", config=config)
     env.reset(seed=0)
     return env
+
+
+def _ego(road):
+    """The ego car where the clip starts: cruising in lane 0 (its lane keeping is the policy's, not this car's)."""
+    from highway_env.vehicle.controller import MDPVehicle
+
+    lane0 = road.network.get_lane(("0", "1", 0))
+    return MDPVehicle(road, lane0.position(EGO_X0, 0.0), lane0.heading_at(EGO_X0), SPEED,
+                      target_lane_index=("0", "1", 0), target_speed=SPEED)
+
+
+def _scene(env, gap: float):
+    """The two cars, placed on a freshly reset road: (ego, follower)."""
+    from highway_env.vehicle.behavior import IDMVehicle
+
+    road = env.unwrapped.road
+    ego = _ego(road)
+    # at 25 m/s both, the gap is unchanged until the change starts
+    lane1 = road.network.get_lane(("0", "1", 1))
+    follower = IDMVehicle(road, lane1.position(EGO_X0 - gap - CAR_LENGTH, 0.0), 0.0, SPEED,
+                          target_lane_index=("0", "1", 1), target_speed=SPEED, enable_lane_change=False)
+    road.vehicles = [ego, follower]
+    env.unwrapped.vehicle = ego
+    return ego, follower
+
+
+def lane_change_proxies(headings: list[float], gap: float) -> dict[str, float]:
+    """The attributes' proxies: the ego's peak yaw rate over its headings per step, the gap at the change."""
+    return {"sharpness": float((np.abs(np.diff(headings)) * SIM_HZ).max()), "gap": gap}
+
+
+class LaneChangePolicy:
+    """The lane change as ``policy(obs) -> action`` (``SkillPolicy``): see the module docstring."""
+
+    def __init__(self, params: dict[str, float], network) -> None:
+        from highway_env.road.road import Road
+
+        self._car = _ego(Road(network=network))
+        self._car.KP_LATERAL = float(params["lateral_gain"])  # per instance: the class attribute is shared
+        self._k = 0
+        self._headings: list[float] = []
+        self._gap = float("nan")
+        self.done = False
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        o, k, car = np.asarray(obs, dtype=np.float64), self._k, self._car
+        self._headings.append(o[EGO_HEADING])
+        if k == CHANGE_STEP:
+            self._gap = float(-o[FOLLOWER_DX] - CAR_LENGTH)
+        if k == STEPS:
+            self.done = True
+            return np.zeros(2)
+        car.position = np.array([car.position[0], o[EGO_Y]])
+        car.heading, car.speed = o[EGO_HEADING], o[EGO_SPEED]
+        car.act("LANE_RIGHT" if k == CHANGE_STEP else None)
+        self._k += 1
+        return np.array([car.action["acceleration"], car.action["steering"]])
+
+    def measured(self) -> dict[str, float]:
+        return lane_change_proxies(self._headings, self._gap)
+
+
+class LaneChangeSim:
+    """The two-car scene under the ego's per-step (acceleration, steering) (``SkillSim``), on ``env``'s road."""
+
+    max_steps = STEPS
+
+    def __init__(self, env) -> None:
+        from highway_env.vehicle.controller import ControlledVehicle
+        from highway_env.vehicle.kinematics import Vehicle
+
+        self._env = env
+        # any steering the car has, and more acceleration than its speed controller asks at any speed it reaches
+        accel = ControlledVehicle.KP_A * (Vehicle.MAX_SPEED - Vehicle.MIN_SPEED)
+        self.action_low = np.array([-accel, -ControlledVehicle.MAX_STEERING_ANGLE])
+        self.action_high = np.array([accel, ControlledVehicle.MAX_STEERING_ANGLE])
+
+    def reset(self, params: dict[str, float], seed: int) -> tuple[np.ndarray, bool]:
+        self.ego, self.follower = _scene(self._env, float(params["gap"]))
+        self.headings = [self.ego.heading]
+        self.replay: list[tuple[float, ...]] = []  # both cars' x, y, heading per step
+        self.raw: list[list[float]] = []  # both cars' x, y, vx, vy, heading per step: the raw view
+        self.crashed = False
+        self._k = 0
+        return self._observe(), False
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, bool]:
+        from highway_env.vehicle.kinematics import Vehicle
+
+        ego, follower = self.ego, self.follower
+        a = np.asarray(action, dtype=np.float64)
+        Vehicle.act(ego, {"steering": float(a[STEERING]), "acceleration": float(a[ACCELERATION])})  # as given
+        follower.act()
+        self._env.unwrapped.road.step(1.0 / SIM_HZ)
+        self._k += 1
+        self.crashed |= bool(ego.crashed or follower.crashed)
+        self.headings.append(ego.heading)
+        self.replay.append((*ego.position, ego.heading, *follower.position, follower.heading))
+        self.raw.append([*ego.position, *ego.velocity, ego.heading, *follower.position, *follower.velocity,
+                         follower.heading])
+        return self._observe(), self._k % DECIDE_EVERY == 0
+
+    def _observe(self) -> np.ndarray:
+        """The state vector now (the peak yaw rate over the last DECIDE_EVERY steps, 0 before the first)."""
+        ego, follower, recent = self.ego, self.follower, self.headings[-(DECIDE_EVERY + 1):]
+        yaw = np.abs(np.diff(recent)).max() * SIM_HZ if len(recent) > 1 else 0.0
+        return np.array([ego.position[1], ego.speed * np.sin(ego.heading), ego.heading, yaw, ego.speed,
+                         follower.position[0] - ego.position[0], follower.position[1] - ego.position[1],
+                         follower.speed])
 
 
 def _draw(env) -> np.ndarray:
@@ -121,70 +253,36 @@ class LaneChange(Domain):
     def param_space(self) -> ParamSpace:
         return ParamSpace.box(PARAM_RANGES)
 
-    def _scene(self, env, gap: float, gain: float):
-        """The two cars, placed on a freshly reset road: (ego, follower)."""
-        from highway_env.vehicle.behavior import IDMVehicle
-        from highway_env.vehicle.controller import MDPVehicle
-
-        road = env.unwrapped.road
-        lane0, lane1 = road.network.get_lane(("0", "1", 0)), road.network.get_lane(("0", "1", 1))
-        ego = MDPVehicle(road, lane0.position(EGO_X0, 0.0), lane0.heading_at(EGO_X0), SPEED,
-                         target_lane_index=("0", "1", 0), target_speed=SPEED)
-        ego.KP_LATERAL = gain  # per instance: the class attribute is shared
-        # at 25 m/s both, the gap is unchanged until the change starts
-        follower = IDMVehicle(road, lane1.position(EGO_X0 - gap - CAR_LENGTH, 0.0), 0.0, SPEED,
-                              target_lane_index=("0", "1", 1), target_speed=SPEED, enable_lane_change=False)
-        road.vehicles = [ego, follower]
-        env.unwrapped.vehicle = ego
-        return ego, follower
-
     def rollout(self, params: dict[str, float], seed: int) -> Rollout:
         env = self._env()
-        road = env.unwrapped.road
-        ego, follower = self._scene(env, float(params["gap"]), float(params["lateral_gain"]))
-        steps = int(DURATION * SIM_HZ)
-        change_step = int(CHANGE_AT * SIM_HZ)
-        replay = np.zeros((steps, 6))
-        headings = np.zeros(steps + 1)
-        headings[0] = ego.heading
-        states, raw, gap_at_change = [], [], float("nan")
-        crashed = False
-        for k in range(steps):
-            if k % DECIDE_EVERY == 0:
-                if k == change_step:
-                    gap_at_change = float(ego.position[0] - follower.position[0] - CAR_LENGTH)
-                ego.act("LANE_RIGHT" if k == change_step else None)
-            road.act()
-            road.step(1.0 / SIM_HZ)
-            crashed |= bool(ego.crashed or follower.crashed)
-            headings[k + 1] = ego.heading
-            replay[k] = (*ego.position, ego.heading, *follower.position, follower.heading)
-            raw.append([*ego.position, *ego.velocity, ego.heading, *follower.position, *follower.velocity,
-                        follower.heading])
-            if (k + 1) % DECIDE_EVERY == 0:
-                yaw = np.abs(np.diff(headings[max(k + 1 - DECIDE_EVERY, 0): k + 2])).max() * SIM_HZ
-                states.append([ego.position[1], ego.speed * np.sin(ego.heading), ego.heading, yaw, ego.speed,
-                               follower.position[0] - ego.position[0], follower.position[1] - ego.position[1],
-                               follower.speed])
-        yaw_rate = np.abs(np.diff(headings)) * SIM_HZ
+        sim = LaneChangeSim(env)
+        states = run_skill(sim, LaneChangePolicy(params, env.unwrapped.road.network), params, seed)
+        replay = np.array(sim.replay, dtype=np.float64)
+        before_change = replay[CHANGE_STEP - 1]  # where the cars are when the change starts
+        proxies = lane_change_proxies(sim.headings, float(before_change[0] - before_change[3] - CAR_LENGTH))
         final_y = replay[-1, 1]
-        success = not crashed and abs(final_y - LANE_WIDTH) < 0.5 and abs(replay[-1, 2]) < 0.1
-        states = stack_samples(raw, DECIDE_EVERY) if self.raw_states else np.asarray(states, dtype=np.float32)
-        return Rollout("", self.name, dict(params), seed, states, replay,
-                       {"sharpness": float(yaw_rate.max()), "gap": gap_at_change}, bool(success),
-                       info={"final_lateral_m": float(final_y), "crashed": float(crashed)})
+        success = not sim.crashed and abs(final_y - LANE_WIDTH) < 0.5 and abs(replay[-1, 2]) < 0.1
+        states = stack_samples(sim.raw, DECIDE_EVERY) if self.raw_states else np.asarray(states, dtype=np.float32)
+        return Rollout("", self.name, dict(params), seed, states, replay, proxies, bool(success),
+                       info={"final_lateral_m": float(final_y), "crashed": float(sim.crashed)})
 
     def render(self, rollout: Rollout, width: int, height: int, view: float = VIEW_METRES,
                frames: np.ndarray | None = None, ego_at: float = 0.5) -> Iterator[np.ndarray]:
         """Frames of ``rollout`` (or only the replay rows ``frames``), ``view`` metres of road across,
         the ego car ``ego_at`` of the way across from the left (traffic drives rightwards)."""
         env = self._env(int(width), int(height), view, ego_at)
-        ego, follower = self._scene(env, 10.0, 1.0)
+        ego, follower = _scene(env, 10.0)
         rows = rollout.replay if frames is None else rollout.replay[frames]
         for ex, ey, eh, fx, fy, fh in rows:
             ego.position, ego.heading = np.array([ex, ey]), float(eh)
             follower.position, follower.heading = np.array([fx, fy]), float(fh)
             yield _draw(env)
+
+    def simulator(self) -> SkillSim:
+        return LaneChangeSim(_make_env())
+
+    def skill_policy(self, params: dict[str, float], seed: int) -> SkillPolicy:
+        return LaneChangePolicy(params, self._env().unwrapped.road.network)
 
 
 class LaneChangeRaw(LaneChange):
@@ -198,3 +296,4 @@ class LaneChangeRaw(LaneChange):
     name = "lane_change_raw"
     raw_states = True
     state_dim = DECIDE_EVERY * 10
+    simulator, skill_policy = Domain.simulator, Domain.skill_policy  # no env: see the module docstring

@@ -7,7 +7,7 @@ the change starts); that frame and the two from the previous state times, stacke
 go through a small convolutional VAE (``rba.learn.vae``) and the latent mean is the state.
 The domain only loads that VAE (``models/lane_change_image/vae-frames.pt`` and its card);
 ``rba.training.train_frame_vae`` makes it, which ``rba build lane_change --states image`` does
-when it is missing.
+when it is missing. No ``rba.gym`` env: a policy cannot steer from latents (``rba.domains.lane_change``).
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import threading
 
 import numpy as np
 
-from rba.domains.base import Rollout
+from rba.domains.base import Domain, Rollout
 from rba.domains.lane_change import DECIDE_EVERY, LaneChange
 from rba.learn.vae import SIZE, STACK
 
@@ -34,6 +34,7 @@ class LaneChangeImage(LaneChange):
     state_encoder = ("vae", "frames")
     frame_view = VIEW
     serve_size = 2400  # an image rollout costs ~6x a kinematic one (79 vs 14 ms, `rba build`); 2,400 reach 97.5 %
+    simulator, skill_policy = Domain.simulator, Domain.skill_policy  # no env: see the module docstring
 
     def __init__(self) -> None:
         super().__init__()

@@ -16,17 +16,38 @@ States (10 Hz) stack the last 5 raw 50 Hz samples (hand x, z, pointing angle; ba
 shoulder, elbow, wrist angles), so jitter within 0.1 s is visible to the models, plus the third
 differences of the hand's x and z over those 5 samples (mm): zero for any path up to a
 quadratic, so they show the jitter itself rather than the smooth lift (which is 1000x larger).
+
+Stepping (``rba.gym``): :class:`ManipulatorSim` is the arm under per-control-step joint targets (the action);
+its servo (PD with gravity compensation through the arm's motors) is part of the robot, the lift is
+:class:`LiftPolicy`: open loop, the minimum-jerk path plus the tremor drawn from the episode's seed, reading
+the hand's path from the observations for ``measured()``. The observation at each control step is the state
+vector of the last 5 raw samples; every 5th sample completes one the rollout records. ``rollout`` is
+``run_skill`` of the two, so the rollout and the step interface are one code path. The raw view gets no env:
+its samples have no hand position (the hand's, read after MuJoCo's step, lags ``qpos`` by a physics step),
+so a policy on them could not measure the proxies.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Iterator
+from dataclasses import dataclass, field
 from types import MappingProxyType
 
 import mujoco
 import numpy as np
 
-from rba.domains.base import AttributeSpec, Domain, FeedbackPhrases, ParamSpace, Rollout, stack_samples
+from rba.domains.base import (
+    AttributeSpec,
+    Domain,
+    FeedbackPhrases,
+    ParamSpace,
+    Rollout,
+    SkillPolicy,
+    SkillSim,
+    run_skill,
+    stack_samples,
+)
 from rba.domains.mujoco_render import Camera, ThreadRenderers
 
 CONTROL_EVERY = 10  # physics steps (1 ms) per control step: 100 Hz
@@ -42,6 +63,7 @@ BALL_IN_HAND = 0.02  # m above the pinch point (towards the palm): where the clo
 SETTLE_STEPS = 300  # physics steps (0.3 s) to close the gripper before the clip starts
 TREMOR_HOLD = 4  # control steps each tremor sample is held
 TIMESTEP = 0.001  # s, the suite model's physics step
+CONTROL_DT = TIMESTEP * CONTROL_EVERY  # s per control step
 FRAME_EVERY = 3  # control steps per rendered frame
 FRAME_RATE = 1.0 / (FRAME_EVERY * CONTROL_EVERY * TIMESTEP)  # 33.3 frames per second
 MIN_RISE = 0.4  # m the ball must rise for a successful lift
@@ -52,6 +74,8 @@ PARAM_RANGES = {
 }
 RAW_FEATURES = ("hand_x", "hand_z", "hand_angle", "ball_x", "ball_z", "shoulder", "elbow", "wrist")
 N_QPOS = 11  # the suite model's qpos and qvel: 4 arm joints, 4 finger joints, the ball's x, z and rotation
+NEWEST = slice((STACK - 1) * len(RAW_FEATURES), STACK * len(RAW_FEATURES))  # a state's newest raw sample
+HAND = slice(0, 2)  # hand x, z in a raw sample
 
 
 def min_jerk(s: np.ndarray) -> np.ndarray:
@@ -70,6 +94,17 @@ def quadratic_residual(points: np.ndarray, window: int = 5) -> float:
     return float(np.sqrt((res**2).sum(1).mean(1)).mean())
 
 
+def control_steps(duration: float) -> int:
+    """Control steps of a lift taking ``duration`` s, the holds before and after included."""
+    return round((HOLD_BEFORE + duration + HOLD_AFTER) / CONTROL_DT)
+
+
+def _servo(model: mujoco.MjModel, data: mujoco.MjData, target: np.ndarray) -> None:
+    """The arm's motor commands toward joint ``target``: PD with gravity compensation, clipped to the motors."""
+    tau = KP * (target - data.qpos[:4]) - KD * data.qvel[:4] + data.qfrc_bias[:4]
+    data.ctrl[:4] = np.clip(tau / model.actuator_gear[:4, 0], -1.0, 1.0)
+
+
 def _grasp(model: mujoco.MjModel, data: mujoco.MjData, pinch: int) -> None:
     """Start with the arm down and close the gripper on the ball, held in place meanwhile."""
     data.qpos[:4] = Q_DOWN
@@ -79,52 +114,125 @@ def _grasp(model: mujoco.MjModel, data: mujoco.MjData, pinch: int) -> None:
     data.ctrl[4] = GRASP
     for _ in range(SETTLE_STEPS):
         data.qpos[8:10], data.qvel[8:11] = hold, 0.0
-        tau = KP * (Q_DOWN - data.qpos[:4]) - KD * data.qvel[:4] + data.qfrc_bias[:4]
-        data.ctrl[:4] = np.clip(tau / model.actuator_gear[:4, 0], -1.0, 1.0)
+        _servo(model, data, Q_DOWN)
         mujoco.mj_step(model, data)
     data.qpos[8:10], data.qvel[8:11] = hold, 0.0
     mujoco.mj_forward(model, data)
 
 
-class LiftController:
-    """The lift: PD with gravity compensation toward a minimum-jerk joint path, plus the held tremor."""
+class LiftPolicy:
+    """The lift as ``policy(obs) -> action`` (``SkillPolicy``): open loop, joint targets on a minimum-jerk path
+    plus the tremor, a new sample every TREMOR_HOLD control steps; the hand's path is read off the observations."""
 
-    def __init__(self, duration: float, tremor: float, rng: np.random.Generator, gear: np.ndarray) -> None:
-        self.duration, self.tremor = duration, tremor
-        self._rng, self._gear = rng, gear
+    def __init__(self, params: dict[str, float], seed: int) -> None:
+        self.duration, self.tremor = float(params["duration"]), float(params["tremor"])
+        self._rng = np.random.default_rng(seed)
         self._noise = np.zeros(4)
+        self._n = control_steps(self.duration)
+        self._k = 0
+        self._hand: list[np.ndarray] = []  # hand x, z per raw sample, as observed
+        self.done = False
 
-    def control(self, t: float, k: int, data: mujoco.MjData) -> np.ndarray:
-        """Arm motor commands at control step ``k`` (time ``t``): a new tremor sample every TREMOR_HOLD steps."""
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        k = self._k
+        if k and (k - 1) % RAW_EVERY == 0:  # the step just taken sampled the arm
+            self._hand.append(np.asarray(obs, dtype=np.float64)[NEWEST][HAND])
+        if k == self._n:
+            self.done = True
+            return np.zeros(4)
+        t = k * CONTROL_DT
         q_ref = Q_DOWN + (Q_UP - Q_DOWN) * min_jerk(np.array((t - HOLD_BEFORE) / self.duration))
         if self.tremor and k % TREMOR_HOLD == 0 and HOLD_BEFORE <= t < HOLD_BEFORE + self.duration + 0.3:
             self._noise = self.tremor * self._rng.standard_normal(4)
         elif k % TREMOR_HOLD == 0:
             self._noise = np.zeros(4)
-        tau = KP * (q_ref + self._noise - data.qpos[:4]) - KD * data.qvel[:4] + data.qfrc_bias[:4]
-        return np.clip(tau / self._gear, -1.0, 1.0)
+        self._k += 1
+        return q_ref + self._noise
+
+    def measured(self) -> dict[str, float]:
+        return lift_proxies(np.array(self._hand).reshape(-1, 2))
 
 
-def measure(raw: np.ndarray) -> tuple[np.ndarray, dict[str, float], bool, dict[str, float]]:
-    """States, proxies, success and diagnostics from the raw 50 Hz samples [T, RAW_FEATURES]."""
-    n_states = len(raw) // STACK
-    windows = raw[: n_states * STACK].reshape(n_states, STACK, len(RAW_FEATURES))
-    jitter = 1000.0 * np.diff(windows[:, :, :2], n=3, axis=1).reshape(n_states, -1)  # mm, [n, 2 x 2]
-    states = np.concatenate([windows.reshape(n_states, -1), jitter], 1).astype(np.float32)
-    hand = raw[:, :2]
-    z = hand[:, 1]
+@dataclass
+class LiftRecording:
+    """What a rollout keeps besides its states: raw samples (50 Hz), qpos + qvel at them, replay frames."""
+
+    raw: list[np.ndarray] = field(default_factory=list)  # RAW_FEATURES per raw sample
+    sim: list[np.ndarray] = field(default_factory=list)  # qpos + qvel per raw sample: the raw view
+    replay: list[np.ndarray] = field(default_factory=list)  # qpos per rendered frame
+
+
+class ManipulatorSim:
+    """The arm under per-control-step joint targets (``SkillSim``), the ball grasped at reset."""
+
+    action_low, action_high = np.full(4, -np.pi), np.full(4, np.pi)  # rad: any joint angle
+    max_steps = control_steps(PARAM_RANGES["duration"][1])  # the longest lift
+
+    def __init__(self, model: mujoco.MjModel) -> None:
+        self.model = model
+        self._pinch = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "pinch")
+        self._ball = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "ball")
+
+    def reset(self, params: dict[str, float], seed: int) -> tuple[np.ndarray, bool]:
+        self.data = mujoco.MjData(self.model)
+        _grasp(self.model, self.data, self._pinch)
+        self.recording = LiftRecording()
+        self._window = deque([self._sample()] * STACK, maxlen=STACK)  # the arm at rest fills the first state
+        self._k = 0
+        return self._observe(), False
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, bool]:
+        data, rec = self.data, self.recording
+        _servo(self.model, data, np.asarray(action, dtype=np.float64))
+        mujoco.mj_step(self.model, data, nstep=CONTROL_EVERY)
+        k, self._k = self._k, self._k + 1
+        sampled = k % RAW_EVERY == 0
+        if sampled:
+            rec.raw.append(self._sample())
+            rec.sim.append(np.concatenate([data.qpos, data.qvel]))
+            self._window.append(rec.raw[-1])
+        if k % FRAME_EVERY == 0:
+            rec.replay.append(data.qpos.copy())
+        return self._observe(), sampled and len(rec.raw) % STACK == 0
+
+    def _sample(self) -> np.ndarray:
+        """RAW_FEATURES now."""
+        data, pinch = self.data, self._pinch
+        r = data.site_xmat[pinch].reshape(3, 3)
+        return np.array([data.site_xpos[pinch][0], data.site_xpos[pinch][2], np.arctan2(r[2, 2], r[0, 2]),
+                         data.xpos[self._ball][0], data.xpos[self._ball][2], *data.qpos[1:4]])
+
+    def _observe(self) -> np.ndarray:
+        """The state of the last STACK raw samples: the samples and the hand's third differences (mm)."""
+        window = np.array(self._window)
+        jitter = 1000.0 * np.diff(window[:, HAND], n=3, axis=0).reshape(-1)
+        return np.concatenate([window.reshape(-1), jitter])
+
+
+def _climb(z: np.ndarray) -> tuple[float, float]:
+    """The hand's height at rest before the lift and how far it climbs, from its heights at 50 Hz."""
     z0, z1 = z[: int(HOLD_BEFORE * 50)].mean(), z[-int(0.3 * 50):].mean()
-    climb = z1 - z0
+    return z0, z1 - z0
+
+
+def lift_proxies(hand: np.ndarray) -> dict[str, float]:
+    """The attributes' proxies from the hand's path at 50 Hz [T, (x, z)]: 10-90 % rise speed, jitter (mm)."""
+    z = hand[:, 1]
+    z0, climb = _climb(z)
     t = np.arange(len(z)) / 50.0
     t10 = t[np.argmax(z >= z0 + 0.1 * climb)]
     t90 = t[np.argmax(z >= z0 + 0.9 * climb)]
     speed = 0.8 * climb / max(t90 - t10, 1e-3)
-    instability = 1000.0 * quadratic_residual(hand)  # mm
+    return {"speed": float(speed), "instability": 1000.0 * quadratic_residual(hand)}  # mm
+
+
+def measure(raw: np.ndarray, states: np.ndarray) -> tuple[dict[str, float], bool, dict[str, float]]:
+    """Proxies, success and diagnostics from the raw 50 Hz samples [T, RAW_FEATURES] and the states."""
+    _, climb = _climb(raw[:, 1])
     ball_rise = raw[-1, 4] - raw[0, 4]
     held = np.linalg.norm(raw[-1, 3:5] - raw[-1, :2]) < 0.08
     success = bool(held and ball_rise > MIN_RISE and np.isfinite(states).all())
-    return (states, {"speed": float(speed), "instability": instability}, success,
-            {"ball_rise_m": float(ball_rise), "climb_m": float(climb)})
+    return lift_proxies(raw[:, HAND]), success, {"ball_rise_m": float(ball_rise), "climb_m": float(climb)}
 
 
 # free-text feedback's anchors (rba.interpret): both sides written with the same nouns
@@ -166,7 +274,7 @@ class Manipulator(Domain):
             physics = suite_manipulator.Physics.from_xml_string(xml, assets)
             self._physics_ref = physics  # keeps the model alive
             self._model = physics.model.ptr
-            assert abs(self._model.opt.timestep - TIMESTEP) < 1e-12
+            assert self._model.opt.timestep == TIMESTEP  # the policy's clock counts TIMESTEP's
             target = mujoco.mj_name2id(self._model, mujoco.mjtObj.mjOBJ_GEOM, "target_ball")
             if target >= 0:
                 self._model.geom_rgba[target, 3] = 0.0  # the bring_ball target is not part of this task
@@ -178,39 +286,24 @@ class Manipulator(Domain):
     def param_space(self) -> ParamSpace:
         return ParamSpace.box(PARAM_RANGES)
 
-    def _ids(self, model):
-        site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "pinch")
-        ball = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "ball")
-        return site, ball
-
     def rollout(self, params: dict[str, float], seed: int) -> Rollout:
-        model = self._physics()
-        data = mujoco.MjData(model)
-        pinch, ball = self._ids(model)
-        _grasp(model, data, pinch)
-        controller = LiftController(float(params["duration"]), float(params["tremor"]), np.random.default_rng(seed),
-                                    model.actuator_gear[:4, 0])
-        dt_control = model.opt.timestep * CONTROL_EVERY
-        n_control = round((HOLD_BEFORE + controller.duration + HOLD_AFTER) / dt_control)
-        raw, sim, replay = [], [], []
-        for k in range(n_control):
-            data.ctrl[:4] = controller.control(k * dt_control, k, data)
-            mujoco.mj_step(model, data, nstep=CONTROL_EVERY)
-            if k % RAW_EVERY == 0:
-                r = data.site_xmat[pinch].reshape(3, 3)
-                raw.append([data.site_xpos[pinch][0], data.site_xpos[pinch][2], np.arctan2(r[2, 2], r[0, 2]),
-                            data.xpos[ball][0], data.xpos[ball][2], *data.qpos[1:4]])
-                sim.append(np.concatenate([data.qpos, data.qvel]))
-            if k % FRAME_EVERY == 0:
-                replay.append(data.qpos.copy())
-        states, proxies, success, info = measure(np.asarray(raw, dtype=np.float64))
+        sim = ManipulatorSim(self._physics())
+        states = np.asarray(run_skill(sim, LiftPolicy(params, seed), params, seed), dtype=np.float32)
+        rec = sim.recording
+        proxies, success, info = measure(np.asarray(rec.raw, dtype=np.float64), states)
         if self.raw_states:
-            states = stack_samples(sim, STACK)
-        return Rollout("", self.name, dict(params), seed, states, np.asarray(replay), proxies, success, info)
+            states = stack_samples(rec.sim, STACK)
+        return Rollout("", self.name, dict(params), seed, states, np.asarray(rec.replay), proxies, success, info)
 
     def render(self, rollout: Rollout, width: int, height: int) -> Iterator[np.ndarray]:
         camera = Camera(CAMERA_DISTANCE, CAMERA_ELEVATION, CAMERA_LOOKAT)
         return self._renderers.replay(self._physics(), rollout.replay, width, height, camera)
+
+    def simulator(self) -> SkillSim:
+        return ManipulatorSim(self._physics())
+
+    def skill_policy(self, params: dict[str, float], seed: int) -> SkillPolicy:
+        return LiftPolicy(params, seed)
 
 
 class ManipulatorRaw(Manipulator):
@@ -224,6 +317,7 @@ class ManipulatorRaw(Manipulator):
     name = "manipulator_raw"
     raw_states = True
     state_dim = STACK * 2 * N_QPOS
+    simulator, skill_policy = Domain.simulator, Domain.skill_policy  # no env: see the module docstring
 
 
 CAMERA_LOOKAT = (0.15, 0.0, 0.42)  # m: between the low and the raised hand

@@ -13,7 +13,15 @@ of the body's lateral extent in its principal-axis frame (m); ``compression`` = 
 percentile of 1 − head-tail distance / body length; ``speed`` = centre-of-mass speed (m/s).
 
 States (10 Hz): the 13 joint angles, the centre-of-mass velocity in the start heading's frame,
-the head-tail distance over the body length, and which end is anchored.
+the head-tail distance over the body length, the body's width now, and which end is anchored.
+
+Stepping (``rba.gym``): :class:`SnakeSim` is the snake under per-control-step actions, the 13 joint
+targets and each link's friction (anchored or sliding); :class:`ConcertinaPolicy` is the skill, open loop,
+reading the shape and the centre of mass's motion off the observations for ``measured()``. The observation
+at each control step is the state vector then (the velocity is the mean since the last recorded state);
+every 10th is one the rollout records. ``rollout`` is ``run_skill`` of the two: one code path. The raw view
+gets no env: its ``qpos`` has no link positions (MuJoCo's, read after its step, lag ``qpos`` by a physics
+step), so a policy on them could not measure the shape proxies.
 """
 
 from __future__ import annotations
@@ -28,7 +36,17 @@ from types import MappingProxyType
 import mujoco
 import numpy as np
 
-from rba.domains.base import AttributeSpec, Domain, FeedbackPhrases, ParamSpace, Rollout, stack_samples
+from rba.domains.base import (
+    AttributeSpec,
+    Domain,
+    FeedbackPhrases,
+    ParamSpace,
+    Rollout,
+    SkillPolicy,
+    SkillSim,
+    run_skill,
+    stack_samples,
+)
 from rba.domains.mujoco_render import Camera, Sky, ThreadRenderers
 
 XML = Path(__file__).resolve().parent / "assets" / "snake.xml"
@@ -37,7 +55,9 @@ LINK_LENGTH = 0.07  # m
 BODY_LENGTH = LINKS * LINK_LENGTH  # 0.98 m
 ANCHOR_LINKS = 2  # links per anchored end
 ANCHORED, SLIDING = 1.5, 0.03  # link friction (the floor's is 0.03)
+TIMESTEP = 0.002  # s, the MJCF's physics step
 CONTROL_EVERY = 5  # physics steps (2 ms) per control step: 100 Hz
+CONTROL_DT = TIMESTEP * CONTROL_EVERY  # s per control step
 STATE_EVERY = 10  # control steps per state: 10 Hz
 FRAME_EVERY = 4  # control steps per rendered frame: 25 fps (the snake is slow)
 CYCLES = 2  # concertina cycles per clip
@@ -59,6 +79,9 @@ ADVANCE_PER_CYCLE = 0.9  # advance per cycle / (compression × body length), mea
 FOLD_CENTRE = 7  # the fold is centred on joint 7; joints 1-2 and 12-13 (the anchored ends) stay straight
 TARGET_WIDTH = (0.06, 0.15)  # m: the (bend_width, compression) box sample_params draws targets from,
 TARGET_COMPRESSION = (0.03, 0.09)  # inside what the fold shapes reach, so the two vary independently
+# the state vector: joint angles, centre-of-mass velocity, head-tail distance / length, width now, anchor phase
+OBS_VELOCITY = slice(LINKS - 1, LINKS + 1)
+OBS_HEAD_TAIL, OBS_WIDTH, OBS_ANCHOR = LINKS + 1, LINKS + 2, LINKS + 3
 
 
 def fold_shape(amplitude: float, wavelength: float, span: float) -> np.ndarray:
@@ -78,6 +101,11 @@ def fold_geometry(angles: np.ndarray) -> tuple[float, float]:
     steps = LINK_LENGTH * np.stack([np.cos(heading), np.sin(heading)], 1)
     points = np.concatenate([[np.zeros(2)], -np.cumsum(steps, 0)])[:-1] - 0.5 * steps
     return body_metrics(points)
+
+
+def clip_steps(period: float) -> int:
+    """Control steps of a clip of ``CYCLES`` cycles of ``period`` s, the settling included."""
+    return round((SETTLE + CYCLES * period) / CONTROL_DT)
 
 
 def smoothstep(s: float) -> float:
@@ -100,9 +128,8 @@ class ConcertinaController:
     def __init__(self, fold: np.ndarray, period: float) -> None:
         self.fold, self.period = fold, period
 
-    def control(self, t: float) -> tuple[np.ndarray, np.ndarray, float]:
-        """Joint targets, which links are anchored, and the anchor phase (1 head, -1 tail, 0 settling) at
-        time ``t`` (negative while settling)."""
+    def control(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Joint targets and which links are anchored at time ``t`` (negative while settling: all)."""
         period = self.period
         phase = (t % period) / period if t >= 0 else -1.0
         head_anchor = 0 <= phase < 0.5
@@ -116,51 +143,152 @@ class ConcertinaController:
             anchors = np.zeros(LINKS, dtype=bool)
             anchors[:ANCHOR_LINKS] = head_anchor
             anchors[-ANCHOR_LINKS:] = tail_anchor
-        return target, anchors, 1.0 if head_anchor else -1.0 if tail_anchor else 0.0
+        return target, anchors
+
+
+def anchor_phase(friction: np.ndarray) -> float:
+    """1 while only the head is anchored, -1 while only the tail is, 0 otherwise (settling: both)."""
+    head, tail = friction[0] > SLIDING, friction[-1] > SLIDING
+    return 1.0 if head and not tail else -1.0 if tail and not head else 0.0
+
+
+class ConcertinaPolicy:
+    """The concertina as ``policy(obs) -> action`` (``SkillPolicy``): open loop, the joint targets then each
+    link's friction; the shape after settling and the centre of mass's path are read off the observations."""
+
+    def __init__(self, params: dict[str, float]) -> None:
+        self.controller = ConcertinaController(
+            fold_shape(float(params["amplitude"]), float(params["wavelength"]), float(params["span"])),
+            float(params["period"]))
+        self._n = clip_steps(self.controller.period)
+        self._k = 0
+        self._widths: list[float] = []
+        self._compressions: list[float] = []
+        self._com = np.zeros(2)  # m, from the first state's, at the last recorded state
+        self._com_settled = np.zeros(2)  # ... after settling
+        self._com_now = np.zeros(2)
+        self.done = False
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        k = self._k
+        if k:
+            self._observe(k - 1, np.asarray(obs, dtype=np.float64))
+        if k == self._n:
+            self.done = True
+            return np.zeros((LINKS - 1) + LINKS)
+        target, anchors = self.controller.control(k * CONTROL_DT - SETTLE)
+        self._k += 1
+        return np.concatenate([target, np.where(anchors, ANCHORED, SLIDING)])
+
+    def _observe(self, step: int, obs: np.ndarray) -> None:
+        """Take in the observation after control step ``step``."""
+        if step * CONTROL_DT - SETTLE >= 0:
+            self._widths.append(obs[OBS_WIDTH])
+            self._compressions.append(1.0 - obs[OBS_HEAD_TAIL] * BODY_LENGTH / ((LINKS - 1) * LINK_LENGTH))
+        since = step % STATE_EVERY or STATE_EVERY  # control steps the velocity is the mean over
+        self._com_now = self._com + obs[OBS_VELOCITY] * (since * CONTROL_DT) if step else np.zeros(2)
+        if step % STATE_EVERY == 0:
+            self._com = self._com_now
+        if step == settled_step():
+            self._com_settled = self._com_now
+
+    def measured(self) -> dict[str, float]:
+        return snake_proxies(self._widths, self._compressions, self._com_now - self._com_settled,
+                             self.controller.period)
+
+
+def settled_step() -> int:
+    """The control step after which the clip's advance is counted (the end of settling)."""
+    return int(SETTLE / CONTROL_DT)
+
+
+def snake_proxies(widths: list[float], compressions: list[float], advance: np.ndarray,
+                  period: float) -> dict[str, float]:
+    """The attributes' proxies: 95th percentiles of the shape after settling, the mean speed (m/s)."""
+    return {"bend_width": float(np.percentile(widths, 95)), "compression": float(np.percentile(compressions, 95)),
+            "speed": float(np.linalg.norm(advance) / (CYCLES * period))}
 
 
 @dataclass
 class SnakeRecording:
-    """What a rollout keeps: states (10 Hz), replay (qpos), body shape after settling, centre of mass."""
+    """What a rollout keeps besides its states: replay (qpos), body shape after settling, centre of mass."""
 
-    prev_com: np.ndarray  # centre of mass at the previous state (m)
-    states: list[list[float]] = field(default_factory=list)
     raw: list[np.ndarray] = field(default_factory=list)  # qpos + qvel per state (10 Hz): the raw view
     replay: list[np.ndarray] = field(default_factory=list)
     widths: list[float] = field(default_factory=list)
     compressions: list[float] = field(default_factory=list)
     coms: list[np.ndarray] = field(default_factory=list)  # per control step
 
-    def record(self, k: int, t: float, dt: float, data: mujoco.MjData, bodies: np.ndarray, anchor: float) -> None:
-        points = data.xpos[bodies][:, :2] + 0.5 * LINK_LENGTH * -_forward(data.xmat[bodies])
-        if t >= 0:
-            w, c = body_metrics(points)
-            self.widths.append(w)
-            self.compressions.append(c)
+
+class SnakeSim:
+    """The snake under per-control-step joint targets and link frictions (``SkillSim``)."""
+
+    max_steps = clip_steps(PARAM_RANGES["period"][1])  # the longest clip
+
+    def __init__(self, model: mujoco.MjModel) -> None:
+        self._model = model
+        self.action_low = np.concatenate([model.actuator_ctrlrange[:, 0], np.full(LINKS, SLIDING)])
+        self.action_high = np.concatenate([model.actuator_ctrlrange[:, 1], np.full(LINKS, ANCHORED)])
+        self._geoms = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, f"link{i}") for i in range(LINKS)])
+        self.bodies = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"link{i}")
+                                 for i in range(LINKS)])
+
+    def reset(self, params: dict[str, float], seed: int) -> tuple[np.ndarray, bool]:
+        self.model = copy.copy(self._model)  # friction is switched per episode: never on the shared model
+        self.data = data = mujoco.MjData(self.model)
+        rng = np.random.default_rng(seed)
+        data.qpos[7:] = 0.01 * rng.standard_normal(LINKS - 1)  # a barely bent start: seeds differ slightly
+        mujoco.mj_forward(self.model, data)
+        self.recording = SnakeRecording()
+        self._k, self._state_com = 0, self._com()
+        return self._observe(0.0, 0, self._state_com)[0], False
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, bool]:
+        a = np.asarray(action, dtype=np.float64)
+        friction = a[LINKS - 1:]
+        self.model.geom_friction[self._geoms, 0] = friction
+        self.data.ctrl[:] = a[:LINKS - 1]
+        mujoco.mj_step(self.model, self.data, nstep=CONTROL_EVERY)
+        k, self._k = self._k, self._k + 1
+        com = self._com()
+        obs, (width, compression) = self._observe(anchor_phase(friction), k, com)
+        rec, data = self.recording, self.data
+        if k * CONTROL_DT - SETTLE >= 0:
+            rec.widths.append(width)
+            rec.compressions.append(compression)
         if k % FRAME_EVERY == 0:
-            self.replay.append(data.qpos.copy())
-        if k % STATE_EVERY == 0:
-            com = data.subtree_com[bodies[0]][:2].copy()
-            vel = (com - self.prev_com) / (STATE_EVERY * dt) if k else np.zeros(2)
-            self.prev_com = com
-            head_tail = np.linalg.norm(points[0] - points[-1]) / BODY_LENGTH
-            width_now = body_metrics(points)[0]
-            self.states.append([*data.qpos[7:], *vel, head_tail, width_now, anchor])
-            self.raw.append(np.concatenate([data.qpos, data.qvel]))
-        self.coms.append(data.subtree_com[bodies[0]][:2].copy())
+            rec.replay.append(data.qpos.copy())
+        recorded = k % STATE_EVERY == 0
+        if recorded:
+            self._state_com = com
+            rec.raw.append(np.concatenate([data.qpos, data.qvel]))
+        rec.coms.append(com)
+        return obs, recorded
+
+    def _com(self) -> np.ndarray:
+        return self.data.subtree_com[self.bodies[0]][:2].copy()
+
+    def _observe(self, anchor: float, step: int, com: np.ndarray) -> tuple[np.ndarray, tuple[float, float]]:
+        """The state vector after control step ``step`` with the centre of mass at ``com`` (the velocity: the
+        mean since the last recorded state, 0 at the first) and the body's (width, compression)."""
+        data, bodies = self.data, self.bodies
+        points = data.xpos[bodies][:, :2] + 0.5 * LINK_LENGTH * -_forward(data.xmat[bodies])
+        since = step % STATE_EVERY or STATE_EVERY
+        vel = (com - self._state_com) / (since * CONTROL_DT) if step else np.zeros(2)
+        head_tail = np.linalg.norm(points[0] - points[-1]) / BODY_LENGTH
+        shape = body_metrics(points)
+        return np.array([*data.qpos[7:], *vel, head_tail, shape[0], anchor]), shape
 
 
-def measure(rec: SnakeRecording, period: float, dt: float, data: mujoco.MjData,
+def measure(rec: SnakeRecording, period: float, data: mujoco.MjData,
             bodies: np.ndarray) -> tuple[dict[str, float], bool, dict[str, float]]:
-    """Proxies (95th percentiles of the shape after settling, mean speed), success and diagnostics."""
+    """Proxies, success and diagnostics of a finished clip."""
     heading = _heading(data.xmat[bodies[0]])
     coms_arr = np.asarray(rec.coms)
-    advance = coms_arr[-1] - coms_arr[int(SETTLE / dt)]
+    advance = coms_arr[-1] - coms_arr[settled_step()]
     forward = float(advance[0])
     success = forward > MIN_ADVANCE and abs(heading) < MAX_HEADING_DRIFT and np.isfinite(data.qpos).all()
-    proxies = {"bend_width": float(np.percentile(rec.widths, 95)),
-               "compression": float(np.percentile(rec.compressions, 95)),
-               "speed": float(np.linalg.norm(advance) / (CYCLES * period))}
+    proxies = snake_proxies(rec.widths, rec.compressions, advance, period)
     return proxies, bool(success), {"forward_m": forward, "heading_rad": float(heading)}
 
 
@@ -198,7 +326,7 @@ class Snake(Domain):
     # states cannot easily rebuild a shape measure from 13 angles
     state_dim = (LINKS - 1) + 2 + 1 + 1 + 1
     param_names = tuple(PARAM_RANGES)
-    frame_rate = 1.0 / (FRAME_EVERY * CONTROL_EVERY * 0.002)
+    frame_rate = 1.0 / (FRAME_EVERY * CONTROL_EVERY * TIMESTEP)
     feedback_phrases = FEEDBACK_PHRASES
 
     def __init__(self) -> None:
@@ -211,6 +339,7 @@ class Snake(Domain):
     def _physics(self) -> mujoco.MjModel:
         if self._model is None:
             self._model = mujoco.MjModel.from_xml_path(str(XML))
+            assert self._model.opt.timestep == TIMESTEP  # the policy's clock counts TIMESTEP's
         return self._model
 
     def sample_params(self, rng: np.random.Generator) -> dict[str, float]:
@@ -238,27 +367,12 @@ class Snake(Domain):
         return ParamSpace(lo, hi, frozenset({"span"}))
 
     def rollout(self, params: dict[str, float], seed: int) -> Rollout:
-        model = copy.copy(self._physics())  # friction is switched per rollout: never on the shared model
-        data = mujoco.MjData(model)
-        geoms = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, f"link{i}") for i in range(LINKS)])
-        bodies = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"link{i}") for i in range(LINKS)])
-        controller = ConcertinaController(
-            fold_shape(float(params["amplitude"]), float(params["wavelength"]), float(params["span"])),
-            float(params["period"]))
-        rng = np.random.default_rng(seed)
-        data.qpos[7:] = 0.01 * rng.standard_normal(LINKS - 1)  # a barely bent start: seeds differ slightly
-        mujoco.mj_forward(model, data)
-        dt = model.opt.timestep * CONTROL_EVERY
-        rec = SnakeRecording(data.subtree_com[bodies[0]][:2].copy())
-        for k in range(round((SETTLE + CYCLES * controller.period) / dt)):
-            t = k * dt - SETTLE
-            target, anchors, anchor = controller.control(t)
-            model.geom_friction[geoms, 0] = np.where(anchors, ANCHORED, SLIDING)
-            data.ctrl[:] = target
-            mujoco.mj_step(model, data, nstep=CONTROL_EVERY)
-            rec.record(k, t, dt, data, bodies, anchor)
-        proxies, success, info = measure(rec, controller.period, dt, data, bodies)
-        states = stack_samples(rec.raw, 1) if self.raw_states else np.asarray(rec.states, dtype=np.float32)
+        sim = SnakeSim(self._physics())
+        policy = ConcertinaPolicy(params)
+        states = run_skill(sim, policy, params, seed)
+        rec = sim.recording
+        proxies, success, info = measure(rec, policy.controller.period, sim.data, sim.bodies)
+        states = stack_samples(rec.raw, 1) if self.raw_states else np.asarray(states, dtype=np.float32)
         return Rollout("", self.name, dict(params), seed, states,
                        np.asarray(rec.replay, dtype=np.float32),  # qpos for rendering: float32 halves the library
                        proxies, success, info)
@@ -268,6 +382,12 @@ class Snake(Domain):
         camera = Camera(CAMERA_DISTANCE, CAMERA_ELEVATION,  # follows the centre of mass forward
                         aim=lambda data: (float(data.subtree_com[1][0]) - 0.1, y0, 0.0))
         return self._renderers.replay(self._physics(), rollout.replay, width, height, camera)
+
+    def simulator(self) -> SkillSim:
+        return SnakeSim(self._physics())
+
+    def skill_policy(self, params: dict[str, float], seed: int) -> SkillPolicy:
+        return ConcertinaPolicy(params)
 
 
 class SnakeRaw(Snake):
@@ -282,6 +402,7 @@ class SnakeRaw(Snake):
     name = "snake_raw"
     raw_states = True
     state_dim = 20 + 19
+    simulator, skill_policy = Domain.simulator, Domain.skill_policy  # no env: see the module docstring
 
 
 CAMERA_DISTANCE = 1.4  # m

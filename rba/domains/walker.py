@@ -44,9 +44,11 @@ Code (dm_control suite style)
 wraps model and data with named getters (``torso_height()``, ``hip_position()``,
 ``foot_positions()``...); :class:`GaitPlan` is what the parameters command; a
 :class:`GaitController`'s ``control(t, physics)`` gives each physics step's :class:`Command`;
-:func:`run` steps and records (:class:`Recording`), and :func:`measure` turns the recording into
-proxies, success and diagnostics. :class:`WalkerSim` and :class:`WalkerSkillPolicy` (the last section) are the
-same loop cut at its action, for ``rba.gym``.
+:class:`WalkerSim` steps the physics under those commands and records (:class:`Recording`), and :func:`measure`
+turns the recording into proxies, success and diagnostics. The rollout is ``run_skill`` of the sim and a
+:class:`GaitPolicy` reading the sim's own physics; :class:`WalkerSkillPolicy` (the last section) is the same
+gait reading observations alone, for ``rba.gym``: one loop, two readers. The raw view gets no env: that
+policy reads the feature view's observations (foot positions and speeds), which raw states do not hold.
 """
 
 
@@ -74,6 +76,7 @@ from rba.domains.base import (
     Rollout,
     SkillPolicy,
     SkillSim,
+    run_skill,
     stack_samples,
 )
 from rba.domains.mujoco_render import Camera, Sky, ThreadRenderers
@@ -681,11 +684,10 @@ class GaitController:
 # ---------------------------------------------------------------- recording and measuring
 @dataclass
 class Recording:
-    """What a rollout keeps as it runs: replay frames (30 fps), states (10 Hz), falls, assist effort."""
+    """What a rollout keeps as it runs besides its states: replay frames (30 fps), raw samples, falls, assist."""
 
     x_start: float  # torso x at the start (m)
     frames: list[list[float]] = field(default_factory=list)  # qpos per replay frame
-    states: list[list[float]] = field(default_factory=list)  # STATE_FEATURES per state sample
     raw: list[list[float]] = field(default_factory=list)  # qpos + qvel per raw sample (40 Hz): the raw view
     fall_reason: str = ""  # empty while standing
     assist_sq: float = 0.0  # sum over physics steps of the assist's vertical force squared (N²)
@@ -693,20 +695,23 @@ class Recording:
     _peaks: list[float] = field(init=False, default_factory=lambda: [0.0, 0.0])  # foot peak speeds since the last state
     _next_frame: int = field(init=False, default=0)  # physics step of the next replay frame
 
-    def record(self, step: int, physics: WalkerPhysics) -> None:
+    def record(self, step: int, physics: WalkerPhysics, keep: bool) -> list[float]:
+        """Physics step ``step``'s state (STATE_FEATURES: the foot peak speeds since the last state sample); its
+        replay frame and raw sample are kept when ``keep``."""
         (sp_r, sp_l), peaks = physics.foot_speeds(), self._peaks
         if sp_r > peaks[0]:
             peaks[0] = sp_r
         if sp_l > peaks[1]:
             peaks[1] = sp_l
-        if step == self._next_frame:
+        if keep and step == self._next_frame:
             self.frames.append(physics.qpos())
             self._next_frame = round(len(self.frames) / FRAME_RATE / physics.timestep())
-        if step % RAW_EVERY == 0:
+        if keep and step % RAW_EVERY == 0:
             self.raw.append(physics.qpos() + physics.qvel())
+        state = state_features(physics, peaks[0], peaks[1], self.x_start)
         if step % STATE_EVERY == 0:
-            self.states.append(state_features(physics, peaks[0], peaks[1], self.x_start))
             peaks[:] = [0.0, 0.0]
+        return state
 
     def check_fall(self, physics: WalkerPhysics) -> None:
         """Fallen: the torso low or pitched, or the torso or a thigh touching the floor."""
@@ -717,9 +722,9 @@ class Recording:
         elif physics.thigh_lowest_point() < 0.0 or physics.torso_lowest_point() < 0.0:
             self.fall_reason = "torso/thigh floor contact"
 
-    def count(self, command: Command) -> None:
-        fz = command.assist[0]
-        self.assist_sq += fz * fz
+    def count(self, assist_z: float) -> None:
+        """One physics step simulated, with ``assist_z`` N of vertical assist."""
+        self.assist_sq += assist_z * assist_z
         self.n_steps += 1
 
 
@@ -835,12 +840,12 @@ class Walker(Domain):
 
     def rollout(self, params: dict[str, float], seed: int) -> Rollout:
         physics = self.physics()
-        plan = start(physics, params, seed)
-        controller = GaitController(plan, physics)
-        recording = run(physics, controller)
-        m = measure(recording, controller.touchdowns, plan, physics.body_weight(), physics.timestep())
+        sim, policy = WalkerSim(physics), GaitPolicy(GaitPlan.from_params(params, physics.geometry), physics)
+        states = run_skill(sim, policy, params, seed)
+        recording = sim.recording
+        m = measure(recording, policy.controller.touchdowns, policy.plan, physics.body_weight(), physics.timestep())
         states = (stack_samples(recording.raw, STATE_EVERY // RAW_EVERY) if self.raw_states
-                  else np.asarray(recording.states, dtype=np.float32))
+                  else np.asarray(states, dtype=np.float32))
         return Rollout(id="", domain=self.name, params={k: float(params[k]) for k in self.param_names},
                        seed=int(seed), states=states,
                        replay=np.asarray(recording.frames, dtype=np.float64), proxies=m.proxies,
@@ -854,9 +859,9 @@ class Walker(Domain):
 
     # ------------------------------------------------------------------ stepping (rba.gym)
     def simulator(self) -> SkillSim:
-        return WalkerSim()
+        return WalkerSim(WalkerPhysics.from_suite())
 
-    def skill_policy(self, params: dict[str, float]) -> SkillPolicy:
+    def skill_policy(self, params: dict[str, float], seed: int) -> SkillPolicy:
         return WalkerSkillPolicy(params)
 
 
@@ -883,25 +888,8 @@ class WalkerRaw(Walker):
     name = "walker_raw"
     raw_states = True
     state_dim = (STATE_EVERY // RAW_EVERY) * 2 * 9
-
-
-def run(physics: WalkerPhysics, controller: GaitController) -> Recording:
-    """Step the physics under ``controller`` until the gait is done (or MAX_DURATION), recording as it goes."""
-    dt = physics.timestep()
-    physics.observe()
-    recording = Recording(x_start=physics.torso_x())
-    for step in range(int(MAX_DURATION / dt)):
-        t = step * dt
-        if step:
-            physics.observe()
-        recording.record(step, physics)
-        if controller.finished(t):
-            break
-        recording.check_fall(physics)
-        command = controller.control(t, physics)
-        recording.count(command)
-        physics.act(command.ctrl, command.assist)
-    return recording
+    # no rba.gym env: the gait's policy reads the feature view's observations (foot positions and speeds)
+    simulator, skill_policy = Domain.simulator, Domain.skill_policy
 
 
 CAMERA_DISTANCE = 3.3  # m from the torso, side view
@@ -912,13 +900,14 @@ CAMERA_LOOKAT_Z = 0.75  # m
 # ---------------------------------------------------------------- stepping for rba.gym
 # The walker stepped one physics step (2.5 ms) at a time, and its scripted gait as a policy on observations.
 #
-# The step interface is the rollout loop's (``run``) cut at ``physics.act``: an action is
+# The step interface is the rollout's own loop (``run_skill``) cut at ``physics.act``: an action is
 # one physics step's :class:`Command`, the six motor commands in [-1, 1] and the torso
 # assist (rootz force, rootx force, pitch torque), which is part of the scripted skill. An observation is the
 # state vector (``STATE_FEATURES``, float64) of that step; every ``STATE_EVERY``-th is one the rollout
-# records (foot peak speeds run over the steps since the last recorded one, as in the rollout).
+# records (foot peak speeds run over the steps since the last recorded one).
 #
-# The policy is the same :class:`GaitController`, fed an :class:`ObservedWalker` that
+# The rollout's policy is :class:`GaitPolicy` on the sim's own physics; ``rba.gym``'s is the same
+# :class:`GaitController`, fed an :class:`ObservedWalker` that
 # answers its questions from the observation alone: joint and torso quantities are in it, positions follow by
 # the planar kinematics, the torso's absolute x from the start pose the gait plans, and the feed-forward's bias
 # forces from the policy's own copy of the MuJoCo model at the previous observation (MuJoCo's ``mj_step``
@@ -929,37 +918,36 @@ _F = {name: i for i, name in enumerate(STATE_FEATURES)}
 
 
 class WalkerSim:
-    """The walker's physics under per-step actions (``rba.domains.base.SkillSim``)."""
+    """The walker's physics under per-step actions (``rba.domains.base.SkillSim``), recording as it goes."""
 
     action_low = np.array([-1.0] * 6 + [-a for a in ASSIST_LIMITS])
     action_high = np.array([1.0] * 6 + list(ASSIST_LIMITS))
 
-    def __init__(self) -> None:
-        self.physics = WalkerPhysics.from_suite()
-        self.max_steps = int(MAX_DURATION / self.physics.timestep())
-        self._k, self._x_start, self._peaks = 0, 0.0, [0.0, 0.0]
+    def __init__(self, physics: WalkerPhysics) -> None:
+        self.physics = physics
+        self.max_steps = int(MAX_DURATION / physics.timestep())
+        self._k = 0
 
     def reset(self, params: dict[str, float], seed: int) -> tuple[np.ndarray, bool]:
         start(self.physics, params, seed)
         self.physics.observe()
-        self._k, self._x_start = 0, self.physics.torso_x()
+        self.recording = Recording(x_start=self.physics.torso_x())
+        self._k = 0
         return self._observe()
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, bool]:
         a = np.asarray(action, dtype=np.float64).tolist()
+        self.recording.check_fall(self.physics)  # the state stepped from
+        self.recording.count(a[6])
         self.physics.act(tuple(a[:6]), (a[6], a[7], a[8]))
         self.physics.observe()
         self._k += 1
         return self._observe()
 
     def _observe(self) -> tuple[np.ndarray, bool]:
-        peaks, speeds = self._peaks, self.physics.foot_speeds()
-        peaks[:] = [max(peaks[0], speeds[0]), max(peaks[1], speeds[1])]
-        obs = np.array(state_features(self.physics, peaks[0], peaks[1], self._x_start))
-        recorded = self._k % STATE_EVERY == 0 and self._k < self.max_steps
-        if self._k % STATE_EVERY == 0:
-            peaks[:] = [0.0, 0.0]
-        return obs, recorded
+        kept = self._k < self.max_steps  # the step the episode is cut at is not the rollout's
+        obs = np.array(self.recording.record(self._k, self.physics, kept))
+        return obs, kept and self._k % STATE_EVERY == 0
 
 
 class ObservedWalker:
@@ -1032,28 +1020,38 @@ class ObservedWalker:
         return math.hypot(o[i], o[i + 1]), math.hypot(o[i + 2], o[i + 3])
 
 
-class WalkerSkillPolicy:
-    """The scripted gait with fixed parameters as ``policy(obs) -> action`` (``rba.domains.base.SkillPolicy``)."""
+class GaitPolicy:
+    """The scripted gait with fixed parameters as ``policy(obs) -> action``, reading ``view`` (what the
+    :class:`GaitController` asks): on the simulator's own physics it is the rollout's skill."""
 
-    def __init__(self, params: dict[str, float]) -> None:
-        mirror = WalkerPhysics.from_suite()  # the policy's own model: the feed-forward's bias forces
-        self.plan = GaitPlan.from_params(params, mirror.geometry)
-        self._view = ObservedWalker(mirror, self.plan.start_pose(mirror.geometry)[1])
-        self._controller: GaitController | None = None
+    def __init__(self, plan: GaitPlan, view: WalkerPhysics | ObservedWalker) -> None:
+        self.plan, self._view = plan, view
+        self.controller = GaitController(plan, view)
         self._k = 0
         self.done = False
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
-        self._view.read(obs)
-        if self._controller is None:
-            self._controller = GaitController(self.plan, self._view)
         t = self._k * self._view.timestep()
-        if self._controller.finished(t):
+        if self.controller.finished(t):
             self.done = True
             return np.zeros(9)
-        command = self._controller.control(t, self._view)
+        command = self.controller.control(t, self._view)
         self._k += 1
         return np.array(command.ctrl + command.assist)
 
     def measured(self) -> dict[str, float]:
-        return touchdown_proxies(self._controller.touchdowns if self._controller else [])
+        return touchdown_proxies(self.controller.touchdowns)
+
+
+class WalkerSkillPolicy(GaitPolicy):
+    """The gait reading observations alone (``rba.domains.base.SkillPolicy``), through an :class:`ObservedWalker`."""
+
+    def __init__(self, params: dict[str, float]) -> None:
+        mirror = WalkerPhysics.from_suite()  # the policy's own model: the feed-forward's bias forces
+        plan = GaitPlan.from_params(params, mirror.geometry)
+        self._observed = ObservedWalker(mirror, plan.start_pose(mirror.geometry)[1])
+        super().__init__(plan, self._observed)
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        self._observed.read(obs)
+        return super().__call__(obs)
