@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+import time
 from concurrent.futures import Future
 
 from rba.compute import Compute, RenderJob, Task
@@ -59,3 +60,20 @@ class InstantCompute(FakeCompute):
         task = super().render(job, urgent)
         task.future.set_result(self.CLIP)
         return task
+
+
+class InProcessCompute(InstantCompute):
+    """Renders at once (``InstantCompute``) and simulates in this process, ``delay`` seconds a batch: searches
+    for new behaviours run, as slowly as a test needs to watch them."""
+
+    def __init__(self, delay: float = 0.0) -> None:
+        super().__init__()
+        self.delay = delay
+        self.batches = 0
+
+    def simulate(self, jobs):
+        from rba.generate import in_process
+
+        self.batches += 1
+        time.sleep(self.delay)
+        return list(in_process(jobs))

@@ -213,12 +213,17 @@ class GeneratingGlobalAgent(Agent):
 GENERATING = {GlobalAgent: GeneratingGlobalAgent}  # an agent class -> its generating form
 
 
+def generating_methods() -> tuple[str, ...]:
+    """The registered methods whose agents have a generating form."""
+    return tuple(m.name for m in methods() if m.agent in GENERATING)
+
+
 def generating_class(method: str) -> type[GeneratingGlobalAgent]:
     """The generating agent class of ``method``; ValueError naming the methods that can generate."""
     agent = get_method(method).agent
     if agent not in GENERATING:
-        able = [m.name for m in methods() if m.agent in GENERATING]
-        raise ValueError(f"method {method!r} cannot generate behaviours; valid with generation: {', '.join(able)}")
+        raise ValueError(f"method {method!r} cannot generate behaviours; valid with generation: "
+                         f"{', '.join(generating_methods())}")
     return GENERATING[agent]
 
 
