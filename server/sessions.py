@@ -62,9 +62,9 @@ def _generates(svc: Services, body: SessionCreate) -> bool:
 
 
 def create_session(svc: Services, db: Session, body: SessionCreate) -> SessionPublic:
+    generate = _generates(svc, body)
     version = serving_version(svc, db, body.domain, body.method, body.rep)
     svc.catalog.check_available(body.domain, body.method, body.rep, version)
-    generate = _generates(svc, body)
     ctx = svc.catalog.context(body.domain, body.method, body.rep, version)
     step_ctx = svc.catalog.generation(body.domain, body.method, body.rep, version) if generate else ctx
     rollout_id, state = svc.transitions.first(step_ctx, body.method)

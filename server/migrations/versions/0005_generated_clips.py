@@ -24,11 +24,9 @@ def upgrade() -> None:
         sa.Column("created_at", sa.DateTime(timezone=True), nullable=False),
         sa.PrimaryKeyConstraint("id"),
     )
-    with op.batch_alter_table("rba_session") as batch:
-        batch.add_column(sa.Column("generate", sa.Boolean(), server_default=sa.false(), nullable=False))
+    op.add_column("rba_session", sa.Column("generate", sa.Boolean(), server_default=sa.false(), nullable=False))
 
 
 def downgrade() -> None:
-    with op.batch_alter_table("rba_session") as batch:
-        batch.drop_column("generate")
+    op.drop_column("rba_session", "generate")
     op.drop_table("rba_generated_clip")
