@@ -226,6 +226,9 @@ class DomainsPublic(BaseModel):
     methods: list[str] = Field(description="every agent method the server offers (more/less feedback)")
     reps: list[str] = Field(description="every attribute representation")
     trainable: list[TrainablePublic] = Field(description="methods whose models POST /api/admin/train can retrain")
+    generate: bool = Field(default=False, description="whether new sessions make new behaviours unless they say "
+                           "otherwise (RBA_GENERATE)")
+    generating: list[str] = Field(default_factory=list, description="methods whose sessions can make new behaviours")
 
 
 class ClipPublic(BaseModel):

@@ -18,6 +18,7 @@ from rba.domains import Domain
 from rba.embed import REPRESENTATIONS
 from rba.generate import is_generated
 from rba.interact import SATISFIED, restore_agent
+from rba.interact.generating import generating_methods
 from rba.library import LibraryNotFoundError
 from rba.methods import trainable
 from server import generation
@@ -195,4 +196,5 @@ def domains_public(svc: Services, db: Session) -> DomainsPublic:
                                     available=available, missing=svc.catalog.missing_reason(name)))
     return DomainsPublic(domains=domains, methods=list(attribute_methods()), reps=list(REPRESENTATIONS),
                          trainable=[TrainablePublic(method=m.name, label=m.label, presets=list(m.presets))
-                                    for m in trainable()])
+                                    for m in trainable()],
+                         generate=svc.settings.generate, generating=list(generating_methods()))

@@ -63,13 +63,16 @@ class InstantCompute(FakeCompute):
 
 
 class InProcessCompute(InstantCompute):
-    """Renders at once (``InstantCompute``) and simulates in this process, ``delay`` seconds a batch: searches
-    for new behaviours run, as slowly as a test needs to watch them."""
+    """Simulates in this process, ``delay`` seconds a batch (searches for new behaviours run as slowly as a test
+    needs to watch them); renders at once (``InstantCompute``), or real clips on ``renders``."""
 
-    def __init__(self, delay: float = 0.0) -> None:
+    def __init__(self, delay: float = 0.0, renders: Compute | None = None) -> None:
         super().__init__()
-        self.delay = delay
+        self.delay, self.renders = delay, renders
         self.batches = 0
+
+    def render(self, job: RenderJob, urgent: bool = True) -> Task:
+        return super().render(job, urgent) if self.renders is None else self.renders.render(job, urgent)
 
     def simulate(self, jobs):
         from rba.generate import in_process

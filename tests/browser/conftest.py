@@ -9,7 +9,6 @@ from pathlib import Path
 import pytest
 
 from server.main import serve_in_thread
-from server.settings import Settings
 
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
@@ -17,10 +16,11 @@ CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-backg
 
 
 @pytest.fixture(scope="module")
-def live_server() -> Iterator[Callable[[Settings], str]]:
-    """``start(settings)`` -> base URL of a server running in a thread; all stop at module end."""
+def live_server() -> Iterator[Callable[..., str]]:
+    """``start(settings, compute=None)`` -> base URL of a server running in a thread; all stop at module end."""
     with contextlib.ExitStack() as servers:
-        yield lambda settings: servers.enter_context(serve_in_thread(settings, timeout=15))
+        yield lambda settings, compute=None: servers.enter_context(serve_in_thread(settings, timeout=15,
+                                                                                   compute=compute))
 
 
 @pytest.fixture(scope="module")
