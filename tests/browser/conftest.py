@@ -11,6 +11,13 @@ import pytest
 from server.main import serve_in_thread
 
 CHROMIUM = Path("/usr/bin/chromium")
+# page.wait_for_function predicates of the studio page: a new clip (not ``previous``) plays; it has played its second
+PLAYING = """(previous) => {
+  const v = document.getElementById('video');
+  return v.dataset.rollout && v.dataset.rollout !== previous && v.readyState >= 3 && v.currentTime > 0.25;
+}"""
+PLAYED = """() => { const v = document.getElementById('video');
+  return Boolean(v.dataset.played) && v.dataset.played === v.dataset.rollout; }"""
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
                  "--disable-component-update", "--disable-sync", "--no-first-run"]
 

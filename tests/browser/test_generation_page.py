@@ -12,23 +12,16 @@ import json
 import pytest
 
 from server.settings import Settings
-from tests.browser.conftest import axe_violations
+from tests.browser.conftest import PLAYED, PLAYING, axe_violations
 from tests.fakes import InProcessCompute
-
-PLAYING = """(previous) => {
-  const v = document.getElementById('video');
-  return v.dataset.rollout && v.dataset.rollout !== previous && v.readyState >= 3 && v.currentTime > 0.25;
-}"""
-PLAYED = """() => { const v = document.getElementById('video');
-  return Boolean(v.dataset.played) && v.dataset.played === v.dataset.rollout; }"""
 
 
 @pytest.fixture(scope="module")
 def url(live_server, gap_roots, local_compute, tmp_path_factory) -> str:
     tmp = tmp_path_factory.mktemp("generation-page")
     data, models = gap_roots
-    settings = Settings(data_dir=data, models_dir=models, database_url=f"sqlite:///{tmp}/rba.db", cache_dir=tmp / "clips",
-                        warm_start=False, prerender=False, generate=True)
+    settings = Settings(data_dir=data, models_dir=models, database_url=f"sqlite:///{tmp}/rba.db",
+                        cache_dir=tmp / "clips", warm_start=False, prerender=False, generate=True)
     return live_server(settings, InProcessCompute(delay=1.0, renders=local_compute))
 
 
