@@ -403,6 +403,7 @@ function showSession(session, { fresh = false } = {}) {
     els.domain.value = session.domain;
     fillMethods();
     els.method.value = `${session.method}/${session.rep}`;
+    fillGenerate();
     buildControls(session);
     state.played.clear(); // another session: its clip must be watched again, even one seen before
     state.viewing = null;
