@@ -32,6 +32,8 @@ from server.errors import not_found
 from server.models import GeneratedClip, GenerationPublic, TuningSession
 from server.services import Services
 
+KEPT_ENDED = 1024  # ended searches kept for their pages' last polls; older ones are forgotten
+
 
 @dataclass
 class Search:
@@ -84,7 +86,11 @@ def begin(svc: Services, s: TuningSession) -> Search:
     gctx = svc.catalog.generation(s.domain, s.method, s.rep, s.model_set)
     search = Search(s.id, s.step, gctx.config.generations)
     with svc.search_lock:
+        svc.searches.pop(s.id, None)  # to the end: the dict runs oldest first
         svc.searches[s.id] = search
+        ended = [k for k, v in svc.searches.items() if v.state != "searching"]
+        for k in ended[:max(len(ended) - KEPT_ENDED, 0)]:
+            del svc.searches[k]
     return search
 
 

@@ -152,8 +152,9 @@ def give_feedback(svc: Services, db: Session, session_id: str, body: FeedbackCre
             raise conflict(f"session {s.id} is still making a new behaviour for step {search.step} (generation "
                            f"{search.generation} of {search.generations}); wait for it: "
                            f"GET /api/sessions/{s.id}/generation")
+        domain = svc.catalog.domain(s.domain)
         ctx = svc.catalog.context(s.domain, s.method, s.rep, s.model_set)
-        feedback = parse_feedback(body.choices(), body.satisfied, s.domain, ctx.attribute_names)
+        feedback = parse_feedback(body.choices(), body.satisfied, domain.name, ctx.attribute_names)
         if ctx.model_version != s.model_version:
             raise conflict(f"the served model changed since session {s.id} started ({s.model_version} -> "
                            f"{ctx.model_version}); start a new session")

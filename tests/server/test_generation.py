@@ -14,6 +14,7 @@ from fastapi.testclient import TestClient
 
 from rba.export import read_export, replay
 from rba.generate import generated_id, is_generated
+from server.exporting import export_to_file
 from server.main import create_app
 from tests.fakes import InProcessCompute
 from tests.server.conftest import more
@@ -90,6 +91,10 @@ def test_a_generated_clip_is_served_listed_and_exported(gen_settings, tmp_path):
     assert profile.proxies == chosen["measured"] and export.clip == InProcessCompute.CLIP
     assert profile.reward is not None and profile.zeta is not None
     assert replay(tmp_path / "export.zip").matches  # its params and seed remake it
+    cli = export_to_file(s["id"], tmp_path / "cli.zip", gen_settings.model_copy(
+        update={"cache_dir": tmp_path / "cli-clips"}))  # `rba export`: remade and rendered in this process
+    assert cli.rollout_id == profile.rollout_id and cli.params == profile.params and cli.seed == profile.seed
+    assert read_export(tmp_path / "cli.zip").clip[4:8] == b"ftyp"  # a real MP4 this time
 
 
 def test_refusals_name_what_is_valid(gen_settings):
