@@ -148,3 +148,16 @@ def test_a_session_showing_a_generated_clip_continues_after_a_restart(gen_settin
         assert other["clip"]["rollout_id"] == after["clip"]["rollout_id"]
         assert [h["rollout_before"]["rollout_id"] for h in after["history"]] == \
                [h["rollout_before"]["rollout_id"] for h in other["history"]]
+
+
+def test_guesses_never_search(gen_settings):
+    """Prerendering works out a generating session's next clips too, skipping every answer that would search."""
+    compute = InProcessCompute()
+    with TestClient(create_app(gen_settings.model_copy(update={"prerender": True}), compute)) as client:
+        s = client.post("/api/sessions", json={"domain": "toy"}).json()
+        svc = client.app.state.services
+        assert svc.wait_idle(SEARCH_SECONDS)
+        assert compute.batches == 0 and svc.thinker.failed == 0 and svc.thinker.done >= 1
+        assert compute.jobs and not any(is_generated(j.rollout.id) for j in compute.jobs)  # the serve clips only
+        answer_generating(client, s)  # the real answer still searches
+        assert compute.batches >= 1
