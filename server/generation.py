@@ -39,10 +39,10 @@ KEPT_ENDED = 1024  # ended searches kept for their pages' last polls; older ones
 class Search:
     """One step of a generating session, run in the background: its progress and how it ended."""
 
-    session_id: str
     step: int
     generations: int
     started: float = field(default_factory=time.monotonic)
+    ended: float | None = None
     generation: int = 0
     state: str = "searching"  # then "done" or "failed"
     error: HTTPException | None = None  # why it failed, as the request would have said it
@@ -54,11 +54,13 @@ class Search:
 
     def end(self, error: HTTPException | None = None) -> None:
         self.state, self.error = ("failed", error) if error is not None else ("done", None)
+        self.ended = time.monotonic()
         self.news.set()
 
     def public(self) -> GenerationPublic:
+        elapsed = (self.ended or time.monotonic()) - self.started
         return GenerationPublic(step=self.step, state=self.state, generation=self.generation,
-                                generations=self.generations, elapsed_seconds=round(time.monotonic() - self.started, 3),
+                                generations=self.generations, elapsed_seconds=round(elapsed, 3),
                                 detail=None if self.error is None else str(self.error.detail))
 
 
@@ -84,7 +86,7 @@ class WouldSearch(Exception):
 def begin(svc: Services, s: TuningSession) -> Search:
     """A new search for the session's current step, registered so the progress route finds it."""
     gctx = svc.catalog.generation(s.domain, s.method, s.rep, s.model_set)
-    search = Search(s.id, s.step, gctx.config.generations)
+    search = Search(s.step, gctx.config.generations)
     with svc.search_lock:
         svc.searches.pop(s.id, None)  # to the end: the dict runs oldest first
         svc.searches[s.id] = search

@@ -276,7 +276,7 @@ class GenerationPublic(BaseModel):
                     "failed: the answer was not taken (detail says why), answer again")
     generation: int = Field(description="CMA-ES generations simulated so far")
     generations: int = Field(description="generations at most (the search may stop early)")
-    elapsed_seconds: float
+    elapsed_seconds: float = Field(description="since the answer, until the search ended")
     detail: str | None = Field(default=None, description="why it failed")
 
 

@@ -19,6 +19,7 @@ from sqlalchemy import update
 from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session
 
+from rba.generate import is_generated
 from rba.interact import SATISFIED, Feedback
 from rba.interact.generating import generating_methods
 from server import generation
@@ -200,9 +201,10 @@ def _search(svc: Services, s: TuningSession, body: FeedbackCreate, feedback: Fee
                     raise conflict(f"step {search.step} is stale: session {s.id} already moved on")
                 made = generation.generated_row(svc, db, s.domain, rollout_id, state)
                 _record_step(db, moving, body, feedback, rollout_id, state, made)
-            if made is not None:
+                shown = made or (generation.lookup(db, s.domain, rollout_id) if is_generated(rollout_id) else None)
+            if shown is not None:  # rendered now: the page asks for it next
                 svc.clips.request(svc.clips.generated_key(s.domain, rollout_id),
-                                  generation.rollout_of(svc, made), urgent=True)
+                                  generation.rollout_of(svc, shown), urgent=True)
             _after_step(svc, moving, feedback)
             search.end()
         except HTTPException as exc:
