@@ -1,13 +1,15 @@
 // RBA Studio page: start a session, watch its clip, answer "more / less <attribute>" or "this is it".
 // Plain ES module, no build step. Talks only to the REST API the scripted users use too.
 // An answer is only possible about a clip that has played for a second; it names that clip, so the server
-// refuses (409) an answer about a clip the session no longer shows.
+// refuses (409) an answer about a clip the session no longer shows. An answer that makes the agent search for a
+// new behaviour returns at once (202); the page then polls the search's progress with the buttons locked.
 
 import { $, api, el, pretty, toast } from "./common.js";
 import { describe, renderMeters, renderPath } from "./meters.js";
 
 const els = {
   domain: $("domain"), method: $("method"), setup: $("setup"), start: $("start"),
+  generate: $("generate"), generateField: $("generate-field"),
   player: $("player"), video: $("video"), overlay: $("overlay"), overlayText: $("overlay-text"),
   progress: $("progress"), progressFill: $("progress-fill"), progressText: $("progress-text"),
   welcome: $("welcome"), welcomeStart: $("welcome-start"), welcomeNote: $("welcome-note"),
@@ -24,6 +26,8 @@ const els = {
 const state = {
   domains: [],
   labels: {}, // method -> display name ("RBA-Global")
+  generating: [], // methods whose sessions can make new behaviours
+  searching: false, // the agent is making a new behaviour for the current clip's answer
   session: null,
   busy: false,
   waiting: false, // a new clip is being chosen or rendered: the previous one stays, dimmed
@@ -87,9 +91,11 @@ function refreshControls() {
   lock(els.satisfied, !open);
   lock(els.wordsYes, !open);
   lock(els.start, state.busy);
-  document.body.dataset.state = state.busy || state.waiting ? "busy" : (s ? "ready" : "idle");
+  document.body.dataset.state = state.searching ? "searching" : state.busy || state.waiting ? "busy" : (s ? "ready" : "idle");
   if (s && s.status === "active") {
     els.controlsHint.textContent = open ? "Press more or less — or “This is it”."
+      : state.searching ? "No stored clip fits your answer, so the agent is making a new behaviour: the buttons "
+        + "unlock once it has played."
       : state.busy || state.waiting ? "Wait for the new clip…" : "Watch the clip: the buttons unlock after its first second.";
   }
 }
@@ -113,15 +119,28 @@ function fillMethods() {
   for (const m of d ? d.available : []) els.method.append(el("option", { value: `${m.method}/${m.rep}` }, methodLabel(m)));
   if (d && !d.available.length) els.method.append(el("option", { value: "", disabled: true }, "not trained yet"));
   const ok = Boolean(d && d.available.length);
+  fillGenerate();
   lock(els.start, !ok);
   lock(els.welcomeStart, !ok);
   els.welcomeNote.textContent = ok ? `${pretty(d.name)}: ${d.attributes.map((a) => pretty(a.name)).join(", ")}`
     : (d && d.missing) || "";
 }
 
+/** The "make new behaviours" option: offered for the methods that can, the server's default ticked. */
+function fillGenerate() {
+  const able = state.generating.includes(els.method.value.split("/")[0]);
+  els.generate.disabled = !able;
+  els.generateField.classList.toggle("off", !able);
+  els.generateField.title = able ? "When no stored clip is close to what you ask for, the agent makes a new one "
+    + "(takes longer)" : "Only RBA-Global can make new behaviours";
+}
+els.method.addEventListener("change", fillGenerate);
+
 async function loadDomains() {
   const body = await api("/api/domains");
   state.domains = body.domains;
+  state.generating = body.generating;
+  els.generate.checked = body.generate;
   state.labels = Object.fromEntries(body.trainable.map((t) => [t.method, t.label]));
   els.domain.replaceChildren(...state.domains.map((d) => el("option", { value: d.name },
     pretty(d.name) + (d.available.length ? "" : " (not built)"))));
@@ -142,7 +161,9 @@ async function startSession(event) {
   showWelcome(false);
   overlay("Starting a session…");
   try {
-    const session = await api("/api/sessions", { method: "POST", body: JSON.stringify({ domain: d.name, method, rep }) });
+    const generate = els.generate.disabled ? undefined : els.generate.checked;
+    const session = await api("/api/sessions", { method: "POST",
+      body: JSON.stringify({ domain: d.name, method, rep, generate }) });
     history.replaceState(null, "", `#session=${session.id}`);
     showSession(session, { fresh: true });
     els.controlsTitle.focus();
@@ -174,7 +195,9 @@ async function sendFeedback(payload, pressed) {
   overlay(payload.satisfied ? "Saving your choice…" : "Choosing a new behaviour that fits…");
   try {
     const body = { step: s.step, clip: s.clip.rollout_id, ...payload };
-    showSession(await api(`/api/sessions/${s.id}/feedback`, { method: "POST", body: JSON.stringify(body) }));
+    const next = await api(`/api/sessions/${s.id}/feedback`, { method: "POST", body: JSON.stringify(body) });
+    if (next.step === s.step && next.status === "active") return await waitForSearch(next);  // 202: searching
+    showSession(next);
     return true;
   } catch (err) {
     stopWaiting();
@@ -189,6 +212,43 @@ async function sendFeedback(payload, pressed) {
     if (pressed) pressed.classList.remove("pressed");
     setBusy(false);
   }
+}
+
+const pause = (ms) => new Promise((r) => { setTimeout(r, ms); });
+
+function searchProgress(g) {
+  overlay("Making a new behaviour for you…");
+  els.progress.setAttribute("aria-label", "Search progress");
+  const fraction = g.generations ? g.generation / g.generations : 0;
+  progress(fraction, `search generation ${g.generation} of ${g.generations} · ${g.elapsed_seconds.toFixed(0)} s`);
+}
+
+/** No stored clip fits: poll the agent's search until the session moves on (true) or the search fails. */
+async function waitForSearch(session) {
+  state.searching = true;
+  state.waiting = true;
+  els.player.classList.add("waiting");
+  refreshControls();
+  els.announce.textContent = "No stored clip fits: the agent is making a new behaviour. This takes a while.";
+  try {
+    for (;;) {
+      const g = await api(`/api/sessions/${session.id}/generation`);
+      if (g.step !== session.step || g.state === "done") break;
+      if (g.state === "failed") throw Object.assign(new Error(g.detail), { status: 409 });
+      searchProgress(g);
+      await pause(POLL_MS);
+    }
+  } catch (err) {
+    state.searching = false;
+    stopWaiting();
+    toast(err.status === 404 ? "The search for a new behaviour was lost (the server restarted?); answer again."
+      : err.message);
+    await reloadSession();
+    return false;
+  }
+  state.searching = false;
+  showSession(await api(`/api/sessions/${session.id}`));
+  return true;
 }
 
 function feedback(attribute, direction, button) {
@@ -221,7 +281,12 @@ async function resumeFromUrl() {
   }
   overlay("Resuming your session…");
   try {
-    showSession(await api(`/api/sessions/${id}`), { fresh: true });
+    const session = await api(`/api/sessions/${id}`);
+    showSession(session, { fresh: true });
+    if (session.generation && session.generation.state === "searching") {
+      setBusy(true);
+      try { await waitForSearch(session); } finally { setBusy(false); }
+    }
     return true;
   } catch (err) {
     toast(err.status === 404 ? `Session ${id} does not exist (any more); start a new one.` : err.message);
@@ -238,6 +303,7 @@ window.addEventListener("hashchange", async () => {
 const statusUrl = (clip) => clip.url.replace(/\.mp4$/, "/status");
 
 function renderProgress(st) {
+  els.progress.setAttribute("aria-label", "Rendering progress");
   if (st.state === "queued") { overlay("Waiting for a free renderer…"); return; }
   if (st.state !== "rendering") { overlay("Rendering the clip…"); return; }
   overlay("Rendering the clip…");
@@ -337,6 +403,7 @@ function showSession(session, { fresh = false } = {}) {
     els.domain.value = session.domain;
     fillMethods();
     els.method.value = `${session.method}/${session.rep}`;
+    fillGenerate();
     buildControls(session);
     state.played.clear(); // another session: its clip must be watched again, even one seen before
     state.viewing = null;
@@ -384,8 +451,8 @@ function buildControls(session) {
 
 function renderStep(session) {
   els.stepBadge.hidden = false;
-  els.stepBadge.textContent = session.status === "satisfied" ? `✓ Chosen after ${plural(rounds(session), "round")}`
-    : `Clip ${session.step + 1}`;
+  els.stepBadge.textContent = (session.status === "satisfied" ? `✓ Chosen after ${plural(rounds(session), "round")}`
+    : `Clip ${session.step + 1}`) + (session.clip.generated ? " · new behaviour" : "");
 }
 
 function renderClipView(clip) {
@@ -409,9 +476,12 @@ function renderHistory(session) {
     const thumb = el("video", { src: `${h.rollout_before.url}#t=1`, muted: true, playsinline: true, preload: "metadata",
       loop: true, "aria-hidden": "true" });
     thumb.muted = true;
+    const made = h.rollout_before.generated;
     const card = el("button", { type: "button", class: `hist${isViewing ? " active" : ""}`,
-      "aria-label": `Re-watch clip ${h.step + 1}`, dataset: { step: String(h.step) } },
+      "aria-label": `Re-watch clip ${h.step + 1}${made ? ", a new behaviour made for you" : ""}`,
+      dataset: { step: String(h.step), generated: String(made) } },
     thumb, el("span", { class: "hist-body" }, el("span", { class: "hist-step" }, `Clip ${h.step + 1}`),
+      made ? el("span", { class: "hist-new", title: "made for you: not from the stored clips" }, "new") : null,
       el("span", { class: "hist-fb" }, feedbackLabel(h))));
     card.addEventListener("mouseenter", () => thumb.play().catch(() => {}));
     card.addEventListener("mouseleave", () => thumb.pause());

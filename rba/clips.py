@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from rba.compute import Compute, RenderJob, Task
+from rba.domains import Rollout
 from rba.library import SkillLibrary
 from rba.store import ClipStore
 
@@ -28,12 +29,14 @@ STALE_TMP_SECONDS = 600
 # filled before never mixes old clips with new ones (2: snake floor without reflection, one x264 thread).
 RENDERER_VERSION = 2
 CLAIM_TTL_SECONDS = 120  # a guess claimed longer ago than this was left by a crashed process: render it here
+GENERATED = "generated"  # the key's version of a generated rollout: its id already hashes what makes it
+Source = SkillLibrary | Rollout  # what a clip is rendered from: a library holding the rollout, or the rollout
 
 
 @dataclass(frozen=True)
 class ClipKey:
     domain: str
-    version: str  # the serve library's content hash
+    version: str  # the serve library's content hash, or GENERATED
     rollout_id: str  # already looked up in the library
     width: int
     height: int
@@ -87,6 +90,10 @@ class ClipCache:
         library.index_of(rollout_id)
         return ClipKey(library.domain, library.version, rollout_id, self.width, self.height)
 
+    def generated_key(self, domain: str, rollout_id: str) -> ClipKey:
+        """The key of a generated rollout (``gen-<hash>``): no library holds it, a rebuild never changes it."""
+        return ClipKey(domain, GENERATED, rollout_id, self.width, self.height)
+
     def path(self, key: ClipKey) -> Path:
         return self.store.path(key)
 
@@ -120,7 +127,7 @@ class ClipCache:
             futures = [r.done for r in self._inflight.values()]
         return not wait(futures, timeout).not_done
 
-    def request(self, key: ClipKey, library: SkillLibrary, urgent: bool = True) -> Future:
+    def request(self, key: ClipKey, source: Source, urgent: bool = True) -> Future:
         """A future of the clip's stored file: done at once if cached, else the render in flight or a new one.
 
         An urgent request for a clip queued as a guess moves it to the urgent queue when the backend has one.
@@ -140,11 +147,12 @@ class ClipCache:
             if upgrade and render.task.cancel():
                 render = None  # dropped before it started: submit it again as urgent
             if render is None:
-                render = self._submit(key, library, urgent)
+                render = self._submit(key, source, urgent)
             return render.done
 
-    def _submit(self, key: ClipKey, library: SkillLibrary, urgent: bool) -> _Render:
-        job = RenderJob.of(key.domain, library.rollout(library.index_of(key.rollout_id)), key.width, key.height)
+    def _submit(self, key: ClipKey, source: Source, urgent: bool) -> _Render:
+        rollout = source if isinstance(source, Rollout) else source.rollout(source.index_of(key.rollout_id))
+        job = RenderJob.of(key.domain, rollout, key.width, key.height)
         render = _Render(self.compute.render(job, urgent), urgent)
         self._inflight[key] = render
         render.task.future.add_done_callback(lambda f: self._finish(key, render, f))

@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 from rba.artifacts import BUILDERS, ModelNotFoundError, load_model
-from rba.domains import Domain, domain_names, get_domain
+from rba.domains import Domain, Rollout, domain_names, get_domain
 from rba.learn.common import Ragged
 from rba.library import SkillLibrary
 from rba.methods import get_method
@@ -124,6 +124,7 @@ class ExportSource:
     rollout_id: str
     feedback: list[dict[str, Any]]  # rounds in step order: step, feedback, rollout_before, rollout_after
     clip: bytes  # the chosen clip's MP4
+    rollout: Rollout | None = None  # the chosen rollout when no library holds it (a generated one), else None
 
 
 @dataclass(frozen=True)
@@ -197,8 +198,8 @@ def build_export(src: ExportSource) -> tuple[Profile, RewardPart | None]:
     if stale:
         raise ExportError(f"the {', '.join(stale)} model of set {src.model_set!r} is no longer the one session "
                           f"model {src.model_version} used; it cannot be exported")
-    i = src.library.index_of(src.rollout_id)
-    states = src.library.trajectory(i)
+    chosen = src.rollout or src.library.rollout(src.library.index_of(src.rollout_id))
+    states = chosen.states
     zeta = None
     if "ranker" in arts:
         zeta = arts["ranker"].model.score(Ragged.from_numpy(states, np.array([0, len(states)])))[0]
@@ -215,8 +216,8 @@ def build_export(src: ExportSource) -> tuple[Profile, RewardPart | None]:
     attrs = src.library.attribute_names
     profile = Profile(
         domain=src.domain, method=src.method, rep=src.rep, rollout_id=src.rollout_id,
-        params=dict(zip(src.library.param_names, map(float, src.library.params[i]), strict=True)),
-        seed=int(src.library.seeds[i]), proxies=src.library.proxies_of(i),
+        params={k: float(v) for k, v in chosen.params.items()}, seed=int(chosen.seed),
+        proxies={k: float(v) for k, v in chosen.proxies.items()},
         zeta=None if zeta is None else dict(zip(attrs, map(float, zeta), strict=True)),
         feedback=src.feedback,
         model={"version": src.model_version, "model_set": src.model_set,

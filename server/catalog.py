@@ -13,6 +13,7 @@ from typing import Any
 
 from rba.domains import Domain, domain_names, get_domain
 from rba.interact import load_context
+from rba.interact.generating import GeneratedStore, GenerationContext, generating_class
 from rba.library import SkillLibrary
 from rba.locks import KeyedLocks
 from rba.methods import get_method
@@ -32,6 +33,8 @@ class Catalog:
         self.store = Store.from_settings(settings)
         self._contexts: dict[tuple[str, str, str, str], Any] = {}
         self._libraries: dict[str, SkillLibrary] = {}
+        self._generation: dict[tuple[str, str, str, str], GenerationContext] = {}
+        self._stores: dict[str, GeneratedStore] = {}
         self._locks = KeyedLocks()
         self._guard = threading.Lock()
 
@@ -112,6 +115,23 @@ class Catalog:
                 log.info("loaded %s/%s/%s (model %s) in %.1f s", domain, method, rep, ctx.model_version,
                          time.perf_counter() - start)
         return ctx
+
+    def generation(self, domain: str, method: str, rep: str, version: str = BUILTIN_VERSION) -> GenerationContext:
+        """The context's generating form (its ranker loaded once per key); ValueError for a method that cannot
+        generate. It simulates in this process: each step gives it the compute layer's ``simulate``."""
+        generating_class(method)
+        key = (domain, method, rep, version)
+        with self._locks(("generation", *key)):
+            if key not in self._generation:
+                self._generation[key] = GenerationContext.load(
+                    self.context(*key), self.models(version).root, store=self.generated_store(domain),
+                    first_from_library=True)
+        return self._generation[key]
+
+    def generated_store(self, domain: str) -> GeneratedStore:
+        """Recent generated rollouts of ``domain`` in memory, shared by its contexts and the clip route."""
+        with self._guard:
+            return self._stores.setdefault(domain, GeneratedStore())
 
     def library(self, domain: str) -> SkillLibrary:
         """The serve library of ``domain`` (shared with a loaded context when there is one)."""

@@ -16,13 +16,14 @@ from pathlib import Path
 
 from sqlmodel import Session, select
 
-from rba.clips import ClipKey
-from rba.domains import domain_target
+from rba.clips import GENERATED, ClipKey, Source
+from rba.domains import Rollout, domain_target
 from rba.export import ExportError, ExportSource, Profile, build_export, export_bytes, write_export
-from rba.library import SkillLibrary
+from rba.generate import is_generated
+from server import generation
 from server.catalog import Catalog
 from server.errors import conflict, not_found
-from server.models import FeedbackEvent, SessionStatus, TuningSession
+from server.models import FeedbackEvent, GeneratedClip, SessionStatus, TuningSession
 from server.services import Services
 from server.settings import Settings
 
@@ -30,11 +31,14 @@ log = logging.getLogger(__name__)
 
 CLIP_WAIT_SECONDS = 120.0  # an export waits this long at most for its clip to render
 
-ClipBytes = Callable[[SkillLibrary, str], bytes]  # (serve library, rollout id) -> the clip's MP4
+ClipBytes = Callable[[Source, str], bytes]  # (serve library or generated rollout, rollout id) -> the clip's MP4
+Remake = Callable[[GeneratedClip], Rollout]  # a generated rollout from its row (params and seed)
 
 
-def export_source(catalog: Catalog, db: Session, session_id: str, clip: ClipBytes) -> ExportSource:
-    """What the export of ``session_id`` is made of; 404 for an unknown session, 409 unless it ended satisfied."""
+def export_source(catalog: Catalog, db: Session, session_id: str, clip: ClipBytes, remake: Remake) -> ExportSource:
+    """What the export of ``session_id`` is made of; 404 for an unknown session, 409 unless it ended satisfied.
+
+    A generated chosen rollout is remade from its row: the export holds its own params, seed and states."""
     s = db.get(TuningSession, session_id)
     if s is None:
         raise not_found(f"no session {session_id!r}; create one with POST /api/sessions")
@@ -45,19 +49,22 @@ def export_source(catalog: Catalog, db: Session, session_id: str, clip: ClipByte
                      .order_by(FeedbackEvent.step)).all()
     rounds = [{"step": e.step, "feedback": e.feedback, "rollout_before": e.rollout_before,
                "rollout_after": e.rollout_after} for e in events]
-    library = catalog.library(s.domain)
+    library, rid = catalog.library(s.domain), s.current_rollout_id
+    chosen = remake(generation.lookup(db, s.domain, rid)) if is_generated(rid) else None
     return ExportSource(domain=s.domain, method=s.method, rep=s.rep, model_version=s.model_version,
                         model_set=s.model_set, models_root=catalog.models(s.model_set).root, library=library,
-                        rollout_id=s.current_rollout_id, feedback=rounds, clip=clip(library, s.current_rollout_id))
+                        rollout_id=rid, feedback=rounds, clip=clip(chosen or library, rid), rollout=chosen)
 
 
 def export_session(svc: Services, db: Session, session_id: str) -> tuple[Profile, bytes]:
     """The profile and zip bytes of a satisfied session; its clip comes from the app's clip cache."""
-    def clip(library: SkillLibrary, rollout_id: str) -> bytes:
-        path = svc.clips.request(svc.clips.key(library, rollout_id), library, urgent=True).result(CLIP_WAIT_SECONDS)
+    def clip(source: Source, rollout_id: str) -> bytes:
+        key = (svc.clips.generated_key(source.domain, rollout_id) if isinstance(source, Rollout)
+               else svc.clips.key(source, rollout_id))
+        path = svc.clips.request(key, source, urgent=True).result(CLIP_WAIT_SECONDS)
         return Path(path).read_bytes()
 
-    src = export_source(svc.catalog, db, session_id, clip)
+    src = export_source(svc.catalog, db, session_id, clip, lambda row: generation.rollout_of(svc, row))
     try:
         profile, reward = build_export(src)
     except ExportError as exc:
@@ -80,20 +87,24 @@ def export_to_file(session_id: str, out: Path, settings: Settings | None = None)
     catalog = Catalog(settings)
     store = catalog.store.clips()
 
-    def clip(library: SkillLibrary, rollout_id: str) -> bytes:
-        key = ClipKey(library.domain, library.version, rollout_id, settings.clip_width, settings.clip_height)
+    def clip(source: Source, rollout_id: str) -> bytes:
+        version = GENERATED if isinstance(source, Rollout) else source.version
+        key = ClipKey(source.domain, version, rollout_id, settings.clip_width, settings.clip_height)
         if not store.exists(key):
-            rollout = library.rollout(library.index_of(rollout_id))
-            data = render_clip(domain_target(library.domain), rollout, key.width, key.height)
+            rollout = source if isinstance(source, Rollout) else source.rollout(source.index_of(rollout_id))
+            data = render_clip(domain_target(source.domain), rollout, key.width, key.height)
             store.write(key, lambda tmp: tmp.write_bytes(data))
         with store.open(key) as f:
             return f.read()
+
+    def remake(row: GeneratedClip) -> Rollout:  # simulated in this process, as the clip is rendered here
+        return catalog.generated_store(row.domain).rollout(row.domain, row.id, row.params, row.seed)
 
     engine = make_engine(settings.db_url)
     try:
         with Session(engine) as db:
             try:
-                return write_export(out, export_source(catalog, db, session_id, clip))
+                return write_export(out, export_source(catalog, db, session_id, clip, remake))
             except HTTPException as exc:
                 raise (LookupError if exc.status_code == 404 else ValueError)(exc.detail) from None
     finally:

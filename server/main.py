@@ -118,15 +118,16 @@ def run(host: str | None = None, port: int | None = None, ray_address: str | Non
 
 
 @contextmanager
-def serve_in_thread(settings: Settings, timeout: float = 30.0) -> Iterator[str]:
-    """The app on a free loopback port in a thread of this process (browser tests, screenshots); its base URL
-    until the block ends."""
+def serve_in_thread(settings: Settings, timeout: float = 30.0, compute: Compute | None = None) -> Iterator[str]:
+    """The app (on ``compute`` if given) on a free loopback port in a thread of this process (browser tests,
+    screenshots); its base URL until the block ends."""
     import uvicorn
 
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    server = uvicorn.Server(uvicorn.Config(create_app(settings), host="127.0.0.1", port=port, log_level="warning"))
+    app = create_app(settings, compute)
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
     thread = threading.Thread(target=server.run, name="rba-serve-in-thread", daemon=True)
     thread.start()
     deadline = time.monotonic() + timeout

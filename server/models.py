@@ -19,7 +19,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, GetCoreSchemaHandler, GetJsonSchemaHandler, field_validator, model_validator
 from pydantic_core import PydanticCustomError, core_schema
-from sqlalchemy import JSON, Column, DateTime, UniqueConstraint
+from sqlalchemy import JSON, Boolean, Column, DateTime, UniqueConstraint, false
 from sqlmodel import Field, SQLModel
 
 from rba.domains import domain_names
@@ -98,6 +98,8 @@ class SessionCreate(SessionBase):
     domain: DomainName = Field(description="a domain from GET /api/domains, e.g. walker")
     method: MethodName = Field(default="global", description="agent: one of the domain's methods")
     rep: RepName = Field(default="onehot", description="attribute representation")
+    generate: bool | None = Field(default=None, description="make new behaviours when no serve clip is near the "
+                                  "agent's target (RBA-Global only); null: the server's RBA_GENERATE")
 
 
 class TuningSession(SessionBase, table=True):
@@ -112,6 +114,8 @@ class TuningSession(SessionBase, table=True):
     step: int = Field(default=0, ge=0)
     current_rollout_id: str = Field(max_length=128)
     agent_state: dict[str, Any] = Field(sa_column=Column(JSON, nullable=False))
+    generate: bool = Field(default=False, sa_column=Column(Boolean, nullable=False, server_default=false()),
+                           description="its agent is rba.interact.generating's: agent_state holds generated clips")
     created_at: dt.datetime = Field(default_factory=utcnow, sa_column=Column(DateTime(timezone=True), nullable=False))
     updated_at: dt.datetime = Field(default_factory=utcnow, sa_column=Column(DateTime(timezone=True), nullable=False))
 
@@ -128,6 +132,22 @@ class FeedbackEvent(SQLModel, table=True):
     feedback: Any = Field(sa_column=Column(JSON, nullable=False))  # [{"attribute", "direction"}] or "satisfied"
     rollout_before: str = Field(max_length=128)
     rollout_after: str = Field(max_length=128)
+    created_at: dt.datetime = Field(default_factory=utcnow, sa_column=Column(DateTime(timezone=True), nullable=False))
+
+
+class GeneratedClip(SQLModel, table=True):
+    """A rollout a session's agent made (``gen-<hash of domain, params, seed>``): what remakes it, bit for bit.
+
+    Written in the transaction of the step that first showed it; the clip route renders from it.
+    """
+
+    __tablename__ = "rba_generated_clip"
+
+    id: str = Field(primary_key=True, max_length=128)
+    domain: str = Field(max_length=64)
+    params: dict[str, float] = Field(sa_column=Column(JSON, nullable=False))
+    seed: int
+    proxies: dict[str, float] = Field(sa_column=Column(JSON, nullable=False))
     created_at: dt.datetime = Field(default_factory=utcnow, sa_column=Column(DateTime(timezone=True), nullable=False))
 
 
@@ -206,6 +226,9 @@ class DomainsPublic(BaseModel):
     methods: list[str] = Field(description="every agent method the server offers (more/less feedback)")
     reps: list[str] = Field(description="every attribute representation")
     trainable: list[TrainablePublic] = Field(description="methods whose models POST /api/admin/train can retrain")
+    generate: bool = Field(default=False, description="whether new sessions make new behaviours unless they say "
+                           "otherwise (RBA_GENERATE)")
+    generating: list[str] = Field(default_factory=list, description="methods whose sessions can make new behaviours")
 
 
 class ClipPublic(BaseModel):
@@ -213,6 +236,8 @@ class ClipPublic(BaseModel):
     url: str
     measured: dict[str, float] = Field(description="the clip's measured attribute values (proxies)")
     ready: bool = Field(description="already rendered: the URL answers at once")
+    generated: bool = Field(default=False, description="made for this session by a search, not from the serve "
+                            "library (its id is gen-<hash>)")
 
 
 class ClipStatusPublic(BaseModel):
@@ -242,8 +267,22 @@ class FeedbackPublic(BaseModel):
     _utc = field_validator("created_at")(as_utc)
 
 
+class GenerationPublic(BaseModel):
+    """GET /api/sessions/{id}/generation: the search for a new behaviour a feedback started (202), if any."""
+
+    step: int = Field(description="the step whose answer started it; the session moves on when it ends")
+    state: Literal["searching", "done", "failed"] = Field(
+        description="searching: candidates are being simulated; done: the session shows its result (GET it); "
+                    "failed: the answer was not taken (detail says why), answer again")
+    generation: int = Field(description="CMA-ES generations simulated so far")
+    generations: int = Field(description="generations at most (the search may stop early)")
+    elapsed_seconds: float = Field(description="since the answer, until the search ended")
+    detail: str | None = Field(default=None, description="why it failed")
+
+
 class SessionPublic(SessionBase):
     id: str
+    generate: bool = Field(description="the agent makes new behaviours when no serve clip fits")
     model_version: str
     model_set: str
     status: SessionStatus
@@ -254,6 +293,9 @@ class SessionPublic(SessionBase):
     target: list[TargetRange] | None = Field(
         default=None, description="where the agent believes the target is (the middle half of its belief), "
                                   "for agents that keep such a belief (RBA-Global)")
+    generation: GenerationPublic | None = Field(
+        default=None, description="a running (or just ended) search for the next clip; poll "
+                                  "GET /api/sessions/{id}/generation while it is searching")
     created_at: dt.datetime
     updated_at: dt.datetime
 

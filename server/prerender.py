@@ -27,7 +27,9 @@ from dataclasses import dataclass
 from sqlmodel import Session, select
 
 from rba.domains import domain_names, domain_target
+from rba.generate import is_generated
 from rba.interact import SATISFIED, AttributeFeedback, Feedback
+from server import generation
 from server.admin_models import BUILTIN_VERSION
 from server.models import FeedbackEvent, SessionStatus, TuningSession
 from server.services import ClipRef, Services
@@ -56,15 +58,25 @@ def answer_order(attributes: tuple[str, ...], last: Feedback | None) -> list[lis
     return answers
 
 
-def next_clips(svc: Services, key: ContextKey, state: dict, last: Feedback | None,
+def next_clips(svc: Services, key: ContextKey, generate: bool, state: dict, last: Feedback | None,
                stale: Callable[[], bool]) -> list[str]:
-    """The rollout each possible next answer would show, most likely first (computed on copies, memoised)."""
+    """The serve clip each possible next answer would show, most likely first (computed on copies, memoised).
+
+    A generating session's answers that would start a search are skipped: a guess never spends the compute
+    layer on one (the step renders what it made).
+    """
     ctx = svc.catalog.context(*key)
+    step_ctx = generation.step_context(svc, key, None) if generate else ctx
     nexts: list[str] = []
     for answer in answer_order(ctx.attribute_names, last):
         if stale():
             break
-        nexts.append(svc.transitions.advance(ctx, key[1], state, answer)[0])
+        try:
+            rollout_id = svc.transitions.advance(step_ctx, key[1], state, answer)[0]
+        except generation.WouldSearch:
+            continue
+        if not is_generated(rollout_id):
+            nexts.append(rollout_id)
     return list(dict.fromkeys(nexts))
 
 
@@ -77,14 +89,14 @@ def schedule_prerender(svc: Services, s: TuningSession, last: Feedback | None) -
     if svc.thinker is None or not svc.settings.prerender:
         return
     session_id, step, shown = s.id, s.step, s.current_rollout_id
-    key, state = (s.domain, s.method, s.rep, s.model_set), s.agent_state
+    key, generate, state = (s.domain, s.method, s.rep, s.model_set), s.generate, s.agent_state
     svc.prerendering[session_id] = step
 
     def stale() -> bool:
         return svc.stopping or svc.prerendering.get(session_id) != step
 
     def think() -> None:
-        clips = [shown, *next_clips(svc, key, state, last, stale)]
+        clips = [*([] if is_generated(shown) else [shown]), *next_clips(svc, key, generate, state, last, stale)]
         if not stale():
             svc.prefetch.offer(session_id, [ClipRef(key[0], rid) for rid in clips])
 

@@ -8,7 +8,7 @@ Import direction (no cycles, function-level imports included), lowest first:
    (training processes, which read ``labeldata`` and use ``processes``); the clip cache and the
    per-key locks are the library's (``rba.clips``, ``rba.locks``), and so is the compute layer (``rba.compute``);
 2. this module, which holds those parts and imports nothing above it;
-3. operations that take a ``Services``: ``versions``, ``views``, ``prerender``, ``sessions``,
+3. operations that take a ``Services``: ``versions``, ``generation``, ``views``, ``prerender``, ``sessions``,
    ``labelling``, ``training``, ``exporting`` (each imports only those before it in this list);
 4. ``deps``, ``auth`` and ``routes.*``; then ``main``.
 
@@ -40,6 +40,7 @@ from server.transitions import Transitions
 from server.uploads import sweep_workspaces
 
 log = logging.getLogger(__name__)
+SEARCHERS = 4
 
 
 class ClipRef(NamedTuple):
@@ -69,7 +70,11 @@ class Services:
     prefetch: Prefetcher  # feeds guessed renders to the compute layer, most needed first
     jobs: JobRunner  # retraining processes
     owns_compute: bool = True
+    # generating sessions' steps: a thread each while it waits for the compute layer (SEARCHERS at once)
+    searcher: Background = field(default_factory=lambda: Background(SEARCHERS, "rba-generate"))
     session_locks: KeyedLocks = field(default_factory=KeyedLocks)
+    searches: dict = field(default_factory=dict)  # session id -> its latest server.generation.Search
+    search_lock: threading.Lock = field(default_factory=threading.Lock)
     prerendering: dict[str, int] = field(default_factory=dict)  # session id -> step being prerendered
     warming: threading.Thread | None = None  # the warm-up (server.prerender.warm_up), while it runs
 
@@ -111,7 +116,7 @@ class Services:
                 return False
             if self.thinker is not None and not self.thinker.wait_idle(timeout):
                 return False
-            if not self.prefetch.wait_idle(timeout):
+            if not self.prefetch.wait_idle(timeout) or not self.searcher.wait_idle(timeout):
                 return False
         return True
 
@@ -121,6 +126,7 @@ class Services:
 
     def stop(self) -> None:
         self.jobs.stop()
+        self.searcher.stop()
         if self.thinker is not None:
             self.thinker.stop()
         self.prefetch.stop()

@@ -12,17 +12,23 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from typing import Any
 
+from fastapi import HTTPException
 from sqlalchemy import update
 from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session
 
+from rba.generate import is_generated
 from rba.interact import SATISFIED, Feedback
+from rba.interact.generating import generating_methods
+from server import generation
 from server.errors import conflict, invalid, not_found
 from server.feedback import parse_feedback
 from server.models import (
     FeedbackCreate,
     FeedbackEvent,
+    GeneratedClip,
     SessionCreate,
     SessionPublic,
     SessionStatus,
@@ -44,13 +50,27 @@ def load_session(db: Session, session_id: str) -> TuningSession:
     return s
 
 
+def _generates(svc: Services, body: SessionCreate) -> bool:
+    """Whether the new session's agent makes behaviours: the body's ``generate``, else ``RBA_GENERATE`` where
+    the method can (422 naming the methods that can, when the body asks for one that cannot)."""
+    able = generating_methods()
+    if body.generate is None:
+        return svc.settings.generate and body.method in able
+    if body.generate and body.method not in able:
+        raise invalid(f"method {body.method!r} cannot generate behaviours; valid with generate: "
+                      f"{', '.join(able)} (or leave generate out)")
+    return body.generate
+
+
 def create_session(svc: Services, db: Session, body: SessionCreate) -> SessionPublic:
+    generate = _generates(svc, body)
     version = serving_version(svc, db, body.domain, body.method, body.rep)
     svc.catalog.check_available(body.domain, body.method, body.rep, version)
     ctx = svc.catalog.context(body.domain, body.method, body.rep, version)
-    rollout_id, state = svc.transitions.first(ctx, body.method)
+    step_ctx = svc.catalog.generation(body.domain, body.method, body.rep, version) if generate else ctx
+    rollout_id, state = svc.transitions.first(step_ctx, body.method)
     s = TuningSession(domain=body.domain, method=body.method, rep=body.rep, model_version=ctx.model_version,
-                      model_set=version, current_rollout_id=rollout_id, agent_state=state)
+                      model_set=version, current_rollout_id=rollout_id, agent_state=state, generate=generate)
     db.add(s)
     db.commit()
     db.refresh(s)
@@ -104,11 +124,14 @@ def _move(db: Session, s: TuningSession, at_step: int | None, lost: Callable[[Tu
 
 
 def _record_step(db: Session, s: TuningSession, body: FeedbackCreate, feedback: Feedback, rollout_id: str,
-                 state: dict) -> None:
-    """Store the round and move the session on, in one transaction; 409 if another request answered first."""
+                 state: dict, made: GeneratedClip | None = None) -> None:
+    """Store the round (and the clip it made) and move the session on, in one transaction; 409 if another
+    request answered first."""
     stored = SATISFIED if feedback == SATISFIED else [c.model_dump() for c in body.feedback or ()]
     db.add(FeedbackEvent(session_id=s.id, step=s.step, feedback=stored, rollout_before=s.current_rollout_id,
                          rollout_after=rollout_id))
+    if made is not None:
+        generation.add_generated(db, made)
     status = SessionStatus.satisfied.value if feedback == SATISFIED else SessionStatus.active.value
 
     def lost(now: TuningSession) -> str:
@@ -119,26 +142,85 @@ def _record_step(db: Session, s: TuningSession, body: FeedbackCreate, feedback: 
     _move(db, s, s.step, lost, step=s.step + 1, current_rollout_id=rollout_id, agent_state=state, status=status)
 
 
-def give_feedback(svc: Services, db: Session, session_id: str, body: FeedbackCreate) -> SessionPublic:
-    """Advance the session by one round; 409 if the step is stale or the session is closed."""
+def give_feedback(svc: Services, db: Session, session_id: str, body: FeedbackCreate) -> tuple[SessionPublic, bool]:
+    """Advance the session by one round; 409 if the step is stale, the session is closed or still searching.
+
+    Returns the session and whether its step is still searching (a generating session's: 202, poll its progress).
+    """
     with svc.session_locks(session_id):
         s = _answerable(db, session_id, body)
+        if (search := generation.running(svc, s.id)) is not None:
+            raise conflict(f"session {s.id} is still making a new behaviour for step {search.step} (generation "
+                           f"{search.generation} of {search.generations}); wait for it: "
+                           f"GET /api/sessions/{s.id}/generation")
         domain = svc.catalog.domain(s.domain)
         ctx = svc.catalog.context(s.domain, s.method, s.rep, s.model_set)
         feedback = parse_feedback(body.choices(), body.satisfied, domain.name, ctx.attribute_names)
         if ctx.model_version != s.model_version:
             raise conflict(f"the served model changed since session {s.id} started ({s.model_version} -> "
                            f"{ctx.model_version}); start a new session")
-        try:  # server.feedback already refused what the agent would; an agent's ValueError is still the client's
-            rollout_id, state = svc.transitions.advance(ctx, s.method, s.agent_state, feedback)
-        except ValueError as exc:
-            raise invalid(str(exc)) from exc
+        if s.generate:
+            searching = _search(svc, s, body, feedback).state == "searching"
+            if not searching:
+                db.refresh(s)
+            return session_public(svc, db, s), searching
+        rollout_id, state = _advance(svc, ctx, s, feedback)
         _record_step(db, s, body, feedback, rollout_id, state)
+    _after_step(svc, s, feedback)
+    return session_public(svc, db, s), False
+
+
+def _advance(svc: Services, ctx: Any, s: TuningSession, feedback: Feedback) -> tuple[str, dict]:
+    try:  # server.feedback already refused what the agent would; an agent's ValueError is still the client's
+        return svc.transitions.advance(ctx, s.method, s.agent_state, feedback)
+    except ValueError as exc:
+        raise invalid(str(exc)) from exc
+
+
+def _after_step(svc: Services, s: TuningSession, feedback: Feedback) -> None:
     if s.status == SessionStatus.active:
         schedule_prerender(svc, s, None if feedback == SATISFIED else feedback)
     else:
         stop_prerender(svc, s.id)
-    return session_public(svc, db, s)
+
+
+def _search(svc: Services, s: TuningSession, body: FeedbackCreate, feedback: Feedback) -> generation.Search:
+    """Run a generating session's step on the searcher; back once it simulates (a search: it goes on) or ends.
+
+    A step that ends without simulating is the request's as any other: its failure is raised here.
+    """
+    search = generation.begin(svc, s)
+    ctx = generation.step_context(svc, (s.domain, s.method, s.rep, s.model_set), search)
+
+    def step() -> None:
+        try:
+            rollout_id, state = _advance(svc, ctx, s, feedback)
+            with Session(svc.engine, expire_on_commit=False) as db:
+                moving = db.get(TuningSession, s.id)
+                if moving.step != search.step:
+                    raise conflict(f"step {search.step} is stale: session {s.id} already moved on")
+                made = generation.generated_row(svc, db, s.domain, rollout_id, state)
+                _record_step(db, moving, body, feedback, rollout_id, state, made)
+                shown = made or (generation.lookup(db, s.domain, rollout_id) if is_generated(rollout_id) else None)
+            if shown is not None:  # rendered now: the page asks for it next
+                svc.clips.request(svc.clips.generated_key(s.domain, rollout_id),
+                                  generation.rollout_of(svc, shown), urgent=True)
+            _after_step(svc, moving, feedback)
+            search.end()
+        except HTTPException as exc:
+            search.end(exc)
+        except Exception as exc:  # the searcher's thread must report, not die: the page is waiting on it
+            log.exception("session %s: the search of step %d failed", s.id, s.step)
+            search.end(HTTPException(500, f"the search for a new behaviour failed ({type(exc).__name__}); "
+                                          "answer again"))
+
+    svc.searcher.submit(s.id, step)
+    while not search.news.wait(1.0):
+        if svc.searcher.stopping:
+            raise HTTPException(503, "the server is stopping; answer again once it is back")
+    if search.state == "failed":
+        raise search.error
+    return search
 
 
 def _not_abandonable(s: TuningSession) -> str:

@@ -38,6 +38,10 @@ class Settings(LibrarySettings):
     prerender_library: bool = Field(default=True, description="after the warm-up, render every serve clip not "
                                     "cached yet (background, niced; once: the cache is on disk): then no one waits "
                                     "for a render")
+    generate: bool = Field(default=False, description="RBA-Global sessions make a new behaviour (a CMA-ES "
+                           "search on the compute layer) when no serve clip is near the agent's target; a session "
+                           "may ask otherwise at creation (`generate`). Off by default: `rba eval --generate` has "
+                           "not yet been measured not to hurt")
     warm_start: bool = Field(default=True, description="load models and render first clips after start-up")
     replica: str | None = Field(default=None, max_length=120, description="this server's name among the API "
                                 "replicas on one database; default <hostname>:<port>. A restarted replica fails "

@@ -16,7 +16,8 @@ import threading
 from collections import OrderedDict
 from typing import Any
 
-from rba.interact import SATISFIED, Feedback, new_agent, restore_agent
+from rba.interact import SATISFIED, Agent, Feedback, new_agent, restore_agent
+from rba.interact.generating import GenerationContext, generating_class
 
 FeedbackKey = tuple[tuple[str, int], ...] | str
 
@@ -42,18 +43,24 @@ class Transitions:
         self.misses = 0
 
     @staticmethod
-    def _key(ctx: Any, method: str, state: dict, feedback: Feedback) -> tuple:
-        return (ctx.domain, method, ctx.rep, ctx.model_version, state_hash(state), feedback_key(feedback))
+    def _context_key(ctx: Any, method: str) -> tuple:
+        """What names a context: a generating one (``GenerationContext``) steps otherwise than its base."""
+        generating = isinstance(ctx, GenerationContext)
+        base = ctx.base if generating else ctx
+        return base.domain, method, base.rep, base.model_version, generating
+
+    def _key(self, ctx: Any, method: str, state: dict, feedback: Feedback) -> tuple:
+        return (*self._context_key(ctx, method), state_hash(state), feedback_key(feedback))
 
     def first(self, ctx: Any, method: str) -> tuple[str, dict]:
         """A new agent's first rollout and state (agents are deterministic: every session starts alike)."""
-        key = (ctx.domain, method, ctx.rep, ctx.model_version, "first")
+        key = (*self._context_key(ctx, method), "first")
         with self._lock:
             hit = self._memo.get(key)
             if hit is not None:
                 self.hits += 1
                 return hit[0], copy.deepcopy(hit[1])
-        agent = new_agent(method, ctx)
+        agent = generating_class(method)(ctx) if isinstance(ctx, GenerationContext) else new_agent(method, ctx)
         rollout_id = agent.first_query()
         state = json.loads(json.dumps(agent.state_dict()))
         with self._lock:
@@ -86,6 +93,13 @@ class Transitions:
 
     @staticmethod
     def _step(ctx: Any, state: dict, feedback: Feedback) -> tuple[str, dict]:
-        agent = restore_agent(copy.deepcopy(state), ctx)
+        agent = _restore(copy.deepcopy(state), ctx)
         rollout_id = agent.update(feedback)
         return rollout_id, json.loads(json.dumps(agent.state_dict()))  # exactly what the database will hold
+
+
+def _restore(state: dict, ctx: Any) -> Agent:
+    """The agent of ``state``: the generating form over a ``GenerationContext``, else its method's."""
+    if isinstance(ctx, GenerationContext):
+        return generating_class(state["method"]).from_state(state, ctx)
+    return restore_agent(state, ctx)

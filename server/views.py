@@ -1,7 +1,7 @@
 """What the public API shows of domains, sessions and clips (read-only, no transactions).
 
-Import direction: above ``server.services`` (it reads the catalog and the clip cache through it)
-and ``server.versions``, below ``server.sessions`` and the routes; it never imports either.
+Import direction: above ``server.services`` (it reads the catalog and the clip cache through it),
+``server.versions`` and ``server.generation``, below ``server.sessions`` and the routes; it never imports either.
 """
 
 from __future__ import annotations
@@ -13,11 +13,15 @@ from urllib.parse import quote
 import numpy as np
 from sqlmodel import Session, select
 
+from rba.clips import ClipKey
 from rba.domains import Domain
 from rba.embed import REPRESENTATIONS
+from rba.generate import is_generated
 from rba.interact import SATISFIED, restore_agent
+from rba.interact.generating import generating_methods
 from rba.library import LibraryNotFoundError
 from rba.methods import trainable
+from server import generation
 from server.admin_models import BUILTIN_VERSION
 from server.errors import not_found
 from server.models import (
@@ -29,6 +33,7 @@ from server.models import (
     DomainsPublic,
     FeedbackEvent,
     FeedbackPublic,
+    GeneratedClip,
     MethodPublic,
     ReadingPublic,
     SessionPublic,
@@ -46,8 +51,13 @@ def clip_url(domain: str, rollout_id: str) -> str:
     return f"/api/clips/{quote(domain)}/{quote(rollout_id)}.mp4"
 
 
-def clip_public(svc: Services, domain: str, rollout_id: str) -> ClipPublic:
+def clip_public(svc: Services, db: Session, domain: str, rollout_id: str) -> ClipPublic:
     """A clip's URL, its measured attribute values and whether it is rendered already."""
+    if is_generated(rollout_id):
+        row = db.get(GeneratedClip, rollout_id)
+        ready = svc.clips.cached(svc.clips.generated_key(domain, rollout_id))
+        return ClipPublic(rollout_id=rollout_id, url=clip_url(domain, rollout_id), measured=row.proxies if row else {},
+                          ready=ready, generated=True)
     try:
         lib = svc.catalog.library(domain)
         i = lib.index_of(rollout_id)
@@ -119,9 +129,12 @@ def target_public(svc: Services, s: TuningSession) -> list[TargetRange] | None:
     return out
 
 
-def clip_status(svc: Services, domain: str, rollout_id: str) -> ClipStatusPublic:
-    """How far the render of a serve-library clip is; 404 for an unknown domain or rollout."""
+def clip_status(svc: Services, db: Session, domain: str, rollout_id: str) -> ClipStatusPublic:
+    """How far the render of a clip is; 404 for an unknown domain or rollout."""
     svc.catalog.domain(domain)
+    if is_generated(rollout_id):
+        key = svc.clips.generated_key(domain, generation.lookup(db, domain, rollout_id).id)
+        return _status(svc, key)
     try:
         lib = svc.catalog.library(domain)
         key = svc.clips.key(lib, rollout_id)
@@ -129,8 +142,12 @@ def clip_status(svc: Services, domain: str, rollout_id: str) -> ClipStatusPublic
         raise not_found(str(exc)) from exc
     except KeyError as exc:
         raise not_found(f"unknown rollout id {rollout_id!r} in {domain}/serve; ids look like {lib.ids[0]}") from exc
+    return _status(svc, key)
+
+
+def _status(svc: Services, key: ClipKey) -> ClipStatusPublic:
     st = svc.clips.status(key)
-    return ClipStatusPublic(rollout_id=rollout_id, state=st.state, elapsed_seconds=st.elapsed,
+    return ClipStatusPublic(rollout_id=key.rollout_id, state=st.state, elapsed_seconds=st.elapsed,
                             typical_seconds=st.typical)
 
 
@@ -142,7 +159,7 @@ def history_public(svc: Services, db: Session, s: TuningSession) -> list[Feedbac
         satisfied = e.feedback == SATISFIED
         choices = None if satisfied else [AttributeChoice(**c) for c in e.feedback]
         out.append(FeedbackPublic(step=e.step, feedback=choices, satisfied=satisfied,
-                                  rollout_before=clip_public(svc, s.domain, e.rollout_before),
+                                  rollout_before=clip_public(svc, db, s.domain, e.rollout_before),
                                   rollout_after=e.rollout_after, created_at=e.created_at))
     return out
 
@@ -156,8 +173,9 @@ def session_public(svc: Services, db: Session, s: TuningSession) -> SessionPubli
     return SessionPublic(id=s.id, domain=s.domain, method=s.method, rep=s.rep, model_version=s.model_version,
                          model_set=s.model_set, status=SessionStatus(s.status), step=s.step,
                          attributes=attributes_public(domain, svc, specs),
-                         clip=clip_public(svc, s.domain, s.current_rollout_id),
+                         clip=clip_public(svc, db, s.domain, s.current_rollout_id),
                          history=history_public(svc, db, s), target=target_public(svc, s),
+                         generate=s.generate, generation=generation.current(svc, s),
                          created_at=s.created_at, updated_at=s.updated_at)
 
 
@@ -178,4 +196,5 @@ def domains_public(svc: Services, db: Session) -> DomainsPublic:
                                     available=available, missing=svc.catalog.missing_reason(name)))
     return DomainsPublic(domains=domains, methods=list(attribute_methods()), reps=list(REPRESENTATIONS),
                          trainable=[TrainablePublic(method=m.name, label=m.label, presets=list(m.presets))
-                                    for m in trainable()])
+                                    for m in trainable()],
+                         generate=svc.settings.generate, generating=list(generating_methods()))

@@ -47,3 +47,24 @@ def own_copy(toy_roots, root: Path) -> tuple[Path, Path]:
     shutil.copytree(toy_roots[0], data)
     shutil.copytree(toy_roots[1], models)
     return data, models
+
+
+def _in_gap(proxies):
+    """The toy clips whose amplitude and pace both lie in the middle of their ranges."""
+    return (proxies[:, 0] > 0.3) & (proxies[:, 0] < 1.1) & (proxies[:, 1] > 1.9) & (proxies[:, 1] < 2.9)
+
+
+@pytest.fixture(scope="session")
+def gap_roots(toy_roots, tmp_path_factory):
+    """The toy data with a serve library that lacks every clip of a gap (targets there need generation); the
+    toy models."""
+    import numpy as np
+
+    from rba.library import SkillLibrary
+
+    data, models = own_copy(toy_roots, tmp_path_factory.mktemp("gap"))
+    serve = SkillLibrary.load("toy", "serve", data)
+    lib = serve.subset(np.flatnonzero(~_in_gap(serve.proxies)))
+    lib.split = "serve"
+    lib.save(data)
+    return data, models

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+import time
 from concurrent.futures import Future
 
 from rba.compute import Compute, RenderJob, Task
@@ -59,3 +60,23 @@ class InstantCompute(FakeCompute):
         task = super().render(job, urgent)
         task.future.set_result(self.CLIP)
         return task
+
+
+class InProcessCompute(InstantCompute):
+    """Simulates in this process, ``delay`` seconds a batch (searches for new behaviours run as slowly as a test
+    needs to watch them); renders at once (``InstantCompute``), or real clips on ``renders``."""
+
+    def __init__(self, delay: float = 0.0, renders: Compute | None = None) -> None:
+        super().__init__()
+        self.delay, self.renders = delay, renders
+        self.batches = 0
+
+    def render(self, job: RenderJob, urgent: bool = True) -> Task:
+        return super().render(job, urgent) if self.renders is None else self.renders.render(job, urgent)
+
+    def simulate(self, jobs):
+        from rba.generate import in_process
+
+        self.batches += 1
+        time.sleep(self.delay)
+        return list(in_process(jobs))

@@ -18,27 +18,10 @@ from rba.generate import SearchConfig, ZetaDistance, generated_id, is_generated,
 from rba.interact.generating import GeneratingGlobalAgent, GenerationContext, generating_agents
 from rba.interact.global_agent import GlobalAgent, GlobalContext
 from rba.interact.users import parse_user
-from rba.library import SkillLibrary
-from tests.conftest import own_copy
 from tests.toy import Toy
 
 TARGET = np.array([0.7, 2.4])  # amplitude, pace: inside the gap, away from where the first query lands
 BUDGET = 30  # attribute feedbacks a trial may use
-
-
-def _in_gap(proxies: np.ndarray) -> np.ndarray:
-    return (proxies[:, 0] > 0.3) & (proxies[:, 0] < 1.1) & (proxies[:, 1] > 1.9) & (proxies[:, 1] < 2.9)
-
-
-@pytest.fixture(scope="module")
-def gap_roots(toy_roots, tmp_path_factory):
-    """The toy data with a serve library that lacks every clip of the gap; the toy models."""
-    data, models = own_copy(toy_roots, tmp_path_factory.mktemp("gap"))
-    serve = SkillLibrary.load("toy", "serve", data)
-    lib = serve.subset(np.flatnonzero(~_in_gap(serve.proxies)))
-    lib.split = "serve"
-    lib.save(data)
-    return data, models
 
 
 @pytest.fixture(scope="module")

@@ -66,6 +66,17 @@ class GeneratedStore:
         with self._lock:
             return self._items.get(rollout_id)
 
+    def rollout(self, domain: str, rollout_id: str, params: dict[str, float], seed: int,
+                simulate: Simulate = in_process) -> Rollout:
+        """A generated rollout: from here, else simulated again from its params and seed (and kept)."""
+        found = self.get(rollout_id)
+        if found is None:
+            found = replay(domain, params, seed, simulate)
+            if found.id != rollout_id:
+                raise ValueError(f"params and seed make {found.id}, not {rollout_id}")
+            self.put(found)
+        return found
+
 
 @dataclass
 class GenerationContext:
@@ -79,6 +90,7 @@ class GenerationContext:
     objective: str = "zeta"
     on_progress: Progress | None = None  # (generation k, of K) of the running search
     store: GeneratedStore = field(default_factory=GeneratedStore)
+    first_from_library: bool = False  # the first clip is the library's (the app: one first clip for every session)
 
     def __post_init__(self) -> None:
         if self.objective not in OBJECTIVES:
@@ -106,13 +118,7 @@ class GenerationContext:
 
     def rollout(self, rollout_id: str, params: dict[str, float], seed: int) -> Rollout:
         """A generated rollout: from the store, else simulated again from its params and seed."""
-        found = self.store.get(rollout_id)
-        if found is None:
-            found = replay(self.base.domain, params, seed, self.simulate)
-            if found.id != rollout_id:
-                raise ValueError(f"params and seed make {found.id}, not {rollout_id}")
-            self.store.put(found)
-        return found
+        return self.store.rollout(self.base.domain, rollout_id, params, seed, self.simulate)
 
 
 class GeneratingGlobalAgent(Agent):
@@ -171,7 +177,7 @@ class GeneratingGlobalAgent(Agent):
         library = base.serve.ids[self.inner.shown]
         dist = self.ctx.distance(self.inner.target)
         near = float(dist.distances(base.serve_zeta[self.inner.shown])[0])
-        if near <= self.ctx.threshold:
+        if near <= self.ctx.threshold or (before is None and self.ctx.first_from_library):
             return library
         found, zeta = self.ctx.generate(self.inner.target, self._starts(dist), len(self.searches))
         moves = before is None or all(h * (zeta[a] - before[a]) > 0 for a, h in asked)
@@ -207,12 +213,23 @@ class GeneratingGlobalAgent(Agent):
 GENERATING = {GlobalAgent: GeneratingGlobalAgent}  # an agent class -> its generating form
 
 
+def generating_methods() -> tuple[str, ...]:
+    """The registered methods whose agents have a generating form."""
+    return tuple(m.name for m in methods() if m.agent in GENERATING)
+
+
+def generating_class(method: str) -> type[GeneratingGlobalAgent]:
+    """The generating agent class of ``method``; ValueError naming the methods that can generate."""
+    agent = get_method(method).agent
+    if agent not in GENERATING:
+        raise ValueError(f"method {method!r} cannot generate behaviours; valid with generation: "
+                         f"{', '.join(generating_methods())}")
+    return GENERATING[agent]
+
+
 def generating_agents(method: str, context, models_root=None, **options) -> Callable[[], GeneratingGlobalAgent]:
     """New generating agents of ``method`` over ``context`` (one ``GenerationContext`` for all of them);
     ValueError naming the methods that can generate."""
-    agent = get_method(method).agent
-    if agent not in GENERATING:
-        able = [m.name for m in methods() if m.agent in GENERATING]
-        raise ValueError(f"method {method!r} cannot generate behaviours; valid with generation: {', '.join(able)}")
+    agent = generating_class(method)
     gctx = GenerationContext.load(context, models_root, **options)
-    return lambda: GENERATING[agent](gctx)
+    return lambda: agent(gctx)

@@ -1,7 +1,9 @@
-"""GET /api/clips/{domain}/{rollout_id}.mp4: a rollout of the serve library as H.264 video (and ``/status``:
-how far its render is, for the page's progress while a person waits).
+"""GET /api/clips/{domain}/{rollout_id}.mp4: a rollout of the serve library, or one a session generated
+(``gen-<hash>``), as H.264 video (and ``/status``: how far its render is, for the page's progress while a
+person waits).
 
-The rollout id is looked up in the library (404 if absent) and never used as a path. The
+The rollout id is looked up in the library or the generated clips' table (404 if absent) and never used
+as a path; a generated rollout no longer in memory is simulated again from its params and seed. The
 file is rendered on first request and cached; responses carry a content ETag and honour
 ``If-None-Match`` (304) and ``Range`` (206, so browsers can seek and stream).
 """
@@ -19,9 +21,11 @@ from starlette.datastructures import Headers
 from starlette.responses import MalformedRangeHeader, RangeNotSatisfiable
 from starlette.types import Receive, Scope, Send
 
-from server.deps import ServicesDep
+from rba.generate import is_generated
+from server import generation
+from server.deps import DbDep, ServicesDep
 from server.errors import error_response, not_found, responses
-from server.models import ClipStatusPublic, DomainName
+from server.models import ClipStatusPublic, DomainName, GeneratedClip
 from server.views import clip_status
 
 router = APIRouter(prefix="/api/clips", tags=["clips"], responses=responses(413, 422))
@@ -53,21 +57,29 @@ class ClipFile(FileResponse):
                              "description": "the requested byte range(s)"},
                        304: {"description": "not modified"},
                        **responses(400, 404, 416, said={400: "a malformed Range header",
-                                                        404: "no serve library, or no such rollout in it"})},
+                                                        404: "no serve library, no such rollout in it, or no "
+                                                             "such generated rollout"})},
             summary="A rollout's clip as MP4 (rendered on first request, then cached)")
 async def get_clip(domain: Annotated[DomainName, Path()], rollout_id: Annotated[str, Path(max_length=128)],
-                   svc: ServicesDep, if_none_match: Annotated[str | None, Header()] = None) -> Response:
+                   svc: ServicesDep, db: DbDep, if_none_match: Annotated[str | None, Header()] = None) -> Response:
     await anyio.to_thread.run_sync(svc.catalog.domain, domain)  # the first call imports the simulator
-    library = await anyio.to_thread.run_sync(svc.catalog.library, domain)  # LibraryNotFoundError is a 404
-    if rollout_id not in library:
-        raise not_found(f"unknown rollout id {rollout_id!r} in {domain}/serve; ids look like {library.ids[0]}")
-    key = svc.clips.key(library, rollout_id)
+    if is_generated(rollout_id):
+        row = await anyio.to_thread.run_sync(generation.lookup, db, domain, rollout_id)
+        key, source = svc.clips.generated_key(domain, row.id), row
+    else:
+        library = await anyio.to_thread.run_sync(svc.catalog.library, domain)  # LibraryNotFoundError is a 404
+        if rollout_id not in library:
+            raise not_found(f"unknown rollout id {rollout_id!r} in {domain}/serve; ids look like {library.ids[0]}")
+        key, source = svc.clips.key(library, rollout_id), library
     # The URL outlives a library rebuild; the ETag (a hash of the key) does not: browsers revalidate.
     headers = {"ETag": key.etag, "Cache-Control": "no-cache"}
     if if_none_match and key.etag in {t.strip() for t in if_none_match.split(",")}:
         return Response(status_code=304, headers=headers)
+    if isinstance(source, GeneratedClip) and not svc.clips.cached(key):
+        # from memory, else simulated again on the compute layer, in a thread (the loop stays free)
+        source = await anyio.to_thread.run_sync(generation.rollout_of, svc, source)
     # Rendered on the compute layer (or already in flight there): waiting holds no thread.
-    path = await asyncio.wrap_future(svc.clips.request(key, library))
+    path = await asyncio.wrap_future(svc.clips.request(key, source))
     return ClipFile(path, media_type="video/mp4", headers=headers)
 
 
@@ -75,8 +87,9 @@ router.add_api_route("/{domain}/{rollout_id}.mp4", get_clip, methods=["HEAD"], i
 
 
 @router.get("/{domain}/{rollout_id}/status", response_model=ClipStatusPublic,
-            responses=responses(404, said={404: "no serve library, or no such rollout in it"}),
+            responses=responses(404, said={404: "no serve library, no such rollout in it, or no such generated "
+                                                "rollout"}),
             summary="How far a clip's render is: ready, queued, rendering (elapsed and typical seconds) or absent")
 def get_clip_status(domain: Annotated[DomainName, Path()], rollout_id: Annotated[str, Path(max_length=128)],
-                    svc: ServicesDep) -> ClipStatusPublic:
-    return clip_status(svc, domain, rollout_id)
+                    svc: ServicesDep, db: DbDep) -> ClipStatusPublic:
+    return clip_status(svc, db, domain, rollout_id)

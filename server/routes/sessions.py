@@ -7,16 +7,16 @@ from typing import Annotated
 from fastapi import APIRouter, Path
 from fastapi.responses import Response
 
-from server import exporting, prerender, sessions, views
+from server import exporting, generation, prerender, sessions, views
 from server.deps import DbDep, ServicesDep
 from server.errors import responses
-from server.models import FeedbackCreate, SessionCreate, SessionPublic
+from server.models import FeedbackCreate, GenerationPublic, SessionCreate, SessionPublic
 
 router = APIRouter(prefix="/api/sessions", tags=["sessions"], responses=responses(413, 422))
 
 SessionId = Annotated[str, Path(description="the id POST /api/sessions returned", max_length=64)]
 
-SAID = {404: "no such session", 409: "stale step, or the session is closed",
+SAID = {404: "no such session", 409: "stale step, the session is closed, or it is still making a new behaviour",
         422: "invalid body: the message names the valid values"}
 
 
@@ -34,10 +34,24 @@ def read_session(session_id: SessionId, svc: ServicesDep, db: DbDep) -> SessionP
     return views.session_public(svc, db, s)
 
 
-@router.post("/{session_id}/feedback", response_model=SessionPublic, responses=responses(404, 409, 422, said=SAID),
-             summary="Answer the current clip: more/less of attributes, or satisfied")
-def give_feedback(session_id: SessionId, body: FeedbackCreate, svc: ServicesDep, db: DbDep) -> SessionPublic:
-    return sessions.give_feedback(svc, db, session_id, body)
+@router.post("/{session_id}/feedback", response_model=SessionPublic, responses={
+    202: {"model": SessionPublic, "description": "a generating session's answer started a search for a new "
+          "behaviour: the session is still at its step; poll the Location (GET …/generation)"},
+    **responses(404, 409, 422, said=SAID)}, summary="Answer the current clip: more/less of attributes, or satisfied")
+def give_feedback(session_id: SessionId, body: FeedbackCreate, svc: ServicesDep, db: DbDep,
+                  response: Response) -> SessionPublic:
+    session, searching = sessions.give_feedback(svc, db, session_id, body)
+    if searching:
+        response.status_code = 202
+        response.headers["Location"] = f"/api/sessions/{session_id}/generation"
+    return session
+
+
+@router.get("/{session_id}/generation", response_model=GenerationPublic, responses=responses(404, said={
+    404: "no such session, or no search of it in this server"}),
+    summary="How far the search for a generating session's next behaviour is (generation k of K)")
+def read_generation(session_id: SessionId, svc: ServicesDep, db: DbDep) -> GenerationPublic:
+    return generation.latest(svc, sessions.load_session(db, session_id))
 
 
 @router.post("/{session_id}/abandon", response_model=SessionPublic, responses=responses(404, 409, said=SAID),

@@ -9,18 +9,25 @@ from pathlib import Path
 import pytest
 
 from server.main import serve_in_thread
-from server.settings import Settings
 
 CHROMIUM = Path("/usr/bin/chromium")
+# page.wait_for_function predicates of the studio page: a new clip (not ``previous``) plays; it has played its second
+PLAYING = """(previous) => {
+  const v = document.getElementById('video');
+  return v.dataset.rollout && v.dataset.rollout !== previous && v.readyState >= 3 && v.currentTime > 0.25;
+}"""
+PLAYED = """() => { const v = document.getElementById('video');
+  return Boolean(v.dataset.played) && v.dataset.played === v.dataset.rollout; }"""
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
                  "--disable-component-update", "--disable-sync", "--no-first-run"]
 
 
 @pytest.fixture(scope="module")
-def live_server() -> Iterator[Callable[[Settings], str]]:
-    """``start(settings)`` -> base URL of a server running in a thread; all stop at module end."""
+def live_server() -> Iterator[Callable[..., str]]:
+    """``start(settings, compute=None)`` -> base URL of a server running in a thread; all stop at module end."""
     with contextlib.ExitStack() as servers:
-        yield lambda settings: servers.enter_context(serve_in_thread(settings, timeout=15))
+        yield lambda settings, compute=None: servers.enter_context(serve_in_thread(settings, timeout=15,
+                                                                                   compute=compute))
 
 
 @pytest.fixture(scope="module")

@@ -14,15 +14,9 @@ import pytest
 from rba.export import read_export
 from server.catalog import Catalog
 from server.settings import Settings
-from tests.browser.conftest import axe_violations
+from tests.browser.conftest import PLAYED, PLAYING, axe_violations
 
 REPO = Path(__file__).resolve().parents[2]
-PLAYING = """(previous) => {
-  const v = document.getElementById('video');
-  return v.dataset.rollout && v.dataset.rollout !== previous && v.readyState >= 3 && v.currentTime > 0.25;
-}"""
-PLAYED = """() => { const v = document.getElementById('video');
-  return Boolean(v.dataset.played) && v.dataset.played === v.dataset.rollout; }"""
 WATCH = """() => {  // what a person saw while waiting: overlay texts, and (dimmed?, clip shown) pairs
   window.seen = { texts: [], dimmed: [] };
   const player = document.getElementById('player'), video = document.getElementById('video');

@@ -65,6 +65,22 @@ Table("rba_feedback", FIRST_RELEASE, Column("id", Integer, primary_key=True),
       UniqueConstraint("session_id", "step", name="uq_feedback_session_step"))
 
 
+def _pre_migrations() -> MetaData:
+    """The tables of the last release without migrations (revision 0004): today's models, less what later
+    revisions added (0005: ``rba_generated_clip`` and ``rba_session.generate``)."""
+    old = MetaData()
+    for table in SQLModel.metadata.tables.values():
+        if table.name == "rba_session":
+            Table(table.name, old, *(Column(c.name, c.type, primary_key=c.primary_key, nullable=c.nullable,
+                                            index=c.index) for c in table.columns if c.name != "generate"))
+        elif table.name != "rba_generated_clip":
+            table.to_metadata(old)
+    return old
+
+
+PRE_MIGRATIONS = _pre_migrations()
+
+
 def differences(engine: Engine) -> list[Any]:
     """What autogenerate would put in a new migration: empty when the database is the models' schema."""
     with engine.connect() as conn:
@@ -129,13 +145,12 @@ def test_a_table_changed_without_a_migration_is_seen(database_url):
 def test_a_database_from_the_current_code_is_adopted_with_its_rows(make_settings, database_url, answered):
     s, row, events = answered
     old = create_engine(database_url)
-    SQLModel.metadata.create_all(old)  # the schema the code before migrations made
-    with Session(old) as db:
-        db.add(TuningSession(**row))
-        db.flush()  # the session row first: the feedback's foreign key names it
-        db.add_all(FeedbackEvent(**e) for e in events)
-        db.add(TrainJob(**JOB))
-        db.commit()
+    PRE_MIGRATIONS.create_all(old)  # the schema the code before migrations made
+    session = PRE_MIGRATIONS.tables["rba_session"]
+    with old.begin() as conn:  # the session row first: the feedback's foreign key names it
+        conn.execute(session.insert(), [{k: v for k, v in row.items() if k in session.c}])
+        conn.execute(PRE_MIGRATIONS.tables["rba_feedback"].insert(), events)
+        conn.execute(PRE_MIGRATIONS.tables["rba_train_job"].insert(), [JOB])
     old.dispose()
     with TestClient(create_app(make_settings(database_url=database_url, admin_token=TOKEN))) as app:
         jobs = app.get("/api/admin/jobs", headers=AUTH)
@@ -167,7 +182,7 @@ def test_a_first_release_database_upgrades_with_its_rows(make_settings, database
 def test_an_oldest_database_run_by_later_code_gets_the_column_it_missed(database_url):
     """Made before jobs had ``include_page_labels`` (create_all never adds a column), then given the owner columns."""
     old = create_engine(database_url)
-    SQLModel.metadata.create_all(old)
+    PRE_MIGRATIONS.create_all(old)
     with old.begin() as conn:
         conn.execute(text("ALTER TABLE rba_train_job DROP COLUMN include_page_labels"))
     with old.begin() as conn:  # the table as it is, without the column
@@ -205,7 +220,7 @@ def test_migrations_undo_and_redo(database_url):
 
 def test_replicas_adopting_one_old_database_together_all_start(database_url):
     old = create_engine(database_url)
-    SQLModel.metadata.create_all(old)
+    PRE_MIGRATIONS.create_all(old)
     old.dispose()
     engines, errors = make_engines_together(database_url, 3)
     assert errors == [] and len(engines) == 3

@@ -1,0 +1,151 @@
+"""Generating sessions (``TuningSession.generate``): the searches their answers start, and the clips they make.
+
+An answer to such a session runs the agent's step on ``Services.searcher`` with the compute layer's
+``simulate``. A step that simulates nothing (a serve clip is near the target, or the memo knew the step)
+answers the request as any session's would; one that starts simulating is a CMA-ES search of seconds to
+minutes, so the request returns 202 and the page polls ``GET /api/sessions/{id}/generation``
+(``Search``: generation k of K). The step, and the row of the clip it made (``GeneratedClip``), are then
+one transaction (``server.sessions``).
+
+Searches live in this process's memory only: after a restart the session is still at its step, its
+search is gone (the progress route says so) and the person answers again.
+
+Import direction: above ``server.services``, below ``server.views``, ``server.prerender`` and ``server.sessions``.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field, replace
+
+from fastapi import HTTPException
+from sqlalchemy.dialects import postgresql, sqlite
+from sqlmodel import Session
+
+from rba.compute import SimJob
+from rba.domains import Rollout
+from rba.generate import is_generated
+from rba.interact.generating import GenerationContext
+from server.errors import not_found
+from server.models import GeneratedClip, GenerationPublic, TuningSession
+from server.services import Services
+
+KEPT_ENDED = 1024  # ended searches kept for their pages' last polls; older ones are forgotten
+
+
+@dataclass
+class Search:
+    """One step of a generating session, run in the background: its progress and how it ended."""
+
+    step: int
+    generations: int
+    started: float = field(default_factory=time.monotonic)
+    ended: float | None = None
+    generation: int = 0
+    state: str = "searching"  # then "done" or "failed"
+    error: HTTPException | None = None  # why it failed, as the request would have said it
+    news: threading.Event = field(default_factory=threading.Event)  # it simulated, or it ended
+    simulating: bool = False
+
+    def progress(self, k: int, of: int) -> None:
+        self.generation, self.generations = k, of
+
+    def end(self, error: HTTPException | None = None) -> None:
+        self.state, self.error = ("failed", error) if error is not None else ("done", None)
+        self.ended = time.monotonic()
+        self.news.set()
+
+    def public(self) -> GenerationPublic:
+        elapsed = (self.ended or time.monotonic()) - self.started
+        return GenerationPublic(step=self.step, state=self.state, generation=self.generation,
+                                generations=self.generations, elapsed_seconds=round(elapsed, 3),
+                                detail=None if self.error is None else str(self.error.detail))
+
+
+def step_context(svc: Services, key: tuple[str, str, str, str], search: Search | None) -> GenerationContext:
+    """The generating context of ``key`` (domain, method, rep, model set), simulating on the compute layer for
+    ``search`` (it reports to it); without a search (guesses), a step that would simulate raises ``WouldSearch``."""
+    gctx = svc.catalog.generation(*key)
+
+    def simulate(jobs: Iterable[SimJob]) -> Iterator[Rollout]:
+        if search is None:
+            raise WouldSearch
+        search.simulating = True
+        search.news.set()
+        return svc.compute.simulate(jobs)
+
+    return replace(gctx, simulate=simulate, on_progress=None if search is None else search.progress)
+
+
+class WouldSearch(Exception):
+    """A guessed step would start a search: guesses never spend the compute layer on one."""
+
+
+def begin(svc: Services, s: TuningSession) -> Search:
+    """A new search for the session's current step, registered so the progress route finds it."""
+    gctx = svc.catalog.generation(s.domain, s.method, s.rep, s.model_set)
+    search = Search(s.step, gctx.config.generations)
+    with svc.search_lock:
+        svc.searches.pop(s.id, None)  # to the end: the dict runs oldest first
+        svc.searches[s.id] = search
+        ended = [k for k, v in svc.searches.items() if v.state != "searching"]
+        for k in ended[:max(len(ended) - KEPT_ENDED, 0)]:
+            del svc.searches[k]
+    return search
+
+
+def running(svc: Services, session_id: str) -> Search | None:
+    with svc.search_lock:
+        search = svc.searches.get(session_id)
+    return search if search is not None and search.state == "searching" else None
+
+
+def latest(svc: Services, s: TuningSession) -> GenerationPublic:
+    """The session's last search in this process; 404 saying when there is none."""
+    with svc.search_lock:
+        search = svc.searches.get(s.id)
+    if search is None:
+        raise not_found(f"session {s.id} has no search in this server: only an answer that needs a new behaviour "
+                        "starts one (and a restart forgets it: answer again)")
+    return search.public()
+
+
+def current(svc: Services, s: TuningSession) -> GenerationPublic | None:
+    """The search of the session's current step (running, or failed: answer again), for the session's view."""
+    with svc.search_lock:
+        search = svc.searches.get(s.id)
+    return search.public() if search is not None and search.step == s.step and search.state != "done" else None
+
+
+def generated_row(svc: Services, db: Session, domain: str, rollout_id: str, state: dict) -> GeneratedClip | None:
+    """The row a step that shows ``rollout_id`` must add: None for a library clip or one already stored."""
+    if not is_generated(rollout_id) or db.get(GeneratedClip, rollout_id) is not None:
+        return None
+    made = state["generation"]["generated"][rollout_id]
+    rollout = svc.catalog.generated_store(domain).rollout(domain, rollout_id, made["params"], made["seed"],
+                                                          svc.compute.simulate)
+    return GeneratedClip(id=rollout_id, domain=domain, params=made["params"], seed=made["seed"],
+                         proxies={k: float(v) for k, v in rollout.proxies.items()})
+
+
+def add_generated(db: Session, row: GeneratedClip) -> None:
+    """Insert ``row`` in the caller's transaction unless its id is there already (ids are content: equal rows)."""
+    dialect = postgresql if db.get_bind().dialect.name == "postgresql" else sqlite
+    db.exec(dialect.insert(GeneratedClip).values(**row.model_dump()).on_conflict_do_nothing(index_elements=["id"]))
+
+
+def lookup(db: Session, domain: str, rollout_id: str) -> GeneratedClip:
+    """The stored generated rollout ``rollout_id`` of ``domain``; 404 naming where such ids come from."""
+    row = db.get(GeneratedClip, rollout_id)
+    if row is None or row.domain != domain:
+        raise not_found(f"unknown generated rollout id {rollout_id!r} in {domain}: generated ids come from a "
+                        "session's clip (clip.rollout_id of GET /api/sessions/{id})")
+    return row
+
+
+def rollout_of(svc: Services, row: GeneratedClip) -> Rollout:
+    """The generated rollout itself: in memory if recent, else simulated again on the compute layer (blocking)."""
+    return svc.catalog.generated_store(row.domain).rollout(row.domain, row.id, row.params, row.seed,
+                                                           svc.compute.simulate)

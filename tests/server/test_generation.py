@@ -1,0 +1,163 @@
+"""Generating sessions over HTTP: an answer no serve clip fits starts a search (202), the page polls its progress,
+and the clip it made is served, listed in the history, exported and kept across a restart.
+
+The toy serve library has a gap (``gap_roots``): the agent's targets there are far from every clip, so answers
+from the first clip search. ``InProcessCompute`` simulates in the test's process and renders at once.
+"""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+from fastapi.testclient import TestClient
+
+from rba.export import read_export, replay
+from rba.generate import generated_id, is_generated
+from server.exporting import export_to_file
+from server.main import create_app
+from tests.fakes import InProcessCompute
+from tests.server.conftest import more
+
+SEARCH_SECONDS = 30
+
+
+@pytest.fixture
+def gen_settings(make_settings, gap_roots, database_url):
+    data, models = gap_roots
+    return make_settings(data_dir=data, models_dir=models, database_url=database_url, generate=True)
+
+
+def search_done(client: TestClient, sid: str) -> dict:
+    """Poll the session's search until it ends; its last progress."""
+    deadline = time.monotonic() + SEARCH_SECONDS
+    while time.monotonic() < deadline:
+        r = client.get(f"/api/sessions/{sid}/generation")
+        assert r.status_code == 200, r.text
+        if r.json()["state"] != "searching":
+            return r.json()
+        time.sleep(0.02)
+    raise AssertionError(f"the search of session {sid} did not end in {SEARCH_SECONDS} s")
+
+
+def answer_generating(client: TestClient, s: dict, attribute: str = "amplitude", direction: str = "less") -> dict:
+    """Answer ``s``'s clip; the answer must search (202 naming the progress route); the session after it."""
+    r = client.post(f"/api/sessions/{s['id']}/feedback", json=more(attribute, s["step"], direction,
+                                                                   clip=s["clip"]["rollout_id"]))
+    assert r.status_code == 202, r.text
+    assert r.headers["location"] == f"/api/sessions/{s['id']}/generation"
+    assert r.json()["step"] == s["step"]  # still at its step, and clip, until the search ends
+    assert r.json()["clip"]["rollout_id"] == s["clip"]["rollout_id"]
+    progress = search_done(client, s["id"])
+    assert progress["state"] == "done" and progress["step"] == s["step"] and progress["detail"] is None
+    assert 1 <= progress["generation"] <= progress["generations"] == 6  # SearchConfig(): 48 simulations, 8 a gen.
+    now = client.get(f"/api/sessions/{s['id']}").json()
+    assert now["step"] == s["step"] + 1 and now["generation"] is None
+    return now
+
+
+def test_a_generated_clip_is_served_listed_and_exported(gen_settings, tmp_path):
+    compute = InProcessCompute()
+    with TestClient(create_app(gen_settings, compute)) as client:
+        s = client.post("/api/sessions", json={"domain": "toy"}).json()
+        assert s["generate"] is True and s["clip"]["generated"] is False  # every session starts at a serve clip
+        now = answer_generating(client, s)
+        clip = now["clip"]
+        assert is_generated(clip["rollout_id"]) and clip["generated"] is True and clip["ready"] is True
+        assert clip["url"] == f"/api/clips/toy/{clip['rollout_id']}.mp4" and set(clip["measured"]) == {"amplitude",
+                                                                                                      "pace"}
+        assert compute.jobs[-1].rollout.id == clip["rollout_id"]  # the step asked for its render at once
+
+        r = client.get(clip["url"])
+        assert r.status_code == 200 and r.headers["content-type"] == "video/mp4", r.text
+        assert r.content == InProcessCompute.CLIP
+        assert client.get(clip["url"], headers={"If-None-Match": r.headers["etag"]}).status_code == 304
+        st = client.get(clip["url"].replace(".mp4", "/status"))
+        assert st.status_code == 200 and st.json()["state"] == "ready"
+
+        later = answer_generating(client, now, "pace", "more")
+        assert later["history"][1]["rollout_before"] == {**clip, "ready": True}  # marked generated in the history
+        assert later["history"][0]["rollout_after"] == clip["rollout_id"]
+        r = client.post(f"/api/sessions/{s['id']}/feedback", json={"step": later["step"], "satisfied": True})
+        assert r.status_code == 200 and r.json()["status"] == "satisfied", r.text  # choosing searches nothing
+
+        r = client.get(f"/api/sessions/{s['id']}/export")
+        assert r.status_code == 200 and r.headers["content-type"] == "application/zip", r.text
+    (tmp_path / "export.zip").write_bytes(r.content)
+    export = read_export(tmp_path / "export.zip")
+    profile = export.profile
+    chosen = later["clip"]
+    assert profile.rollout_id == chosen["rollout_id"] == generated_id("toy", profile.params, profile.seed)
+    assert profile.proxies == chosen["measured"] and export.clip == InProcessCompute.CLIP
+    assert profile.reward is not None and profile.zeta is not None
+    assert replay(tmp_path / "export.zip").matches  # its params and seed remake it
+    cli = export_to_file(s["id"], tmp_path / "cli.zip", gen_settings.model_copy(
+        update={"cache_dir": tmp_path / "cli-clips"}))  # `rba export`: remade and rendered in this process
+    assert cli.rollout_id == profile.rollout_id and cli.params == profile.params and cli.seed == profile.seed
+    assert read_export(tmp_path / "cli.zip").clip[4:8] == b"ftyp"  # a real MP4 this time
+
+
+def test_refusals_name_what_is_valid(gen_settings):
+    with TestClient(create_app(gen_settings, InProcessCompute(delay=0.5))) as client:
+        r = client.post("/api/sessions", json={"domain": "toy", "method": "local", "generate": True})
+        assert r.status_code == 422
+        assert r.json()["detail"] == ("method 'local' cannot generate behaviours; valid with generate: global "
+                                      "(or leave generate out)")
+        r = client.post("/api/sessions", json={"domain": "toy", "generate": "yes"})
+        assert r.status_code == 422 and r.json()["errors"][0]["loc"] == ["body", "generate"]
+        plain = client.post("/api/sessions", json={"domain": "toy", "generate": False}).json()
+        assert plain["generate"] is False
+        r = client.post(f"/api/sessions/{plain['id']}/feedback", json=more("amplitude", 0, "less"))
+        assert r.status_code == 200 and not r.json()["clip"]["generated"], r.text  # a library clip, at once
+        r = client.get(f"/api/sessions/{plain['id']}/generation")
+        assert r.status_code == 404
+        assert r.json()["detail"].startswith(f"session {plain['id']} has no search in this server")
+        r = client.get("/api/clips/toy/gen-0000000000000000.mp4")
+        assert r.status_code == 404
+        assert r.json()["detail"].startswith("unknown generated rollout id 'gen-0000000000000000' in toy")
+        assert client.get("/api/clips/toy/gen-0000000000000000/status").status_code == 404
+
+        s = client.post("/api/sessions", json={"domain": "toy"}).json()
+        r = client.post(f"/api/sessions/{s['id']}/feedback", json=more("amplitude", 0, "less"))
+        assert r.status_code == 202, r.text
+        again = client.post(f"/api/sessions/{s['id']}/feedback", json=more("pace", 0, "more"))
+        assert again.status_code == 409
+        assert again.json()["detail"].startswith(f"session {s['id']} is still making a new behaviour for step 0")
+        assert client.get(f"/api/sessions/{s['id']}").json()["generation"]["state"] == "searching"
+        assert client.post(f"/api/sessions/{s['id']}/abandon").status_code == 200
+        progress = search_done(client, s["id"])
+        assert progress["state"] == "failed"
+        assert progress["detail"] == f"session {s['id']} is abandoned; it takes no more feedback (start a new session)"
+
+
+def test_a_session_showing_a_generated_clip_continues_after_a_restart(gen_settings, tmp_path):
+    with TestClient(create_app(gen_settings, InProcessCompute())) as first:
+        s = first.post("/api/sessions", json={"domain": "toy"}).json()
+        shown = answer_generating(first, s)
+    compute = InProcessCompute()
+    cold = gen_settings.model_copy(update={"cache_dir": tmp_path / "cold-clips"})  # nor a clip on disk
+    with TestClient(create_app(cold, compute)) as second:  # nothing in memory: the database only
+        again = second.get(f"/api/sessions/{s['id']}").json()
+        assert again == {**shown, "clip": {**shown["clip"], "ready": False}} and again["clip"]["generated"]
+        r = second.get(again["clip"]["url"])
+        assert r.status_code == 200 and r.content == InProcessCompute.CLIP
+        assert compute.batches == 1 and compute.jobs[-1].rollout.id == again["clip"]["rollout_id"]  # simulated again
+        after = answer_generating(second, again, "pace", "more")
+        other = second.post("/api/sessions", json={"domain": "toy"}).json()  # the same answers, never restarted
+        other = answer_generating(second, answer_generating(second, other), "pace", "more")
+        assert other["clip"]["rollout_id"] == after["clip"]["rollout_id"]
+        assert [h["rollout_before"]["rollout_id"] for h in after["history"]] == \
+               [h["rollout_before"]["rollout_id"] for h in other["history"]]
+
+
+def test_guesses_never_search(gen_settings):
+    """Prerendering works out a generating session's next clips too, skipping every answer that would search."""
+    compute = InProcessCompute()
+    with TestClient(create_app(gen_settings.model_copy(update={"prerender": True}), compute)) as client:
+        s = client.post("/api/sessions", json={"domain": "toy"}).json()
+        svc = client.app.state.services
+        assert svc.wait_idle(SEARCH_SECONDS)
+        assert compute.batches == 0 and svc.thinker.failed == 0 and svc.thinker.done >= 1
+        assert compute.jobs and not any(is_generated(j.rollout.id) for j in compute.jobs)  # the serve clips only
+        answer_generating(client, s)  # the real answer still searches
+        assert compute.batches >= 1
