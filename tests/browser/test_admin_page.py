@@ -224,9 +224,12 @@ def test_activating_a_worse_version_asks_first_and_the_intro_follows(live_server
     _worse_version(models, db_url)
     unlock(page, url)
     page.wait_for_function("() => document.querySelectorAll('#versions li').length === 2")
-    # one bar for the whole job: ζσ done (195 s of the shipped 978 s) and half of rθ, with an estimate
-    assert page.locator("#progress").get_attribute("aria-valuenow") == "60"
-    assert re.search(r"60 % done · about \d+ s left · global_reward\[onehot\] step 500/1000",
+    # one bar for the whole job, weighted by the shipped cards' training seconds: ζσ done and half of rθ
+    zeta, reward = (json.loads((REPO / "models" / "walker" / f"{k}-onehot.json").read_text())["training"]["seconds"]
+                    for k in ("ranker", "global_reward"))
+    done = round(100 * (zeta + reward / 2) / (zeta + reward))
+    assert page.locator("#progress").get_attribute("aria-valuenow") == str(done)
+    assert re.search(rf"{done} % done · about \d+ s left · global_reward\[onehot\] step 500/1000",
                      page.locator("#job-detail").inner_text())
     worse = page.locator("#versions li", has_text="walker-worse")
     assert "serving now: builtin" in worse.inner_text()
@@ -235,7 +238,8 @@ def test_activating_a_worse_version_asks_first_and_the_intro_follows(live_server
     page.get_by_role("button", name="Activate walker-worse").click()
     dialog = page.locator("#confirm")
     dialog.wait_for()
-    assert "argmax within ε: 0.370, below 0.925 of builtin" in dialog.inner_text()
+    shipped = json.loads((REPO / "models" / "walker" / "global_reward-onehot.json").read_text())["held_out"]
+    assert f"argmax within ε: 0.370, below {shipped['argmax_within_epsilon']:.3f} of builtin" in dialog.inner_text()
     assert "pair accuracy · foot lift: untested (no held-out pairs)" in dialog.inner_text()
     page.screenshot(path=str(tmp_path / "admin-confirm.png"))
     page.get_by_role("button", name="Keep the current one").click()

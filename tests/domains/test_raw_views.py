@@ -56,13 +56,16 @@ def test_shipped_raw_libraries_hold_the_base_librarys_rollouts(base, split):
     """Same ids, params, seeds, proxies and success as the base's split; a sample's replay equal, states not."""
     kin, raw = SkillLibrary.load(base, split), SkillLibrary.load(f"{base}_raw", split)
     assert raw.ids == kin.ids
-    for name in ("params", "seeds", "proxies", "success"):
+    for name in ("seeds", "success"):
         np.testing.assert_array_equal(getattr(raw, name), getattr(kin, name), err_msg=f"{split} {name}")
+    # params and proxies: equal but for the last bits where the raw view was built on another machine
+    for name in ("params", "proxies"):
+        np.testing.assert_allclose(getattr(raw, name), getattr(kin, name), rtol=1e-9, atol=1e-12, err_msg=name)
     assert raw.states.shape[1] == get_domain(f"{base}_raw").state_dim
     for i in sorted({int(i) for i in np.linspace(0, len(kin) - 1, PER_SPLIT).round()}):
         a, b = kin.rollout(i), raw.rollout(i)
         np.testing.assert_array_equal(a.replay, b.replay, err_msg=a.id)
-        assert a.proxies == b.proxies, a.id
+        assert a.proxies == pytest.approx(b.proxies, rel=1e-9), a.id
 
 
 def test_states_raw_picks_the_view_and_a_missing_one_names_the_valid_views(capsys, tmp_path, monkeypatch):
