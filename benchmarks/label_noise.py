@@ -77,11 +77,10 @@ def trained_rows(models_dirs: list[Path], domains: list[str]) -> list[dict]:
     """
     rows = []
     for d in domains:
-        path = next((p for m in models_dirs if (p := m / d / "ranker-onehot.json").exists()
-                     and load_json(p)["training"].get("labels", {}).get("mode") == "pairwise"), None)
-        if path is None:
+        cards = (load_json(p) for m in models_dirs if (p := m / d / "ranker-onehot.json").exists())
+        card = next((c for c in cards if c["training"].get("labels", {}).get("mode") == "pairwise"), None)
+        if card is None:
             continue
-        card = load_json(path)
         acc = {n: card["held_out"][n]["pairwise_accuracy"] for n in get_domain(d).attribute_names}
         rows.append({"domain": d, "labels": card["training"].get("labels", {}), "steps": card["training"]["config"]
                      ["steps"], "val_pairwise_accuracy": acc, "mean_accuracy": round(sum(acc.values()) / len(acc), 4)})
