@@ -193,7 +193,7 @@ def _agents(method: str, context, spec: UserSpec, models_root, generate: bool,
 def generation_summary(agents: list) -> dict:
     """Searches run, clips shown, and seconds per search (mean, p95) over every trial's agent."""
     runs = [s for a in agents for s in a.searches]
-    seconds = np.array([s["seconds"] for s in runs], dtype=float)
+    seconds = np.array([t for a in agents for t in a.seconds], dtype=float)
     return {"searches": len(runs), "shown": sum(s["shown"] for s in runs),
             "simulations": int(sum(s["simulations"] for s in runs)),
             "seconds_mean": round(float(seconds.mean()), 3) if len(runs) else None,

@@ -6,6 +6,8 @@ Sits low: it imports only ``server.migrations`` (the schema's history) and ``ser
 from __future__ import annotations
 
 import logging
+import sqlite3
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -26,12 +28,12 @@ def make_engine(url: str) -> Engine:
     if parsed.get_backend_name() == "sqlite":
         if parsed.database and parsed.database != ":memory:":
             Path(parsed.database).parent.mkdir(parents=True, exist_ok=True)
-        engine = create_engine(url, connect_args={"check_same_thread": False, "timeout": 30})
+        engine = create_engine(url, connect_args={"check_same_thread": False, "timeout": SQLITE_WAIT_SECONDS})
 
         @event.listens_for(engine, "connect")
         def _pragmas(dbapi_conn, _record) -> None:  # WAL: readers never wait for the writer
             cur = dbapi_conn.cursor()
-            cur.execute("PRAGMA journal_mode=WAL")
+            _journal_wal(cur)
             cur.execute("PRAGMA synchronous=NORMAL")
             cur.execute("PRAGMA foreign_keys=ON")
             cur.close()
@@ -44,6 +46,27 @@ def make_engine(url: str) -> Engine:
         raise
     log.info("database ready: %s", parsed.render_as_string(hide_password=True))
     return engine
+
+
+SQLITE_WAIT_SECONDS = 30.0  # how long a SQLite connection waits for another's lock before "database is locked"
+
+
+def _journal_wal(cur, wait: float = SQLITE_WAIT_SECONDS) -> None:
+    """Switch the database to WAL, waiting out other connections' locks.
+
+    Leaving rollback-journal mode needs the database to itself, and SQLite answers "database is locked" at
+    once, without its busy handler, while another connection holds a lock: replicas that start together on
+    an old (rollback-journal) database would fail at random. So retry until ``wait`` runs out.
+    """
+    deadline = time.monotonic() + wait
+    while True:
+        try:
+            cur.execute("PRAGMA journal_mode=WAL")
+            return
+        except sqlite3.OperationalError as exc:
+            if "locked" not in str(exc) or time.monotonic() > deadline:
+                raise
+            time.sleep(0.05)
 
 
 SCHEMA_LOCK = 0x5_2BA_5C4E  # PostgreSQL advisory lock key: one replica at a time migrates the schema

@@ -134,7 +134,10 @@ class GeneratingGlobalAgent(Agent):
         self.inner = inner or GlobalAgent(ctx.base)
         self.generated = dict(generated or {})  # id -> {"params", "seed", "zeta"}
         self.showing = showing  # the generated clip shown now (None: the inner agent's library clip)
-        self.searches = list(searches or [])  # per search: simulations, seconds, whether its clip was shown
+        self.searches = list(searches or [])  # per search: simulations, whether its clip was shown
+        # wall-clock seconds of this object's searches: kept out of the state, which must be a function of the
+        # answers alone (equal states share the server's memo of steps)
+        self.seconds: list[float] = []
 
     @property
     def shown(self) -> int | None:
@@ -182,7 +185,8 @@ class GeneratingGlobalAgent(Agent):
         found, zeta = self.ctx.generate(self.inner.target, self._starts(dist), len(self.searches))
         moves = before is None or all(h * (zeta[a] - before[a]) > 0 for a, h in asked)
         shown = found.rollout is not None and bool(dist.distances(zeta)[0] < near) and moves
-        self.searches.append({"simulations": found.simulations, "seconds": round(found.seconds, 3), "shown": shown})
+        self.searches.append({"simulations": found.simulations, "shown": shown})
+        self.seconds.append(found.seconds)
         if not shown:
             return library
         r = found.rollout

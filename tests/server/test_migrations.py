@@ -7,6 +7,9 @@ migrations: ``create_all`` of the tables of the time, then hand-written ALTERs.
 from __future__ import annotations
 
 import datetime as dt
+import sqlite3
+import threading
+import time
 from typing import Any
 
 import pytest
@@ -228,3 +231,20 @@ def test_replicas_adopting_one_old_database_together_all_start(database_url):
         assert conn.execute(text("SELECT version_num FROM alembic_version")).all() == [(HEAD,)]
     for engine in engines:
         engine.dispose()
+
+
+def test_a_replica_waits_for_another_holding_an_old_sqlite_database(tmp_path):
+    """SQLite refuses the switch to WAL at once while another connection holds a lock: the start waits instead."""
+    path = tmp_path / "rba.db"
+    holder = sqlite3.connect(path, isolation_level=None, check_same_thread=False)
+    holder.execute("CREATE TABLE other (i INTEGER)")  # a rollback-journal database, as before any replica
+    holder.execute("BEGIN IMMEDIATE")
+    threading.Timer(0.5, holder.execute, ("COMMIT",)).start()
+    started = time.monotonic()
+    engine = make_engine(f"sqlite:///{path}")
+    assert time.monotonic() - started >= 0.4  # it waited for the holder rather than failing
+    assert revision(engine) == HEAD  # migrated beside the holder's own table
+    with engine.connect() as conn:
+        assert conn.exec_driver_sql("PRAGMA journal_mode").scalar() == "wal"
+    engine.dispose()
+    holder.close()
