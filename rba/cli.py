@@ -46,6 +46,17 @@ def _positive(text: str) -> int:
     return value
 
 
+def _share(text: str) -> float:
+    """A share in (0, 0.5]: how far beyond the serve range targets may lie (``rba eval --beyond``)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0.0 < value <= 0.5:
+        raise argparse.ArgumentTypeError(f"must be a share in (0, 0.5], e.g. 0.1 for 10 %; got {text}")
+    return value
+
+
 def _user(text: str) -> UserSpec:
     from rba.interact.users import parse_user
 
@@ -105,7 +116,8 @@ def cmd_eval(args) -> int:
                              "not --all-methods")
 
         runs = [(m.name, r) for m in methods(include_reference=True) for r in m.run_reps]
-        results = [evaluate(args.domain, m, r, args.targets, args.seed, args.precision, args.user, split=args.split)
+        results = [evaluate(args.domain, m, r, args.targets, args.seed, args.precision, args.user, split=args.split,
+                            beyond=args.beyond)
                    for m, r in runs]
         print(format_table(results))
         if args.json:
@@ -114,7 +126,7 @@ def cmd_eval(args) -> int:
     options, compute = _generation(args)
     try:
         result = evaluate(args.domain, args.method, args.rep, args.targets, args.seed, args.precision, args.user,
-                          split=args.split, generate=args.generate, generate_options=options)
+                          split=args.split, generate=args.generate, generate_options=options, beyond=args.beyond)
     finally:
         if compute is not None:
             compute.close()
@@ -305,6 +317,9 @@ def _eval_command(sub) -> argparse.ArgumentParser:
     e.add_argument("--precision", choices=("normal", "high"), default="normal")
     e.add_argument("--split", choices=HELD_OUT, default="test",
                    help="where targets come from: val to tune or choose models, test for reported numbers")
+    e.add_argument("--beyond", type=_share, default=None, metavar="SHARE",
+                   help="targets outside the serve library's proxy range by up to SHARE of it on each side, "
+                        "from rollouts the skill made (seeded; instead of --split's)")
     e.add_argument("--user", type=_user, default="paper", metavar="KIND[:param]",
                    help=f"the simulated user: {', '.join(USER_KINDS)} (e.g. mistake:0.2; without a param the "
                         "kind's default strength; see rba/interact/users.py)")

@@ -9,12 +9,13 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from rba.domains import get_domain
+from rba.compute import SimJob
+from rba.domains import Rollout, domain_target, get_domain
 from rba.interact import SATISFIED, Agent, FeedbackKind, Preference, load_context, new_agent
 from rba.interact.users import SKIP, PreferenceTeacher, SimulatedUser, UserSpec, parse_user
 from rba.library import HELD_OUT, SkillLibrary
@@ -23,6 +24,10 @@ log = logging.getLogger(__name__)
 
 MAX_FEEDBACK = 500  # attribute-level feedbacks before a trial is a failure (the paper's budget)
 MAX_ROUNDS = 1000  # rounds (answers, skips included) before a trial is a failure: a user who always skips
+BEYOND_CODE = 4  # seeds the beyond-range targets' stream: no split uses it (library.SPLIT_CODES)
+BEYOND_TRIES = 12  # rollouts simulated per wanted beyond-range target, at most
+BEYOND_STARTS = 16  # the serve clips most extreme on a side whose parameters are perturbed
+BEYOND_SPREAD = 0.15  # the perturbation's σ, a share of each parameter's range
 
 
 @dataclass
@@ -49,6 +54,7 @@ class EvalResult:
     seconds: float
     trials: list[Trial]
     split: str = "test"  # where the targets came from: "val" while tuning, "test" for reports
+    beyond: float | None = None  # targets from beyond the serve range by up to this share of it (not a split)
     generate: bool = False  # the agent made clips beyond the serve library (rba.interact.generating)
     generation: dict | None = None  # what generating cost and gave (``generation_summary``)
 
@@ -145,35 +151,86 @@ def simulate(agent: Agent, target: np.ndarray, epsilon: np.ndarray, serve: Skill
     return loop.run(agent, loop.make(parse_user(user), target, epsilon, serve, seed), serve, max_feedback)
 
 
+def beyond_targets(serve: SkillLibrary, share: float, count: int, seed: int = 0,
+                   run: Callable[[list[SimJob]], Iterable[Rollout]] | None = None) -> np.ndarray:
+    """Up to ``count`` targets outside the serve library's proxy range by at most ``share`` of it, each the
+    proxies of a rollout the skill made (so the skill can produce it), float64[n, k].
+
+    Candidates perturb the parameters of the serve clips most extreme on a random attribute and side (σ
+    ``BEYOND_SPREAD`` of each range, inside the domain's parameter space), simulated with seeds of their own
+    stream; a candidate is kept if it succeeded, leaves the range on some attribute and stays within
+    ``share`` beyond it on every one. Seeded: the same serve library and seed give the same targets.
+    """
+    if not 0.0 < share <= 0.5:
+        raise ValueError(f"share beyond the serve range must be in (0, 0.5]; got {share}")
+    domain, space = get_domain(serve.domain), get_domain(serve.domain).param_space()
+    if run is None:
+        from rba.generate import in_process as run
+    low, high = serve.proxies.min(axis=0), serve.proxies.max(axis=0)
+    band = share * (high - low)
+    rng = np.random.default_rng([seed, BEYOND_CODE])
+    kept: list[np.ndarray] = []
+    for batch in range(-(-count * BEYOND_TRIES // 32)):
+        jobs = [_beyond_candidate(serve, space, rng, seed * 10_000_000 + BEYOND_CODE * 1_000_000 + batch * 32 + j)
+                for j in range(32)]
+        for r in run(jobs):
+            x = np.array([r.proxies[a] for a in serve.attribute_names])
+            outside = (x < low) | (x > high)
+            if r.success and outside.any() and np.all((x >= low - band) & (x <= high + band)) and len(kept) < count:
+                kept.append(x)
+        if len(kept) >= count:
+            break
+    log.info("%s: %d targets up to %.0f%% beyond the serve range", domain.name, len(kept), 100 * share)
+    return np.array(kept, dtype=np.float64).reshape(-1, len(serve.attribute_names))
+
+
+def _beyond_candidate(serve: SkillLibrary, space, rng: np.random.Generator, sim_seed: int) -> SimJob:
+    """Perturbed parameters of one of the serve clips most extreme on a random attribute and side."""
+    column = serve.proxies[:, rng.integers(serve.proxies.shape[1])]
+    order = np.argsort(column)
+    starts = order[:BEYOND_STARTS] if rng.random() < 0.5 else order[-BEYOND_STARTS:]
+    params = dict(zip(serve.param_names, map(float, serve.params[rng.choice(starts)]), strict=True))
+    unit = space.to_unit(params) + rng.normal(0.0, BEYOND_SPREAD, len(space.free))
+    return SimJob(domain_target(serve.domain), space.from_unit(unit, params), int(sim_seed))
+
+
 def evaluate(domain_name: str, method: str, rep: str = "onehot", targets: int = 20, seed: int = 0,
              precision: str = "normal", user: str | UserSpec = "paper", data_root=None, models_root=None,
              context=None, split: str = "test", generate: bool = False,
-             generate_options: dict | None = None) -> EvalResult:
+             generate_options: dict | None = None, beyond: float | None = None) -> EvalResult:
     """SR / AF over ``targets`` targets drawn from ``split``: ``val`` for tuning and model selection,
-    ``test`` (the default) only for reported numbers. ``generate``: the agent may make clips beyond the
-    serve library (``rba.interact.generating``; ``generate_options`` go to its ``GenerationContext``)."""
+    ``test`` (the default) only for reported numbers; with ``beyond``, instead from beyond the serve range
+    (``beyond_targets``). ``generate``: the agent may make clips beyond the serve library
+    (``rba.interact.generating``; ``generate_options`` go to its ``GenerationContext``)."""
     if split not in HELD_OUT:
         raise ValueError(f"targets come from a held-out split; got {split!r}, valid: {', '.join(HELD_OUT)}")
     spec = parse_user(user)
     domain = get_domain(domain_name)
-    test = SkillLibrary.load(domain_name, split, data_root)
     context = context or load_context(domain_name, method, rep, data_root, models_root)
     serve = context.serve
     eps = domain.epsilons(serve.proxies, precision)
     make = _agents(method, context, spec, models_root, generate, generate_options)
-    rng = np.random.default_rng(seed)
-    chosen = rng.choice(len(test), size=min(targets, len(test)), replace=False)
+    if beyond is None:
+        test = SkillLibrary.load(domain_name, split, data_root)
+        chosen = test.proxies[np.random.default_rng(seed).choice(len(test), size=min(targets, len(test)),
+                                                                 replace=False)]
+    else:
+        chosen = beyond_targets(serve, beyond, targets, seed)
+        if not len(chosen):
+            raise ValueError(f"the {domain_name} skill made no rollout beyond its serve range within {beyond:.0%}")
     start = time.perf_counter()
     agents = [make() for _ in chosen]
-    trials = [simulate(agent, test.proxies[t], eps, serve, spec, seed * 1000 + n)
+    trials = [simulate(agent, t, eps, serve, spec, seed * 1000 + n)
               for n, (agent, t) in enumerate(zip(agents, chosen, strict=True))]
     fb = np.array([t.feedback_count for t in trials if t.success], dtype=float)
     return EvalResult(domain_name, method, rep, precision, str(spec), seed,
                       success_rate=float(np.mean([t.success for t in trials])),
                       avg_feedback=float(fb.mean()) if len(fb) else None,
                       std_feedback=float(fb.std()) if len(fb) else None,
-                      seconds=round(time.perf_counter() - start, 2), trials=trials, split=split,
-                      generate=generate, generation=generation_summary(agents) if generate else None)
+                      seconds=round(time.perf_counter() - start, 2), trials=trials,
+                      split=split if beyond is None else "beyond",
+                      generate=generate, generation=generation_summary(agents) if generate else None,
+                      beyond=beyond)
 
 
 def _agents(method: str, context, spec: UserSpec, models_root, generate: bool,

@@ -13,11 +13,12 @@ import pytest
 
 from rba.cli import main
 from rba.domains import ParamSpace, get_domain
-from rba.evaluate import evaluate, simulate
+from rba.evaluate import beyond_targets, evaluate, simulate
 from rba.generate import SearchConfig, ZetaDistance, generated_id, is_generated, replay, search
 from rba.interact.generating import GeneratingGlobalAgent, GenerationContext, generating_agents
 from rba.interact.global_agent import GlobalAgent, GlobalContext
 from rba.interact.users import parse_user
+from tests.conftest import own_copy
 from tests.toy import Toy
 
 TARGET = np.array([0.7, 2.4])  # amplitude, pace: inside the gap, away from where the first query lands
@@ -148,3 +149,57 @@ def test_cli_generate_flag(gap_roots, monkeypatch, capsys, tmp_path):
     assert "give --method, not --all-methods" in capsys.readouterr().err
     assert main(["eval", "--domain", "toy", "--method", "pbrl", "--generate", "--gen-workers", "1"]) == 2
     assert "method 'pbrl' cannot generate behaviours; valid with generation: global" in capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def narrow_roots(toy_roots, tmp_path_factory):
+    """The toy data with a serve library less its clips in the outer tenth of each parameter's range: the
+    skill reaches beyond what serve holds."""
+    from rba.library import SkillLibrary
+
+    data, models = own_copy(toy_roots, tmp_path_factory.mktemp("narrow"))
+    serve = SkillLibrary.load("toy", "serve", data)
+    amplitude, pace = serve.proxies[:, 0], serve.proxies[:, 1]
+    lib = serve.subset(np.flatnonzero((amplitude > 0.38) & (amplitude < 1.82) & (pace > 0.75) & (pace < 2.75)))
+    lib.split = "serve"
+    lib.save(data)
+    return data, models
+
+
+def test_beyond_targets_leave_the_serve_range_by_at_most_the_share(narrow_roots):
+    from rba.library import SkillLibrary
+
+    serve = SkillLibrary.load("toy", "serve", narrow_roots[0])
+    low, high = serve.proxies.min(0), serve.proxies.max(0)
+    targets = beyond_targets(serve, 0.1, 8, seed=0)
+    assert targets.shape == (8, 2)
+    assert (((targets < low) | (targets > high)).any(1)).all()  # each outside the range on some attribute
+    band = 0.1 * (high - low)
+    assert ((targets >= low - band) & (targets <= high + band)).all()
+    np.testing.assert_array_equal(beyond_targets(serve, 0.1, 8, seed=0), targets)  # seeded
+    assert not np.array_equal(beyond_targets(serve, 0.1, 8, seed=1), targets)
+    with pytest.raises(ValueError, match=r"must be in \(0, 0.5\]; got 0.7"):
+        beyond_targets(serve, 0.7, 8)
+
+
+def test_evaluate_beyond_the_range_with_and_without_generation(narrow_roots):
+    data, models = narrow_roots
+    options = dict(targets=4, data_root=data, models_root=models, precision="high", beyond=0.1)
+    off = evaluate("toy", "global", **options)
+    on = evaluate("toy", "global", **options, generate=True, generate_options={"config": SearchConfig(budget=16)})
+    assert off.split == on.split == "beyond" and off.beyond == 0.1
+    assert [t.target for t in on.trials] == [t.target for t in off.trials]
+    assert off.success_rate == 0.0  # no serve clip is within the high-precision ε of a target beyond its range
+    assert on.success_rate > off.success_rate and on.generation["shown"] > 0
+
+
+def test_cli_beyond_option(narrow_roots, monkeypatch, capsys, tmp_path):
+    monkeypatch.setenv("RBA_DATA_DIR", str(narrow_roots[0]))
+    monkeypatch.setenv("RBA_MODELS_DIR", str(narrow_roots[1]))
+    out = tmp_path / "r.json"
+    assert main(["eval", "--domain", "toy", "--targets", "2", "--beyond", "0.1", "--json", str(out)]) == 0
+    assert json.loads(out.read_text())["split"] == "beyond"
+    with pytest.raises(SystemExit) as exit_:
+        main(["eval", "--domain", "toy", "--beyond", "0.7"])
+    assert exit_.value.code == 2
+    assert "must be a share in (0, 0.5], e.g. 0.1 for 10 %; got 0.7" in capsys.readouterr().err
