@@ -96,6 +96,7 @@ class ServerOptions:
     models_dir: Path | None = None
     register: str | None = None  # e.g. the test suite's toy domain, "toy=tests.toy:Toy", for a quick smoke run
     database_url: str | None = None  # default: a fresh SQLite file in the configuration's folder
+    generate: bool = False  # RBA_GENERATE: RBA-Global sessions make new behaviours (benchmarks/generation_latency.py)
 
 
 def server_env(opts: ServerOptions, workdir: Path, cache_dir: Path) -> dict[str, str]:
@@ -103,6 +104,7 @@ def server_env(opts: ServerOptions, workdir: Path, cache_dir: Path) -> dict[str,
            "RBA_CACHE_DIR": str(cache_dir),
            "RBA_PRERENDER": str(opts.prerender).lower(), "RBA_WARM_START": str(opts.warm_start).lower(),
            "RBA_PRERENDER_LIBRARY": str(opts.prerender_library).lower(), "RBA_DEFAULT_DOMAIN": opts.domain,
+           "RBA_GENERATE": str(opts.generate).lower(),
            "RBA_LOG_LEVEL": "info", "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}  # info: renders are logged
     if opts.data_dir:
         env["RBA_DATA_DIR"] = str(opts.data_dir)

@@ -1,0 +1,196 @@
+"""Latency of generated behaviours in the web app: from an answer until the new clip is playable.
+
+A live local server (``api_load.LiveServer``: a subprocess on 127.0.0.1, a fresh SQLite database, its local
+compute pool) with generating sessions (``RBA_GENERATE=true``). One scripted person at a time chases a
+high-precision target drawn from the domain's ``test`` split: the paper's simulated user judges the measured
+values the API returns. Each answer is timed from POST /feedback until the next clip's MP4 is completely
+downloaded; an answer that started a search (202) is polled at ``--poll`` s on its Location until the search
+ends, then the session is read and its clip downloaded. The goal (the issue's): a generated clip playable
+p95 ≤ 2 s after the answer on 2 cores.
+
+    python benchmarks/generation_latency.py                     # the four domains, 6 targets each
+    python benchmarks/generation_latency.py --domains walker --targets 2 --rounds 6 --out /tmp/gen_latency
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import tempfile
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import httpx
+import numpy as np
+from api_load import LiveServer, ServerOptions, pct, start_run
+
+from rba.domains import get_domain
+from rba.interact import SATISFIED
+from rba.interact.users import parse_user
+from rba.library import SkillLibrary
+from rba.storage import save_report
+
+RESULTS = Path(__file__).resolve().parents[1] / "benchmarks" / "results"
+DOMAINS = ("walker", "manipulator", "lane_change", "snake")
+GOAL_P95_S = 2.0
+log = logging.getLogger("generation_latency")
+
+
+@dataclass
+class Answer:
+    """One answer: how long until its next clip played, whether it searched, whether that clip is generated."""
+
+    seconds: float
+    searched: bool
+    generated: bool
+    search_seconds: float | None = None  # the server's own elapsed time of the search
+
+
+@dataclass
+class DomainRun:
+    domain: str
+    answers: list[Answer] = field(default_factory=list)
+    sessions: int = 0
+    satisfied: int = 0  # sessions the user ended satisfied (its measured values within ε)
+    errors: list[str] = field(default_factory=list)
+
+
+def wait_search(client: httpx.Client, location: str, poll: float, timeout: float) -> float:
+    """Poll a search until it ends; its elapsed seconds. RuntimeError if it failed or outlived ``timeout``."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        g = client.get(location)
+        g.raise_for_status()
+        body = g.json()
+        if body["state"] == "done":
+            return float(body["elapsed_seconds"])
+        if body["state"] == "failed":
+            raise RuntimeError(f"search failed: {body['detail']}")
+        time.sleep(poll)
+    raise RuntimeError(f"search still running after {timeout:g} s")
+
+
+def answer(client: httpx.Client, session: dict, feedback: list[dict], poll: float) -> tuple[dict, Answer]:
+    """POST one answer, wait out its search if it started one, download the next clip: the new session."""
+    t = time.perf_counter()
+    r = client.post(f"/api/sessions/{session['id']}/feedback", json={"step": session["step"], "feedback": feedback})
+    r.raise_for_status()
+    search_seconds = None
+    if r.status_code == 202:
+        search_seconds = wait_search(client, r.headers["location"], poll, timeout=600.0)
+        r = client.get(f"/api/sessions/{session['id']}")
+        r.raise_for_status()
+    session = r.json()
+    clip = client.get(session["clip"]["url"])
+    clip.raise_for_status()
+    if not clip.content:
+        raise RuntimeError(f"empty clip {session['clip']['url']}")
+    took = time.perf_counter() - t
+    return session, Answer(round(took, 3), search_seconds is not None, bool(session["clip"]["generated"]),
+                           search_seconds)
+
+
+def run_target(client: httpx.Client, domain: str, target: np.ndarray, eps: np.ndarray, serve: SkillLibrary,
+               rounds: int, poll: float, seed: int, out: DomainRun) -> None:
+    """One person chasing ``target`` for at most ``rounds`` answers."""
+    r = client.post("/api/sessions", json={"domain": domain, "method": "global", "rep": "onehot", "generate": True})
+    r.raise_for_status()
+    session = r.json()
+    client.get(session["clip"]["url"]).raise_for_status()
+    user = parse_user("paper").build(target, eps, serve, seed)
+    out.sessions += 1
+    for _ in range(rounds):
+        measured = np.array([session["clip"]["measured"][a] for a in serve.attribute_names])
+        said = user.respond(user.add_clip(measured))
+        if said == SATISFIED:
+            out.satisfied += 1
+            return
+        feedback = [{"attribute": f.attribute, "direction": "more" if f.direction > 0 else "less"} for f in said]
+        session, a = answer(client, session, feedback, poll)
+        out.answers.append(a)
+
+
+def run_domain(server: LiveServer, domain: str, args) -> DomainRun:
+    serve, test = SkillLibrary.load(domain, "serve"), SkillLibrary.load(domain, "test")
+    eps = get_domain(domain).epsilons(serve.proxies, "high")
+    chosen = np.random.default_rng(args.seed).choice(len(test), size=min(args.targets, len(test)), replace=False)
+    out = DomainRun(domain)
+    with httpx.Client(base_url=server.url, timeout=120.0) as client:
+        warm = client.post("/api/sessions", json={"domain": domain, "generate": True})  # loads the models: untimed
+        warm.raise_for_status()
+        for n, t in enumerate(chosen):
+            try:
+                run_target(client, domain, test.proxies[t], eps, serve, args.rounds, args.poll, args.seed + n, out)
+            except (httpx.HTTPError, RuntimeError, KeyError) as exc:
+                out.errors.append(f"{type(exc).__name__}: {exc}")
+    log.info("%s: %d answers, %d searched", domain, len(out.answers), sum(a.searched for a in out.answers))
+    return out
+
+
+def summary(answers: list[Answer]) -> dict:
+    seconds = [a.seconds for a in answers]
+    return {"answers": len(answers), "p50_s": pct(seconds, 50), "p95_s": pct(seconds, 95),
+            "max_s": round(max(seconds), 2) if seconds else None}
+
+
+def markdown(report: dict) -> str:
+    lines = ["# Generated behaviours: answer to playable clip", "",
+             f"`{report['command']}`  ", f"{report['date']} · {report['machine']} · load average (1 min) "
+             f"{report['load'][0]:.2f} → {report['load'][1]:.2f}", "",
+             __doc__.split("\n\n")[1].replace("\n", " "), "",
+             "| domain | sessions (satisfied) | answers that searched: n, p50 / p95 / max (s) | their search alone, "
+             "p95 (s) | other answers: n, p50 / p95 (s) | errors |", "|---|---:|---:|---:|---:|---:|"]
+    for d in report["domains"]:
+        s, o = d["searched"], d["other"]
+        lines.append(f"| {d['domain']} | {d['sessions']} ({d['satisfied']}) | {s['answers']}, {s['p50_s']} / "
+                     f"{s['p95_s']} / {s['max_s']} | {d['search_p95_s']} | {o['answers']}, {o['p50_s']} / "
+                     f"{o['p95_s']} | {len(d['errors'])} |")
+    a = report["all_searched"]
+    met = a["p95_s"] is not None and a["p95_s"] <= GOAL_P95_S
+    lines += ["", f"All domains, answers that searched: n = {a['answers']}, p95 **{a['p95_s']} s** "
+              f"(goal ≤ {GOAL_P95_S:g} s: {'met' if met else 'not met'}).", ""]
+    return "\n".join(lines)
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--domains", nargs="+", default=list(DOMAINS), choices=DOMAINS)
+    p.add_argument("--targets", type=int, default=6, help="sessions (targets from test) per domain")
+    p.add_argument("--rounds", type=int, default=12, help="answers per session at most")
+    p.add_argument("--poll", type=float, default=0.05, help="seconds between polls of a running search")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", type=Path, default=RESULTS / "generation_latency", help="writes <out>.json and <out>.md")
+    args = p.parse_args(argv)
+    if not 1 <= args.targets <= 120 or not 1 <= args.rounds <= 100 or not 0.01 <= args.poll <= 1.0:
+        p.error("targets must be in 1..120, rounds in 1..100, poll in 0.01..1 s")
+    return args
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    run = start_run("generation_latency.py", argv)
+    load = [float(Path("/proc/loadavg").read_text().split()[0])]
+    with tempfile.TemporaryDirectory(prefix="rba-genlat-") as tmp:
+        server = LiveServer(ServerOptions(prerender=True, generate=True), Path(tmp), Path(tmp) / "clips")
+        try:
+            runs = [run_domain(server, d, args) for d in args.domains]
+        finally:
+            server.stop()
+    load.append(float(Path("/proc/loadavg").read_text().split()[0]))
+    domains = [{"domain": r.domain, "sessions": r.sessions, "satisfied": r.satisfied, "errors": r.errors,
+                "searched": summary([a for a in r.answers if a.searched]),
+                "other": summary([a for a in r.answers if not a.searched]),
+                "search_p95_s": pct([a.search_seconds for a in r.answers if a.searched], 95),
+                "answers": [asdict(a) for a in r.answers]} for r in runs]
+    report = {**run, "load": load, "args": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
+              "domains": domains,
+              "all_searched": summary([a for r in runs for a in r.answers if a.searched])}
+    save_report(args.out, report, markdown(report))
+    print(markdown(report))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
