@@ -56,7 +56,7 @@ _ROWS = sorted(methods(include_reference=True), key=lambda m: _ORDER[m.reference
 METHODS = [(m.name, rep, m.label_for(rep)) for m in _ROWS for rep in m.run_reps]
 LABELS = [label for _, _, label in METHODS]  # the tables' row order
 # The teacher-kind tables: these rows (one-hot), normal precision, the hand-made views of the paper's domains.
-USER_LABELS = ("RBA-Global", "RBA-Local")
+USER_LABELS = ("Random", "RBA-Global", "RBA-Local", "Oracle")  # the floor and the ceiling with the same user
 USER_DOMAINS = ("walker", "manipulator", "lane_change", "snake")
 USER_PRECISION = "normal"
 RAW_SUFFIX = "_raw"  # a domain's raw state view (the simulator's positions and velocities) is "<domain>_raw"
@@ -237,7 +237,8 @@ def _state_views(rows: list[Row]) -> list[str]:
 
 
 def _user_tables(rows: list[Row]) -> list[str]:
-    """One table per teacher kind measured (other than the paper's user): domains × RBA-Global / RBA-Local."""
+    """One table per teacher kind measured (other than the paper's user): domains × Random, RBA-Global,
+    RBA-Local and Oracle, all with that user."""
     by_user: dict[str, dict[tuple[str, str], EvalResult]] = {}
     for d, label, r in rows:
         if r.user != PAPER_USER and r.precision == USER_PRECISION and label in USER_LABELS:
@@ -247,7 +248,8 @@ def _user_tables(rows: list[Row]) -> list[str]:
     lines = ["## Teacher kinds", "", "B-Pref's teachers adapted to attribute feedback (`rba/interact/users.py`), "
              f"each at its default strength; one-hot, {USER_PRECISION} precision (ε = "
              f"{epsilon_definition(USER_PRECISION)}). A trial succeeds if the true proxies of the clip the user "
-             "stops at are within ε of its (current) target.", ""]
+             "stops at are within ε of its (current) target. Random (the floor) and Oracle (the ceiling: bisection "
+             "on the true proxies) answer to the same user, so a user who stops on a miss caps even the Oracle.", ""]
     for user in sorted(by_user, key=lambda u: (list(USER_KINDS).index(parse_user(u).kind), u)):
         cells = by_user[user]
         domains = sorted({d for d, _ in cells}, key=lambda d: (d not in USER_DOMAINS, d))

@@ -97,8 +97,8 @@ def test_one_table_per_teacher_kind_beside_the_paper_tables(tmp_path):
     text = paper_tables.markdown(merged, ["snake", "walker"], ["normal"], 20, 0, 60.0, ["mistake:0.1", "skip:0.2"])
     mistake = text.index("### User `mistake:0.1`")
     assert mistake < text.index("### User `skip:0.2`")
-    assert "| domain | RBA-Global | RBA-Local |" in text[mistake:]
-    assert "| walker | 0.95 / 2.00 (1.00) | 0.95 / 2.00 (1.00) |" in text[mistake:]
+    assert "| domain | Random | RBA-Global | RBA-Local | Oracle |" in text[mistake:]
+    assert "| walker | – | 0.95 / 2.00 (1.00) | 0.95 / 2.00 (1.00) | – |" in text[mistake:]
     main = text[:text.index("## Teacher kinds")]
     assert "User: `paper`" in main and "| walker | RBA-Global | 1.00 / 2.00 (1.00) |" in main
     assert "0.95" not in main and "--users mistake:0.1 skip:0.2" in text
