@@ -7,7 +7,7 @@ seed, for the largest return Σ_t rθ(s_t | v*) of the simulated rollout: no pro
 searches is the skill prior's, from ``Domain.sample_params``). A profile is reproduced when the best
 parameters' measured attributes are within ε (``Domain.epsilons(serve proxies, "normal")``) of the profile's.
 
-    python benchmarks/reward_only.py --domain walker --profiles 5 --split val
+    python benchmarks/reward_only.py --domain walker     # 20 profiles from test sessions
 """
 
 from __future__ import annotations
@@ -123,8 +123,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--split", choices=HELD_OUT, default="test", help="where the sessions' targets come from")
     p.add_argument("--budget", type=int, default=120, help="simulated rollouts per search")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", type=Path, default=RESULTS / "reward_only")
-    return p.parse_args(argv)
+    p.add_argument("--out", type=Path, default=None, help="writes <out>.json and <out>.md; default "
+                   "benchmarks/results/reward_only_<domain>")
+    args = p.parse_args(argv)
+    args.out = args.out or RESULTS / f"reward_only_{args.domain}"
+    return args
 
 
 def main(argv: list[str] | None = None) -> int:
