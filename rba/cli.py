@@ -114,6 +114,7 @@ def cmd_eval(args) -> int:
         if args.generate:
             raise ValueError("--generate compares one method with and without generation: give --method, "
                              "not --all-methods")
+        args.generate = False  # every method and reference row over the library alone: comparable rows
 
         runs = [(m.name, r) for m in methods(include_reference=True) for r in m.run_reps]
         results = [evaluate(args.domain, m, r, args.targets, args.seed, args.precision, args.user, split=args.split,
@@ -123,10 +124,13 @@ def cmd_eval(args) -> int:
         if args.json:
             save_json(Path(args.json), [r.to_json() for r in results])
         return 0
+    if args.generate is None:
+        args.generate = _can_generate(args.method, args.user)
     options, compute = _generation(args)
     try:
         result = evaluate(args.domain, args.method, args.rep, args.targets, args.seed, args.precision, args.user,
-                          split=args.split, generate=args.generate, generate_options=options, beyond=args.beyond)
+                          split=args.split, generate=args.generate, generate_options=options, beyond=args.beyond,
+                          serve_size=args.serve_size)
     finally:
         if compute is not None:
             compute.close()
@@ -136,6 +140,14 @@ def cmd_eval(args) -> int:
     if args.json:
         save_json(Path(args.json), result.to_json())
     return 0
+
+
+def _can_generate(method: str, user: UserSpec) -> bool:
+    """``--generate``'s default: on where the method has a generating agent and the user can judge new clips."""
+    from rba.interact.generating import generating_methods
+    from rba.interact.users import USER_KINDS
+
+    return method in generating_methods() and USER_KINDS[user.kind].cls.judges_generated
 
 
 def _generation(args) -> tuple[dict, Compute | None]:
@@ -320,6 +332,9 @@ def _eval_command(sub) -> argparse.ArgumentParser:
     e.add_argument("--beyond", type=_share, default=None, metavar="SHARE",
                    help="targets outside the serve library's proxy range by up to SHARE of it on each side, "
                         "from rollouts the skill made (seeded; instead of --split's)")
+    e.add_argument("--serve-size", type=_positive, default=None, metavar="N",
+                   help="the agent chooses among the serve library's first N rollouts only (RBA-Global; how "
+                        "small a library generation needs)")
     e.add_argument("--user", type=_user, default="paper", metavar="KIND[:param]",
                    help=f"the simulated user: {', '.join(USER_KINDS)} (e.g. mistake:0.2; without a param the "
                         "kind's default strength; see rba/interact/users.py)")
@@ -327,9 +342,10 @@ def _eval_command(sub) -> argparse.ArgumentParser:
                    help="evaluate every method and representation, the random and oracle reference rows too "
                         "(ignores --method/--rep); JSON is a list")
     e.add_argument("--json", help="write the full result (trials included) here")
-    e.add_argument("--generate", action=argparse.BooleanOptionalAction, default=False,
-                   help="let the agent make clips beyond the serve library when none is close to its target "
-                        "(RBA-Global; default off until measured not to hurt)")
+    e.add_argument("--generate", action=argparse.BooleanOptionalAction, default=None,
+                   help="let the agent make clips beyond the serve library when none is close to its target; "
+                        "default: on where the method can (RBA-Global) and the user can judge new clips (not "
+                        "myopic); --no-generate: the library alone, to compare")
     e.add_argument("--gen-budget", type=_positive, default=48, help="simulations per generated clip at most")
     e.add_argument("--gen-threshold", type=float, default=None,
                    help="ζσ distance (train range = 1) beyond which the agent generates; default: "

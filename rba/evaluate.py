@@ -55,6 +55,7 @@ class EvalResult:
     trials: list[Trial]
     split: str = "test"  # where the targets came from: "val" while tuning, "test" for reports
     beyond: float | None = None  # targets from beyond the serve range by up to this share of it (not a split)
+    serve_size: int | None = None  # serve rollouts the agent chose from
     generate: bool = False  # the agent made clips beyond the serve library (rba.interact.generating)
     generation: dict | None = None  # what generating cost and gave (``generation_summary``)
 
@@ -197,16 +198,22 @@ def _beyond_candidate(serve: SkillLibrary, space, rng: np.random.Generator, sim_
 def evaluate(domain_name: str, method: str, rep: str = "onehot", targets: int = 20, seed: int = 0,
              precision: str = "normal", user: str | UserSpec = "paper", data_root=None, models_root=None,
              context=None, split: str = "test", generate: bool = False,
-             generate_options: dict | None = None, beyond: float | None = None) -> EvalResult:
+             generate_options: dict | None = None, beyond: float | None = None,
+             serve_size: int | None = None) -> EvalResult:
     """SR / AF over ``targets`` targets drawn from ``split``: ``val`` for tuning and model selection,
     ``test`` (the default) only for reported numbers; with ``beyond``, instead from beyond the serve range
     (``beyond_targets``). ``generate``: the agent may make clips beyond the serve library
-    (``rba.interact.generating``; ``generate_options`` go to its ``GenerationContext``)."""
+    (``rba.interact.generating``; ``generate_options`` go to its ``GenerationContext``). ``serve_size``: the
+    agent sees only the serve library's first rollouts (contexts with ``first``: RBA-Global)."""
     if split not in HELD_OUT:
         raise ValueError(f"targets come from a held-out split; got {split!r}, valid: {', '.join(HELD_OUT)}")
     spec = parse_user(user)
     domain = get_domain(domain_name)
     context = context or load_context(domain_name, method, rep, data_root, models_root)
+    if serve_size is not None:
+        if not hasattr(context, "first"):
+            raise ValueError(f"a smaller serve library works with method global only, not {method!r}")
+        context = context.first(serve_size)
     serve = context.serve
     eps = domain.epsilons(serve.proxies, precision)
     make = _agents(method, context, spec, models_root, generate, generate_options)
@@ -230,7 +237,7 @@ def evaluate(domain_name: str, method: str, rep: str = "onehot", targets: int = 
                       seconds=round(time.perf_counter() - start, 2), trials=trials,
                       split=split if beyond is None else "beyond",
                       generate=generate, generation=generation_summary(agents) if generate else None,
-                      beyond=beyond)
+                      beyond=beyond, serve_size=len(serve))
 
 
 def _agents(method: str, context, spec: UserSpec, models_root, generate: bool,

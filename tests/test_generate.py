@@ -138,6 +138,22 @@ def test_reward_objective_also_generates(ctx, gap_roots):
     assert agent.searches and any(is_generated(r) for r in trial.shown_ids)
 
 
+@pytest.mark.parametrize(("extra", "generates"), [
+    ([], True),  # on by default for RBA-Global with a user who can judge new clips
+    (["--no-generate"], False),
+    (["--user", "myopic"], False),  # judges clip ends by a map fitted over the library: not new clips
+    (["--method", "oracle"], False),  # no generating agent
+])
+def test_cli_generates_by_default_where_it_can(gap_roots, monkeypatch, tmp_path, extra, generates):
+    monkeypatch.setenv("RBA_DATA_DIR", str(gap_roots[0]))
+    monkeypatch.setenv("RBA_MODELS_DIR", str(gap_roots[1]))
+    out = tmp_path / "r.json"
+    assert main(["eval", "--domain", "toy", "--targets", "1", "--gen-workers", "1", "--gen-budget", "16",
+                 "--json", str(out), *extra]) == 0
+    result = json.loads(out.read_text())
+    assert result["generate"] is generates and (result["generation"] is not None) is generates
+
+
 def test_cli_generate_flag(gap_roots, monkeypatch, capsys, tmp_path):
     monkeypatch.setenv("RBA_DATA_DIR", str(gap_roots[0]))
     monkeypatch.setenv("RBA_MODELS_DIR", str(gap_roots[1]))
@@ -203,3 +219,18 @@ def test_cli_beyond_option(narrow_roots, monkeypatch, capsys, tmp_path):
         main(["eval", "--domain", "toy", "--beyond", "0.7"])
     assert exit_.value.code == 2
     assert "must be a share in (0, 0.5], e.g. 0.1 for 10 %; got 0.7" in capsys.readouterr().err
+
+
+def test_evaluate_over_the_first_serve_rollouts_only(gap_roots):
+    from rba.library import SkillLibrary
+
+    data, models = gap_roots
+    small = evaluate("toy", "global", targets=3, data_root=data, models_root=models, serve_size=40)
+    assert small.serve_size == 40
+    assert evaluate("toy", "global", targets=1, data_root=data, models_root=models).serve_size > 40
+    first = set(SkillLibrary.load("toy", "serve", data).ids[:40])
+    assert {r for t in small.trials for r in t.shown_ids} <= first
+    with pytest.raises(ValueError, match="works with method global only, not 'oracle'"):
+        evaluate("toy", "oracle", targets=1, data_root=data, models_root=models, serve_size=40)
+    with pytest.raises(ValueError, match=r"the serve library has \d+ rollouts; asked for the first 100000"):
+        evaluate("toy", "global", targets=1, data_root=data, models_root=models, serve_size=100_000)

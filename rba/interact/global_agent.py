@@ -18,7 +18,7 @@ to one). A round the user skips is no update at all.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -71,6 +71,15 @@ class GlobalContext:
         names = tuple(a["name"] for a in reward.card["attributes"])  # may include attributes admins added
         return cls(domain, rep, names, serve, zeta, bounds,
                    LibraryScorer(reward.model, data), version)
+
+    def first(self, n: int) -> GlobalContext:
+        """This context over the serve library's first ``n`` rollouts (a random sample: its parameters are
+        drawn from a seeded stream), to measure how small a library generation needs."""
+        if not 0 < n <= len(self.serve):
+            raise ValueError(f"the serve library has {len(self.serve)} rollouts; asked for the first {n}")
+        serve = self.serve.subset(range(n))
+        scorer = LibraryScorer(self.scorer.model, Ragged.from_numpy(serve.states, serve.state_offsets))
+        return replace(self, serve=serve, serve_zeta=self.serve_zeta[:n], scorer=scorer)
 
     def candidates(self, target: np.ndarray, exclude: np.ndarray) -> np.ndarray | None:
         """The ``shortlist`` non-excluded rollouts nearest ``target`` in ζσ space (ranges scaled to 1).
