@@ -169,3 +169,13 @@ def test_check_says_which_rows_differ_from_the_report(tmp_path):
     assert "| snake | PbRL | high | paper | missing |" in text
     assert paper_tables.check(rows[:1], tmp_path / "t.json")[1]
     assert paper_tables.check(rows[2:3], tmp_path / "t.json")[1]
+
+
+def test_the_generating_row_sits_below_rba_global_and_generates(gap_roots, monkeypatch):
+    monkeypatch.setenv("RBA_DATA_DIR", str(gap_roots[0]))
+    monkeypatch.setenv("RBA_MODELS_DIR", str(gap_roots[1]))
+    rows = paper_tables.run(["toy"], ["normal"], 2, 0, ["RBA-Global", "RBA-Global+gen"])
+    assert [(label, r.generate) for _, label, r in rows] == [("RBA-Global", False), ("RBA-Global+gen", True)]
+    assert rows[1][2].generation["searches"] > 0
+    text = paper_tables.markdown(rows, ["toy"], ["normal"], 2, 0, 1.0)
+    assert text.index("| toy | RBA-Global |") < text.index("| toy | RBA-Global+gen |")
