@@ -40,8 +40,8 @@ class Settings(LibrarySettings):
                                     "for a render")
     generate: bool = Field(default=False, description="RBA-Global sessions make a new behaviour (a CMA-ES "
                            "search on the compute layer) when no serve clip is near the agent's target; a session "
-                           "may ask otherwise at creation (`generate`). Off by default: `rba eval --generate` has "
-                           "not yet been measured not to hurt")
+                           "may ask otherwise at creation (`generate`). Off by default: a search makes the person wait "
+                           "(p95 0.4-8 s on 2 cores by domain, benchmarks/results/generation_latency.md)")
     warm_start: bool = Field(default=True, description="load models and render first clips after start-up")
     replica: str | None = Field(default=None, max_length=120, description="this server's name among the API "
                                 "replicas on one database; default <hostname>:<port>. A restarted replica fails "
