@@ -28,6 +28,7 @@ BEYOND_CODE = 4  # seeds the beyond-range targets' stream: no split uses it (lib
 BEYOND_TRIES = 12  # rollouts simulated per wanted beyond-range target, at most
 BEYOND_STARTS = 16  # the serve clips most extreme on a side whose parameters are perturbed
 BEYOND_SPREAD = 0.15  # the perturbation's σ, a share of each parameter's range
+BEYOND_BATCH = 32  # candidates simulated together (in parallel where ``run`` is a pool)
 
 
 @dataclass
@@ -164,16 +165,17 @@ def beyond_targets(serve: SkillLibrary, share: float, count: int, seed: int = 0,
     """
     if not 0.0 < share <= 0.5:
         raise ValueError(f"share beyond the serve range must be in (0, 0.5]; got {share}")
-    domain, space = get_domain(serve.domain), get_domain(serve.domain).param_space()
+    space = get_domain(serve.domain).param_space()
     if run is None:
         from rba.generate import in_process as run
     low, high = serve.proxies.min(axis=0), serve.proxies.max(axis=0)
     band = share * (high - low)
     rng = np.random.default_rng([seed, BEYOND_CODE])
     kept: list[np.ndarray] = []
-    for batch in range(-(-count * BEYOND_TRIES // 32)):
-        jobs = [_beyond_candidate(serve, space, rng, seed * 10_000_000 + BEYOND_CODE * 1_000_000 + batch * 32 + j)
-                for j in range(32)]
+    first_seed = seed * 10_000_000 + BEYOND_CODE * 1_000_000
+    for batch in range(-(-count * BEYOND_TRIES // BEYOND_BATCH)):
+        jobs = [_beyond_candidate(serve, space, rng, first_seed + batch * BEYOND_BATCH + j)
+                for j in range(BEYOND_BATCH)]
         for r in run(jobs):
             x = np.array([r.proxies[a] for a in serve.attribute_names])
             outside = (x < low) | (x > high)
@@ -181,7 +183,7 @@ def beyond_targets(serve: SkillLibrary, share: float, count: int, seed: int = 0,
                 kept.append(x)
         if len(kept) >= count:
             break
-    log.info("%s: %d targets up to %.0f%% beyond the serve range", domain.name, len(kept), 100 * share)
+    log.info("%s: %d targets up to %.0f%% beyond the serve range", serve.domain, len(kept), 100 * share)
     return np.array(kept, dtype=np.float64).reshape(-1, len(serve.attribute_names))
 
 
