@@ -35,7 +35,6 @@ from rba.store import model_files
 log = logging.getLogger("reward_only")
 RESULTS = Path(__file__).resolve().parent / "results"
 PRIOR_SAMPLES = 2000  # draws of sample_params that bound the searched box
-SCOUT_SIGMA = 0.15  # CMA-ES's first step from the best scout (share of each range)
 
 
 def prior_box(domain: Domain, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -71,10 +70,8 @@ def profiles(args: argparse.Namespace, folder: Path) -> list[Path]:
     return out
 
 
-def search(path: Path, domain: Domain, box: tuple[np.ndarray, np.ndarray], budget: int, seed: int,
-           scout: int = 0) -> dict:
-    """CMA-ES over the box (scaled to [0, 1]) maximising the export's return, started from the best of ``scout``
-    seeded prior draws (σ ``SCOUT_SIGMA``) or, without, from the box's centre (σ 0.3); the best params' attributes."""
+def search(path: Path, domain: Domain, box: tuple[np.ndarray, np.ndarray], budget: int, seed: int) -> dict:
+    """CMA-ES over the box (scaled to [0, 1]) maximising the export's return; the best params' attributes."""
     export = read_export(path)
     p, lo, hi = export.profile, *box
 
@@ -84,24 +81,17 @@ def search(path: Path, domain: Domain, box: tuple[np.ndarray, np.ndarray], budge
     def loss(x: np.ndarray) -> float:
         return -export.reward.total(domain.rollout(params_of(np.asarray(x)), p.seed).states)
 
+    es = cma.CMAEvolutionStrategy(np.full(len(lo), 0.5), 0.3,
+                                  {"bounds": [0, 1], "maxfevals": budget, "seed": seed + 1, "verbose": -9})
     start = time.perf_counter()
-    scouts = np.random.default_rng(seed + 1).random((scout, len(lo)))  # prior draws before CMA-ES: its start
-    scored = [loss(x) for x in scouts]
-    x0, sigma = (scouts[int(np.argmin(scored))], SCOUT_SIGMA) if scout else (np.full(len(lo), 0.5), 0.3)
-    es = cma.CMAEvolutionStrategy(x0, sigma, {"bounds": [0, 1], "maxfevals": budget - scout, "seed": seed + 1,
-                                              "verbose": -9})
     while not es.stop():
         xs = es.ask()
         es.tell(xs, [loss(x) for x in xs])
-    found = -float(es.result.fbest)
-    x_best = es.result.xbest
-    if scout and min(scored) < es.result.fbest:
-        x_best, found = scouts[int(np.argmin(scored))], -min(scored)
-    best = params_of(x_best)
+    best = params_of(es.result.xbest)
     measured = domain.rollout(best, p.seed).proxies
     return {"profile": path.name, "rollout_id": p.rollout_id, "target": p.proxies, "found": measured,
-            "params": best, "evaluations": scout + int(es.result.evaluations),
-            "seconds": round(time.perf_counter() - start, 1), "return_found": found,
+            "params": best, "evaluations": int(es.result.evaluations), "seconds": round(time.perf_counter() - start, 1),
+            "return_found": -float(es.result.fbest),
             "return_profile": export.reward.total(domain.rollout(p.params, p.seed).states)}
 
 
@@ -114,10 +104,9 @@ def markdown(report: dict) -> str:
                     f"{'yes' if r['within'] else 'no'} | {r['return_found']:.2f} / {r['return_profile']:.2f} | "
                     f"{r['evaluations']} |")
     eps = ", ".join(f"{k} {v:.3f}" for k, v in report["epsilon"].items())
-    budget, scout = report["args"]["budget"], report["args"].get("scout", 0)
-    how = f"{budget} rollouts" + (f", the first {scout} prior draws whose best starts it" if scout else "")
-    return (f"# Reward-only search\n\nA search that sees only an export's rθ(s | v*) (CMA-ES, {how})"
-            f" finds skill parameters within ε of the profile in **{report['within']} of "
+    budget = report["args"]["budget"]
+    return (f"# Reward-only search\n\nA search that sees only an export's rθ(s | v*) (CMA-ES, {budget}"
+            f" rollouts) finds skill parameters within ε of the profile in **{report['within']} of "
             f"{len(report['results'])}** profiles ({report['share']:.0%}).\n\n"
             f"- Setting: {report['args']['domain']}, RBA-Global/{report['args']['rep']}, profiles from simulated "
             f"sessions on `{report['args']['split']}` targets (paper user, normal precision), ε = {eps}.\n"
@@ -133,14 +122,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--profiles", type=int, default=20)
     p.add_argument("--split", choices=HELD_OUT, default="test", help="where the sessions' targets come from")
     p.add_argument("--budget", type=int, default=120, help="simulated rollouts per search")
-    p.add_argument("--scout", type=int, default=0,
-                   help="rollouts of the budget spent on seeded prior draws, the best one starting CMA-ES")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, default=None, help="writes <out>.json and <out>.md; default "
                    "benchmarks/results/reward_only_<domain>")
     args = p.parse_args(argv)
-    if not 0 <= args.scout < args.budget:
-        p.error(f"--scout must be in 0..{args.budget - 1} (fewer than --budget's rollouts); got {args.scout}")
     args.out = args.out or RESULTS / f"reward_only_{args.domain}"
     return args
 
@@ -158,7 +143,7 @@ def main(argv: list[str] | None = None) -> int:
         paths = profiles(args, Path(folder))
         results = []
         for path in paths:
-            r = search(path, domain, box, args.budget, args.seed, args.scout)
+            r = search(path, domain, box, args.budget, args.seed)
             r["within"] = bool(np.all(np.abs(np.array(list(r["found"].values()))
                                              - np.array(list(r["target"].values()))) <= eps))
             log.info("%s: within ε %s after %d rollouts (%.0f s)", path.name, r["within"], r["evaluations"],
