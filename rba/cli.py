@@ -105,7 +105,7 @@ def cmd_train(args) -> int:
 
 
 def cmd_eval(args) -> int:
-    from rba.evaluate import evaluate, format_table
+    from rba.evaluate import can_generate, evaluate, format_table
     from rba.storage import save_json
 
     if args.all_methods:
@@ -115,6 +115,8 @@ def cmd_eval(args) -> int:
             raise ValueError("--generate compares one method with and without generation: give --method, "
                              "not --all-methods")
         args.generate = False  # every method and reference row over the library alone: comparable rows
+        if args.serve_size is not None:
+            raise ValueError("--serve-size works with one method (global): give --method, not --all-methods")
 
         runs = [(m.name, r) for m in methods(include_reference=True) for r in m.run_reps]
         results = [evaluate(args.domain, m, r, args.targets, args.seed, args.precision, args.user, split=args.split,
@@ -125,7 +127,7 @@ def cmd_eval(args) -> int:
             save_json(Path(args.json), [r.to_json() for r in results])
         return 0
     if args.generate is None:
-        args.generate = _can_generate(args.method, args.user)
+        args.generate = can_generate(args.method, args.user)
     options, compute = _generation(args)
     try:
         result = evaluate(args.domain, args.method, args.rep, args.targets, args.seed, args.precision, args.user,
@@ -140,14 +142,6 @@ def cmd_eval(args) -> int:
     if args.json:
         save_json(Path(args.json), result.to_json())
     return 0
-
-
-def _can_generate(method: str, user: UserSpec) -> bool:
-    """``--generate``'s default: on where the method has a generating agent and the user can judge new clips."""
-    from rba.interact.generating import generating_methods
-    from rba.interact.users import USER_KINDS
-
-    return method in generating_methods() and USER_KINDS[user.kind].cls.judges_generated
 
 
 def _generation(args) -> tuple[dict, Compute | None]:

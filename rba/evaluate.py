@@ -9,15 +9,14 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from rba.compute import SimJob
-from rba.domains import Rollout, domain_target, get_domain
+from rba.domains import domain_target, get_domain, load_domain
 from rba.interact import SATISFIED, Agent, FeedbackKind, Preference, load_context, new_agent
-from rba.interact.users import SKIP, PreferenceTeacher, SimulatedUser, UserSpec, parse_user
+from rba.interact.users import SKIP, USER_KINDS, PreferenceTeacher, SimulatedUser, UserSpec, parse_user
 from rba.library import HELD_OUT, SkillLibrary
 
 log = logging.getLogger(__name__)
@@ -28,7 +27,6 @@ BEYOND_CODE = 4  # seeds the beyond-range targets' stream: no split uses it (lib
 BEYOND_TRIES = 12  # rollouts simulated per wanted beyond-range target, at most
 BEYOND_STARTS = 16  # the serve clips most extreme on a side whose parameters are perturbed
 BEYOND_SPREAD = 0.15  # the perturbation's σ, a share of each parameter's range
-BEYOND_BATCH = 32  # candidates simulated together (in parallel where ``run`` is a pool)
 
 
 @dataclass
@@ -153,8 +151,7 @@ def simulate(agent: Agent, target: np.ndarray, epsilon: np.ndarray, serve: Skill
     return loop.run(agent, loop.make(parse_user(user), target, epsilon, serve, seed), serve, max_feedback)
 
 
-def beyond_targets(serve: SkillLibrary, share: float, count: int, seed: int = 0,
-                   run: Callable[[list[SimJob]], Iterable[Rollout]] | None = None) -> np.ndarray:
+def beyond_targets(serve: SkillLibrary, share: float, count: int, seed: int = 0) -> np.ndarray:
     """Up to ``count`` targets outside the serve library's proxy range by at most ``share`` of it, each the
     proxies of a rollout the skill made (so the skill can produce it), float64[n, k].
 
@@ -165,36 +162,30 @@ def beyond_targets(serve: SkillLibrary, share: float, count: int, seed: int = 0,
     """
     if not 0.0 < share <= 0.5:
         raise ValueError(f"share beyond the serve range must be in (0, 0.5]; got {share}")
-    space = get_domain(serve.domain).param_space()
-    if run is None:
-        from rba.generate import in_process as run
+    domain = load_domain(domain_target(serve.domain))
+    space = domain.param_space()
     low, high = serve.proxies.min(axis=0), serve.proxies.max(axis=0)
     band = share * (high - low)
     rng = np.random.default_rng([seed, BEYOND_CODE])
     kept: list[np.ndarray] = []
-    first_seed = seed * 10_000_000 + BEYOND_CODE * 1_000_000
-    for batch in range(-(-count * BEYOND_TRIES // BEYOND_BATCH)):
-        jobs = [_beyond_candidate(serve, space, rng, first_seed + batch * BEYOND_BATCH + j)
-                for j in range(BEYOND_BATCH)]
-        for r in run(jobs):
-            x = np.array([r.proxies[a] for a in serve.attribute_names])
-            outside = (x < low) | (x > high)
-            if r.success and outside.any() and np.all((x >= low - band) & (x <= high + band)) and len(kept) < count:
-                kept.append(x)
-        if len(kept) >= count:
-            break
+    for k in range(count * BEYOND_TRIES):
+        r = domain.rollout(_beyond_params(serve, space, rng), seed * 10_000_000 + BEYOND_CODE * 1_000_000 + k)
+        x = np.array([r.proxies[a] for a in serve.attribute_names])
+        if r.success and ((x < low) | (x > high)).any() and np.all((x >= low - band) & (x <= high + band)):
+            kept.append(x)
+            if len(kept) == count:
+                break
     log.info("%s: %d targets up to %.0f%% beyond the serve range", serve.domain, len(kept), 100 * share)
     return np.array(kept, dtype=np.float64).reshape(-1, len(serve.attribute_names))
 
 
-def _beyond_candidate(serve: SkillLibrary, space, rng: np.random.Generator, sim_seed: int) -> SimJob:
+def _beyond_params(serve: SkillLibrary, space, rng: np.random.Generator) -> dict[str, float]:
     """Perturbed parameters of one of the serve clips most extreme on a random attribute and side."""
     column = serve.proxies[:, rng.integers(serve.proxies.shape[1])]
     order = np.argsort(column)
     starts = order[:BEYOND_STARTS] if rng.random() < 0.5 else order[-BEYOND_STARTS:]
     params = dict(zip(serve.param_names, map(float, serve.params[rng.choice(starts)]), strict=True))
-    unit = space.to_unit(params) + rng.normal(0.0, BEYOND_SPREAD, len(space.free))
-    return SimJob(domain_target(serve.domain), space.from_unit(unit, params), int(sim_seed))
+    return space.from_unit(space.to_unit(params) + rng.normal(0.0, BEYOND_SPREAD, len(space.free)), params)
 
 
 def evaluate(domain_name: str, method: str, rep: str = "onehot", targets: int = 20, seed: int = 0,
@@ -242,15 +233,26 @@ def evaluate(domain_name: str, method: str, rep: str = "onehot", targets: int = 
                       beyond=beyond, serve_size=len(serve))
 
 
+def _judges_generated(spec: UserSpec) -> bool:
+    return USER_KINDS[spec.kind].cls.judges_generated
+
+
+def can_generate(method: str, user: str | UserSpec) -> bool:
+    """Whether ``evaluate(..., generate=True)`` works: the method has a generating agent and the user can judge
+    new clips (``rba eval``'s default for ``--generate``)."""
+    from rba.interact.generating import generating_methods
+
+    return method in generating_methods() and _judges_generated(parse_user(user))
+
+
 def _agents(method: str, context, spec: UserSpec, models_root, generate: bool,
             options: dict | None) -> Callable[[], Agent]:
     """A maker of fresh agents for the trials: generating ones if asked (and the user can judge their clips)."""
     if not generate:
         return lambda: new_agent(method, context)
     from rba.interact.generating import generating_agents
-    from rba.interact.users import USER_KINDS
 
-    if not USER_KINDS[spec.kind].cls.judges_generated:
+    if not _judges_generated(spec):
         able = [k for k, kind in USER_KINDS.items() if kind.cls.judges_generated]
         raise ValueError(f"a {spec.kind} user cannot judge generated clips; with generation use: {', '.join(able)}")
     return generating_agents(method, context, models_root, **(options or {}))

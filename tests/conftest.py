@@ -58,13 +58,19 @@ def _in_gap(proxies):
 def gap_roots(toy_roots, tmp_path_factory):
     """The toy data with a serve library that lacks every clip of a gap (targets there need generation); the
     toy models."""
+    return serve_subset_roots(toy_roots, tmp_path_factory.mktemp("gap"), lambda proxies: ~_in_gap(proxies))
+
+
+def serve_subset_roots(toy_roots, root: Path, keep) -> tuple[Path, Path]:
+    """Copies of the toy data and models under ``root`` whose serve library holds only the clips whose proxies
+    ``keep(proxies) -> bool[N]`` selects."""
     import numpy as np
 
     from rba.library import SkillLibrary
 
-    data, models = own_copy(toy_roots, tmp_path_factory.mktemp("gap"))
+    data, models = own_copy(toy_roots, root)
     serve = SkillLibrary.load("toy", "serve", data)
-    lib = serve.subset(np.flatnonzero(~_in_gap(serve.proxies)))
+    lib = serve.subset(np.flatnonzero(keep(serve.proxies)))
     lib.split = "serve"
     lib.save(data)
     return data, models

@@ -18,7 +18,7 @@ from rba.generate import SearchConfig, ZetaDistance, generated_id, is_generated,
 from rba.interact.generating import GeneratingGlobalAgent, GenerationContext, generating_agents
 from rba.interact.global_agent import GlobalAgent, GlobalContext
 from rba.interact.users import parse_user
-from tests.conftest import own_copy
+from tests.conftest import serve_subset_roots
 from tests.toy import Toy
 
 TARGET = np.array([0.7, 2.4])  # amplitude, pace: inside the gap, away from where the first query lands
@@ -171,15 +171,10 @@ def test_cli_generate_flag(gap_roots, monkeypatch, capsys, tmp_path):
 def narrow_roots(toy_roots, tmp_path_factory):
     """The toy data with a serve library less its clips in the outer tenth of each parameter's range: the
     skill reaches beyond what serve holds."""
-    from rba.library import SkillLibrary
+    def middle(p):
+        return (p[:, 0] > 0.38) & (p[:, 0] < 1.82) & (p[:, 1] > 0.75) & (p[:, 1] < 2.75)
 
-    data, models = own_copy(toy_roots, tmp_path_factory.mktemp("narrow"))
-    serve = SkillLibrary.load("toy", "serve", data)
-    amplitude, pace = serve.proxies[:, 0], serve.proxies[:, 1]
-    lib = serve.subset(np.flatnonzero((amplitude > 0.38) & (amplitude < 1.82) & (pace > 0.75) & (pace < 2.75)))
-    lib.split = "serve"
-    lib.save(data)
-    return data, models
+    return serve_subset_roots(toy_roots, tmp_path_factory.mktemp("narrow"), middle)
 
 
 def test_beyond_targets_leave_the_serve_range_by_at_most_the_share(narrow_roots):
@@ -221,7 +216,7 @@ def test_cli_beyond_option(narrow_roots, monkeypatch, capsys, tmp_path):
     assert "must be a share in (0, 0.5], e.g. 0.1 for 10 %; got 0.7" in capsys.readouterr().err
 
 
-def test_evaluate_over_the_first_serve_rollouts_only(gap_roots):
+def test_evaluate_over_the_first_serve_rollouts_only(gap_roots, monkeypatch, capsys):
     from rba.library import SkillLibrary
 
     data, models = gap_roots
@@ -230,6 +225,10 @@ def test_evaluate_over_the_first_serve_rollouts_only(gap_roots):
     assert evaluate("toy", "global", targets=1, data_root=data, models_root=models).serve_size > 40
     first = set(SkillLibrary.load("toy", "serve", data).ids[:40])
     assert {r for t in small.trials for r in t.shown_ids} <= first
+    monkeypatch.setenv("RBA_DATA_DIR", str(data))
+    monkeypatch.setenv("RBA_MODELS_DIR", str(models))
+    assert main(["eval", "--domain", "toy", "--all-methods", "--serve-size", "40"]) == 2
+    assert "--serve-size works with one method (global): give --method" in capsys.readouterr().err
     with pytest.raises(ValueError, match="works with method global only, not 'oracle'"):
         evaluate("toy", "oracle", targets=1, data_root=data, models_root=models, serve_size=40)
     with pytest.raises(ValueError, match=r"the serve library has \d+ rollouts; asked for the first 100000"):
