@@ -1,0 +1,19 @@
+"""benchmarks/zeta_residual.py: a tighter ε can only lower the share of ζσ-near clips that satisfy the user."""
+
+import importlib.util
+
+from rba.settings import REPO_ROOT
+
+spec = importlib.util.spec_from_file_location("zeta_residual", REPO_ROOT / "benchmarks" / "zeta_residual.py")
+zeta_residual = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(zeta_residual)
+
+
+def test_high_precision_hits_fewer_and_spreads_wider_in_epsilon_units():
+    high, normal = (zeta_residual.measure("lane_change", "onehot", p) for p in ("high", "normal"))
+    assert set(high["residual_over_epsilon"]) == {"sharpness", "gap"}
+    assert 0.0 <= high["hit_share"] <= normal["hit_share"] <= 1.0
+    assert all(high["residual_over_epsilon"][a] > normal["residual_over_epsilon"][a] for a in ("sharpness", "gap"))
+    assert 0 < high["targets_with_near_clips"] <= high["targets"]
+    table = zeta_residual.report([high, normal], "cmd")
+    assert "| lane_change | onehot | high | sharpness" in table and "Command: `cmd`" in table
