@@ -32,21 +32,26 @@ from rba.storage import save_text
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
-def measure(domain: str, rep: str, precision: str) -> dict:
+def measure(domain: str, rep: str, precisions: list[str]) -> list[dict]:
+    """One row per precision, from one load of the models and libraries."""
     ctx = load_context(domain, "global", rep)
     val = SkillLibrary.load(domain, "val")
     val_zeta = load_model(domain, "ranker", rep).model.score_library(val)
-    eps = get_domain(domain).epsilons(ctx.serve.proxies, precision)
     scale = np.maximum(ctx.bounds[1] - ctx.bounds[0], 1e-9)
+    near = [np.max(np.abs(ctx.serve_zeta - z) / scale, axis=1) <= THRESHOLD for z in val_zeta]
+    return [_row(domain, rep, p, ctx, val, val_zeta, near) for p in precisions]
+
+
+def _row(domain, rep, precision, ctx, val, val_zeta, near) -> dict:
+    eps = get_domain(domain).epsilons(ctx.serve.proxies, precision)
     residual = {}
     for a, name in enumerate(ctx.attribute_names):
         fit = IsotonicRegression(out_of_bounds="clip").fit(ctx.serve_zeta[:, a], ctx.serve.proxies[:, a])
         residual[name] = float(np.std(val.proxies[:, a] - fit.predict(val_zeta[:, a])) / eps[a])
     shares = []
-    for z, p in zip(val_zeta, val.proxies, strict=True):
-        near = np.max(np.abs(ctx.serve_zeta - z) / scale, axis=1) <= THRESHOLD
-        if near.any():
-            shares.append(float(np.mean(np.all(np.abs(ctx.serve.proxies[near] - p) <= eps, axis=1))))
+    for m, p in zip(near, val.proxies, strict=True):
+        if m.any():
+            shares.append(float(np.mean(np.all(np.abs(ctx.serve.proxies[m] - p) <= eps, axis=1))))
     share = float(np.mean(shares)) if shares else float("nan")
     row = {"domain": domain, "rep": rep, "precision": precision, "residual_over_epsilon": residual,
            "targets_with_near_clips": len(shares), "targets": len(val), "hit_share": share}
@@ -59,12 +64,15 @@ def report(rows: list[dict], command: str) -> str:
              "Proxy spread among clips of equal ζσ (isotonic residual std, in ε), and the share of serve clips "
              f"within the generation threshold ({THRESHOLD}) of a val target's ζσ that are within ε of it on "
              "every attribute (1 / share ≈ rounds once the belief has converged).", "",
-             "| domain | rep | precision | residual std / ε per attribute | hit share | ≈ rounds |",
-             "|---|---|---|---|---|---|"]
+             "| domain | rep | precision | residual std / ε per attribute | val targets with a near clip "
+             "| hit share | ≈ rounds |",
+             "|---|---|---|---|---|---|---|"]
     for r in rows:
         res = ", ".join(f"{k} {v:.2f}" for k, v in r["residual_over_epsilon"].items())
         rounds = f"{1 / r['hit_share']:.1f}" if r["hit_share"] > 0 else "∞"
-        lines.append(f"| {r['domain']} | {r['rep']} | {r['precision']} | {res} | {r['hit_share']:.3f} | {rounds} |")
+        covered = f"{r['targets_with_near_clips']} / {r['targets']}"
+        lines.append(f"| {r['domain']} | {r['rep']} | {r['precision']} | {res} | {covered} | {r['hit_share']:.3f} "
+                     f"| {rounds} |")
     lines += ["", f"Command: `{command}`; {dt.date.today().isoformat()}."]
     return "\n".join(lines) + "\n"
 
@@ -76,8 +84,9 @@ def main() -> None:
     ap.add_argument("--precisions", nargs="+", default=["high", "normal"])
     args = ap.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
-    rows = [measure(d, args.rep, p) for d in args.domains for p in args.precisions]
-    command = "python benchmarks/zeta_residual.py --domains " + " ".join(args.domains)
+    rows = [row for d in args.domains for row in measure(d, args.rep, args.precisions)]
+    command = " ".join(["python benchmarks/zeta_residual.py", "--domains", *args.domains, "--rep", args.rep,
+                       "--precisions", *args.precisions])
     save_text(RESULTS / "zeta_residual.json", json.dumps(rows, indent=1) + "\n")
     save_text(RESULTS / "zeta_residual.md", report(rows, command))
 

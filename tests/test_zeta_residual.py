@@ -10,7 +10,7 @@ spec.loader.exec_module(zeta_residual)
 
 
 def test_high_precision_hits_fewer_and_spreads_wider_in_epsilon_units():
-    high, normal = (zeta_residual.measure("lane_change", "onehot", p) for p in ("high", "normal"))
+    high, normal = zeta_residual.measure("lane_change", "onehot", ["high", "normal"])
     assert set(high["residual_over_epsilon"]) == {"sharpness", "gap"}
     assert 0.0 <= high["hit_share"] <= normal["hit_share"] <= 1.0
     assert all(high["residual_over_epsilon"][a] > normal["residual_over_epsilon"][a] for a in ("sharpness", "gap"))
