@@ -95,6 +95,21 @@ def search(path: Path, domain: Domain, box: tuple[np.ndarray, np.ndarray], budge
             "return_profile": export.reward.total(domain.rollout(p.params, p.seed).states)}
 
 
+def _search_once(path: Path, domain: Domain, box: tuple[np.ndarray, np.ndarray], args: argparse.Namespace,
+                 searched: dict[str, dict]) -> dict:
+    """``search``, or the result of an earlier profile that chose the same rollout: the same v*, seed and search.
+
+    Sessions often end on the same clip; its export's reward is rθ(· | ζσ of that clip), so the search would
+    repeat itself exactly. The copy names the profile it repeats (``same_as``).
+    """
+    rollout_id = read_export(path).profile.rollout_id
+    if rollout_id in searched:
+        first = searched[rollout_id]
+        return {**first, "profile": path.name, "same_as": first["profile"], "seconds": 0.0}
+    searched[rollout_id] = search(path, domain, box, args.budget, args.seed)
+    return searched[rollout_id]
+
+
 def markdown(report: dict) -> str:
     rows = ["| profile | target | found | within ε | return: found / profile's params | rollouts |",
             "|---|---|---|---|---|---|"]
@@ -141,9 +156,9 @@ def main(argv: list[str] | None = None) -> int:
     box = prior_box(domain, args.seed)
     with tempfile.TemporaryDirectory(prefix="rba-reward-only-") as folder:
         paths = profiles(args, Path(folder))
-        results = []
+        results, searched = [], {}  # rollout id -> its first profile's result
         for path in paths:
-            r = search(path, domain, box, args.budget, args.seed)
+            r = _search_once(path, domain, box, args, searched)
             r["within"] = bool(np.all(np.abs(np.array(list(r["found"].values()))
                                              - np.array(list(r["target"].values()))) <= eps))
             log.info("%s: within ε %s after %d rollouts (%.0f s)", path.name, r["within"], r["evaluations"],

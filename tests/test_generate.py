@@ -101,6 +101,21 @@ def test_state_round_trips_through_json_and_continues_identically(ctx, gap_roots
     assert len(agent.seconds) == len(agent.searches) > len(restored.seconds)  # timings stay with the object
 
 
+def test_a_search_that_fell_short_is_not_run_again_for_a_target_near_its_own(ctx, gap_roots):
+    agent = GeneratingGlobalAgent(_gen(ctx, gap_roots, threshold=1e-9))  # no search ends this close
+    agent.first_query()
+    (first,) = agent.searches
+    assert first["reached"] > 1e-9 and first["target"] == agent.inner.target.tolist()
+    assert not is_generated(agent._choose(None, []))  # the same target: the library clip, no second search
+    assert len(agent.searches) == 1
+    agent.inner.target = agent.inner.target + 0.5  # a target farther than the threshold: searched
+    agent._choose(None, [])
+    assert len(agent.searches) == 2
+    restored = GeneratingGlobalAgent.from_state(json.loads(json.dumps(agent.state_dict())), agent.ctx)
+    restored._choose(None, [])  # the failures are in the state: a restored agent skips too
+    assert len(restored.searches) == 2
+
+
 def test_the_stored_zeta_is_the_rankers(ctx, gap_roots):
     gen = _gen(ctx, gap_roots, threshold=0.0)
     agent = GeneratingGlobalAgent(gen)

@@ -5,6 +5,8 @@ clip as always; when that clip's ζσ (the agent's own models, never proxies) is
 from the target v_t in some attribute (ζσ ranges scaled to 1), a CMA-ES search makes a clip for v_t,
 starting from the nearest library and session clips, and shows it instead if it is nearer and moves the
 asked attributes the asked way. Feedback about a generated clip updates the belief at that clip's ζσ.
+A search whose best clip stayed farther than ``threshold`` from its target is not run again for a target
+within ``threshold`` of that one: the same starts and budget would fail again (the library clip is shown).
 
 State: the agent's JSON keeps, per generated clip, its params, seed and ζσ (a few numbers), not its
 states: the id is content-addressed (``gen-<hash of domain, params, seed>``), so anything that needs the
@@ -174,18 +176,26 @@ class GeneratingGlobalAgent(Agent):
         pool += [(float(dist.distances(np.array(g["zeta"]))[0]), g["params"]) for g in self.generated.values()]
         return [p for _, p in sorted(pool, key=lambda x: x[0])[:STARTS]]
 
+    def _failed_near(self, dist: ZetaDistance) -> bool:
+        """Whether an earlier search, for a target within the threshold of this one, ended farther than it."""
+        failed = [s["target"] for s in self.searches
+                  if "target" in s and (s["reached"] is None or s["reached"] > self.ctx.threshold)]
+        return bool(failed) and float(dist.distances(np.array(failed)).min()) <= self.ctx.threshold
+
     def _choose(self, before: np.ndarray | None, asked: list[tuple[int, int]]) -> str:
         """The inner agent's library clip, or a generated one when that is too far from the target."""
         base, self.showing = self.ctx.base, None
         library = base.serve.ids[self.inner.shown]
         dist = self.ctx.distance(self.inner.target)
         near = float(dist.distances(base.serve_zeta[self.inner.shown])[0])
-        if near <= self.ctx.threshold or (before is None and self.ctx.first_from_library):
+        if near <= self.ctx.threshold or (before is None and self.ctx.first_from_library) or self._failed_near(dist):
             return library
         found, zeta = self.ctx.generate(self.inner.target, self._starts(dist), len(self.searches))
         moves = before is None or all(h * (zeta[a] - before[a]) > 0 for a, h in asked)
-        shown = found.rollout is not None and bool(dist.distances(zeta)[0] < near) and moves
-        self.searches.append({"simulations": found.simulations, "shown": shown})
+        reached = float(dist.distances(zeta)[0]) if found.rollout is not None else None
+        shown = reached is not None and reached < near and moves
+        self.searches.append({"simulations": found.simulations, "shown": shown,
+                              "target": [float(v) for v in dist.target], "reached": reached})
         self.seconds.append(found.seconds)
         if not shown:
             return library

@@ -1,0 +1,29 @@
+"""benchmarks/reward_only.py on the toy domain: every profile is reported, a repeated one is not searched again."""
+
+import importlib.util
+import json
+
+from rba.settings import REPO_ROOT
+
+spec = importlib.util.spec_from_file_location("reward_only", REPO_ROOT / "benchmarks" / "reward_only.py")
+reward_only = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(reward_only)
+
+
+def test_reports_every_profile_and_searches_each_chosen_rollout_once(toy_roots, monkeypatch, tmp_path):
+    monkeypatch.setenv("RBA_DATA_DIR", str(toy_roots[0]))
+    monkeypatch.setenv("RBA_MODELS_DIR", str(toy_roots[1]))
+    out = tmp_path / "r"
+    assert reward_only.main(["--domain", "toy", "--profiles", "6", "--budget", "12", "--out", str(out)]) == 0
+    report = json.loads(out.with_suffix(".json").read_text())
+    results = report["results"]
+    assert len(results) == 6 and report["within"] == sum(r["within"] for r in results)
+    firsts = {}
+    for r in results:
+        if r["rollout_id"] in firsts:  # the same chosen clip: the first profile's search, named
+            assert r["same_as"] == firsts[r["rollout_id"]]["profile"] and r["found"] == firsts[r["rollout_id"]]["found"]
+        else:
+            assert "same_as" not in r and r["evaluations"] >= 12
+            firsts[r["rollout_id"]] = r
+    assert len(firsts) < len(results)  # toy sessions (seed 0) end twice on one clip: the copy was taken
+    assert f"in **{report['within']} of 6** profiles" in out.with_suffix(".md").read_text()
