@@ -5,10 +5,13 @@ and attribute this reports the spread of the proxies among clips with the same �
 isotonic fit proxy ~ ζσ over ``serve``, on ``val`` rollouts) in units of ε, and, per ``val`` rollout as
 the target, the share of ``serve`` clips whose ζσ is within the generation threshold of the target's ζσ
 that are also within ε on every attribute: the chance that a clip at the right ζσ satisfies the user, so
-1 / share is about the rounds spent once the belief has converged. A tuning measurement: never on test.
-Writes ``benchmarks/results/zeta_residual.md`` and ``.json``.
+1 / share is about the rounds spent once the belief has converged. ``--local N`` also asks whether a search
+that stays near a shown clip could keep its residual (and so let bisection absorb it as an offset): N val
+clips are re-simulated with their parameters moved a little (Gaussian steps in the unit parameter box, the
+clip's own seed), and the report gives how much of the residual survives the move. A tuning measurement:
+never on test. Writes ``benchmarks/results/zeta_residual.md`` and ``.json``.
 
-    python benchmarks/zeta_residual.py --domains walker manipulator snake lane_change
+    python benchmarks/zeta_residual.py --domains walker manipulator snake lane_change --local 40
 """
 
 from __future__ import annotations
@@ -23,31 +26,80 @@ import numpy as np
 from sklearn.isotonic import IsotonicRegression
 
 from rba.artifacts import load_model
-from rba.domains import get_domain
+from rba.domains import domain_target, get_domain, load_domain
+from rba.generate import ZetaDistance
 from rba.interact import load_context
 from rba.interact.generating import THRESHOLD
 from rba.library import SkillLibrary
 from rba.storage import save_text
 
 RESULTS = Path(__file__).resolve().parent / "results"
+STEPS = (0.01, 0.03, 0.1)  # std of the parameter moves, in units of each free parameter's range
 
 
-def measure(domain: str, rep: str, precisions: list[str]) -> list[dict]:
-    """One row per precision, from one load of the models and libraries."""
+def measure(domain: str, rep: str, precisions: list[str], local: int = 0, seed: int = 0) -> list[dict]:
+    """One row per precision, from one load of the models and libraries (and ``local`` clips moved)."""
     ctx = load_context(domain, "global", rep)
     val = SkillLibrary.load(domain, "val")
-    val_zeta = load_model(domain, "ranker", rep).model.score_library(val)
+    ranker = load_model(domain, "ranker", rep).model
+    val_zeta = ranker.score_library(val)
     scale = np.maximum(ctx.bounds[1] - ctx.bounds[0], 1e-9)
     near = [np.max(np.abs(ctx.serve_zeta - z) / scale, axis=1) <= THRESHOLD for z in val_zeta]
-    return [_row(domain, rep, p, ctx, val, val_zeta, near) for p in precisions]
+    fits = [IsotonicRegression(out_of_bounds="clip").fit(ctx.serve_zeta[:, a], ctx.serve.proxies[:, a])
+            for a in range(len(ctx.attribute_names))]
+    moved = _moved(domain, val, local, seed) if local else []
+    rows = []
+    for p in precisions:
+        eps = get_domain(domain).epsilons(ctx.serve.proxies, p)
+        row = _row(domain, rep, p, ctx, val, val_zeta, near, fits, eps)
+        if moved:
+            row["local"] = _local(ctx, ranker, fits, eps, scale, moved)
+        rows.append(row)
+    return rows
 
 
-def _row(domain, rep, precision, ctx, val, val_zeta, near) -> dict:
-    eps = get_domain(domain).epsilons(ctx.serve.proxies, precision)
-    residual = {}
-    for a, name in enumerate(ctx.attribute_names):
-        fit = IsotonicRegression(out_of_bounds="clip").fit(ctx.serve_zeta[:, a], ctx.serve.proxies[:, a])
-        residual[name] = float(np.std(val.proxies[:, a] - fit.predict(val_zeta[:, a])) / eps[a])
+def _residual(fits, zeta: np.ndarray, proxies: np.ndarray, eps: np.ndarray) -> np.ndarray:
+    """Proxy minus the isotonic fit's proxy at that ζσ, per attribute, in ε units."""
+    return np.stack([proxies[:, a] - f.predict(zeta[:, a]) for a, f in enumerate(fits)], axis=1) / eps
+
+
+def _moved(domain: str, val: SkillLibrary, clips: int, seed: int) -> list[tuple[list, list]]:
+    """Per step size, ``clips`` val rollouts and the same rollouts re-simulated with moved parameters."""
+    sim = load_domain(domain_target(domain))
+    space, rng = sim.param_space(), np.random.default_rng(seed)
+    picked = [val.rollout(int(i)) for i in rng.choice(len(val), min(clips, len(val)), replace=False)]
+    out = []
+    for step in STEPS:
+        pairs = []
+        for r in picked:
+            unit = space.to_unit(r.params)
+            moved = sim.rollout(space.from_unit(np.clip(unit + rng.normal(0, step, len(unit)), 0, 1), r.params), r.seed)
+            if moved.success:
+                pairs.append((r, moved))
+        out.append(([a for a, _ in pairs], [b for _, b in pairs]))
+    return out
+
+
+def _local(ctx, ranker, fits, eps, scale, moved) -> list[dict]:
+    """Per step: how far ζσ moved (range units), and the residual's change and correlation (ε units)."""
+    score = ZetaDistance(ranker, np.zeros(len(eps)), scale).zeta
+    out = []
+    for step, (before, after) in zip(STEPS, moved, strict=True):
+        names = ctx.attribute_names
+        z0, z1 = score(before), score(after)
+        r0 = _residual(fits, z0, np.array([[r.proxies[a] for a in names] for r in before]), eps)
+        r1 = _residual(fits, z1, np.array([[r.proxies[a] for a in names] for r in after]), eps)
+        out.append({"step": step, "clips": len(before),
+                    "zeta_move": dict(zip(names, (np.abs(z1 - z0) / scale).mean(0).round(4).tolist(), strict=True)),
+                    "residual_change": dict(zip(names, (r1 - r0).std(0).round(3).tolist(), strict=True)),
+                    "residual_corr": {n: round(float(np.corrcoef(r0[:, a], r1[:, a])[0, 1]), 3)
+                                      for a, n in enumerate(names)}})
+    return out
+
+
+def _row(domain, rep, precision, ctx, val, val_zeta, near, fits, eps) -> dict:
+    res = _residual(fits, val_zeta, val.proxies, eps).std(0)
+    residual = {name: float(res[a]) for a, name in enumerate(ctx.attribute_names)}
     shares = []
     for m, p in zip(near, val.proxies, strict=True):
         if m.any():
@@ -73,6 +125,21 @@ def report(rows: list[dict], command: str) -> str:
         covered = f"{r['targets_with_near_clips']} / {r['targets']}"
         lines.append(f"| {r['domain']} | {r['rep']} | {r['precision']} | {res} | {covered} | {r['hit_share']:.3f} "
                      f"| {rounds} |")
+    local = [r for r in rows if "local" in r and r["precision"] == "high"]
+    if local:
+        lines += ["", "## Residuals after a small parameter move (high-precision ε)", "",
+                  "Val clips re-simulated with their parameters moved by a Gaussian step (std a share of each free "
+                  "parameter's range, the clip's own seed): the mean ζσ move (range units; the generation threshold "
+                  f"is {THRESHOLD}), the std of the residual's change in ε, and the residual's correlation before / "
+                  "after. A change near the residual's own std means a nearby clip is a fresh draw: a search that "
+                  "stays near a shown clip cannot keep what the user said about it.", "",
+                  "| domain | step | clips | ζσ move | residual change / ε | residual correlation |",
+                  "|---|---|---|---|---|---|"]
+        fmt = lambda d: ", ".join(f"{k} {v:.3g}" for k, v in d.items())  # noqa: E731
+        for r in local:
+            for m in r["local"]:
+                lines.append(f"| {r['domain']} | {m['step']} | {m['clips']} | {fmt(m['zeta_move'])} | "
+                             f"{fmt(m['residual_change'])} | {fmt(m['residual_corr'])} |")
     lines += ["", f"Command: `{command}`; {dt.date.today().isoformat()}."]
     return "\n".join(lines) + "\n"
 
@@ -82,11 +149,13 @@ def main() -> None:
     ap.add_argument("--domains", nargs="+", default=["walker", "manipulator", "snake", "lane_change"])
     ap.add_argument("--rep", default="onehot")
     ap.add_argument("--precisions", nargs="+", default=["high", "normal"])
+    ap.add_argument("--local", type=int, default=0, metavar="N",
+                    help="also move the parameters of N val clips and measure how much residual survives")
     args = ap.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
-    rows = [row for d in args.domains for row in measure(d, args.rep, args.precisions)]
+    rows = [row for d in args.domains for row in measure(d, args.rep, args.precisions, args.local)]
     command = " ".join(["python benchmarks/zeta_residual.py", "--domains", *args.domains, "--rep", args.rep,
-                       "--precisions", *args.precisions])
+                       "--precisions", *args.precisions, "--local", str(args.local)])
     save_text(RESULTS / "zeta_residual.json", json.dumps(rows, indent=1) + "\n")
     save_text(RESULTS / "zeta_residual.md", report(rows, command))
 

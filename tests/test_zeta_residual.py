@@ -1,4 +1,5 @@
-"""benchmarks/zeta_residual.py: a tighter ε can only lower the share of ζσ-near clips that satisfy the user."""
+"""benchmarks/zeta_residual.py: a tighter ε can only lower the share of ζσ-near clips that satisfy the user;
+moved parameters move ζσ."""
 
 import importlib.util
 
@@ -10,10 +11,14 @@ spec.loader.exec_module(zeta_residual)
 
 
 def test_high_precision_hits_fewer_and_spreads_wider_in_epsilon_units():
-    high, normal = zeta_residual.measure("lane_change", "onehot", ["high", "normal"])
+    high, normal = zeta_residual.measure("lane_change", "onehot", ["high", "normal"], local=6)
     assert set(high["residual_over_epsilon"]) == {"sharpness", "gap"}
     assert 0.0 <= high["hit_share"] <= normal["hit_share"] <= 1.0
     assert all(high["residual_over_epsilon"][a] > normal["residual_over_epsilon"][a] for a in ("sharpness", "gap"))
     assert 0 < high["targets_with_near_clips"] <= high["targets"]
     table = zeta_residual.report([high, normal], "cmd")
     assert "| lane_change | onehot | high | sharpness" in table and "Command: `cmd`" in table
+    moves = [m["zeta_move"]["gap"] for m in high["local"]]
+    assert [m["step"] for m in high["local"]] == list(zeta_residual.STEPS) and all(m["clips"] > 0 for m in high["local"])
+    assert moves == sorted(moves) and moves[0] > 0  # a larger parameter step moves ζσ farther
+    assert "## Residuals after a small parameter move" in table and "| lane_change | 0.01 |" in table
