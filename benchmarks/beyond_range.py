@@ -1,0 +1,100 @@
+"""Targets outside the serve library's range: SR / AF of RBA-Global with and without generation.
+
+Targets are the proxies of rollouts the skill made up to ``--share`` of each proxy's serve range beyond it
+(``rba.evaluate.beyond_targets``: seeded, their own stream, so neither val nor test); the paper's user,
+``--precision`` ε. Each domain is measured over the library alone and with generation (``rba eval``'s
+default, candidates simulated in this process), the same targets for both. Rows of earlier runs in
+``--out``'s .json are kept for domains this run does not measure (runs of one domain at a time can run in
+parallel and be combined). Writes ``benchmarks/results/beyond_range.md`` and ``.json``.
+
+    python benchmarks/beyond_range.py --domains walker manipulator snake lane_change
+    python benchmarks/beyond_range.py --domains snake --modes gen   # re-measure one row, keep the rest
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+from rba.domains import domain_names
+from rba.evaluate import EvalResult, evaluate
+from rba.generate import SearchConfig
+from rba.interact import load_context
+from rba.storage import save_report
+
+log = logging.getLogger("beyond_range")
+RESULTS = Path(__file__).resolve().parent / "results"
+DOMAINS = ("walker", "manipulator", "snake", "lane_change")  # the default, and the report's row order
+MODES = {"library": False, "gen": True}  # a row's mode -> whether the agent generates
+
+
+def measure(domain: str, mode: str, args: argparse.Namespace) -> dict:
+    """One row: RBA-Global one-hot on ``args.targets`` targets beyond the range, generating or not."""
+    ctx = load_context(domain, "global", "onehot")
+    generate = MODES[mode]
+    r: EvalResult = evaluate(domain, "global", "onehot", args.targets, args.seed, args.precision, "paper",
+                             context=ctx, generate=generate, beyond=args.share,
+                             generate_options={"config": SearchConfig()} if generate else None)
+    row = {"domain": domain, "mode": mode, "share": args.share, "precision": args.precision, "seed": args.seed,
+           "targets": len(r.trials), "success_rate": r.success_rate, "avg_feedback": r.avg_feedback,
+           "std_feedback": r.std_feedback, "seconds": round(r.seconds, 1), "generation": r.generation,
+           "date": time.strftime("%Y-%m-%d %H:%M")}
+    log.info("%s", row)
+    return row
+
+
+def markdown(report: dict) -> str:
+    lines = ["# Targets beyond the serve range", "",
+             f"RBA-Global one-hot, the paper's user, {report['precision']}-precision ε, targets up to "
+             f"{report['share']:.0%} of each proxy's serve range beyond it (rollouts the skill made: "
+             "`rba.evaluate.beyond_targets`, seed "
+             f"{report['seed']}). *library*: serve clips only; *gen*: the agent also makes clips when none is near "
+             "its target (`rba eval`'s default). SR / AF (std), AF over successful trials, 500-feedback budget.", "",
+             "| domain | mode | targets | SR / AF (std) | searches (shown) | simulations | seconds | measured |",
+             "|---|---|---:|---|---:|---:|---:|---|"]
+    for r in sorted(report["rows"], key=lambda r: (DOMAINS.index(r["domain"]) if r["domain"] in DOMAINS else 99,
+                                                     r["mode"] != "library")):
+        af = "–" if r["avg_feedback"] is None else f"{r['avg_feedback']:.2f} ({r['std_feedback']:.2f})"
+        g = r["generation"] or {}
+        searches = f"{g['searches']} ({g['shown']})" if g else "–"
+        lines.append(f"| {r['domain']} | {r['mode']} | {r['targets']} | {r['success_rate']:.2f} / {af} | {searches} "
+                     f"| {g.get('simulations', '–')} | {r['seconds']:.0f} | {r['date']} |")
+    lines += ["", f"Command: `{report['command']}` ({report['machine']}); rows of other domains come from earlier "
+              "runs of the same script (their date)."]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--domains", nargs="+", choices=domain_names(), default=list(DOMAINS))
+    ap.add_argument("--modes", nargs="+", choices=list(MODES), default=list(MODES))
+    ap.add_argument("--share", type=float, default=0.1, help="how far beyond the serve range, a share of it")
+    ap.add_argument("--precision", choices=("normal", "high"), default="normal")
+    ap.add_argument("--targets", type=int, default=20)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", type=Path, default=RESULTS / "beyond_range", help="writes <out>.json and <out>.md")
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+    setting = {"share": args.share, "precision": args.precision, "seed": args.seed}
+    old = args.out.with_suffix(".json")
+    kept = [r for r in (json.loads(old.read_text())["rows"] if old.exists() else [])
+            if all(r[k] == v for k, v in setting.items())]
+    report = {**setting, "command": "python benchmarks/beyond_range.py " + " ".join(argv or sys.argv[1:]),
+              "machine": f"{os.cpu_count()} cores, {platform.machine()}, Python {platform.python_version()}",
+              "rows": kept}
+    for domain in args.domains:
+        for mode in args.modes:
+            row = measure(domain, mode, args)
+            report["rows"] = [r for r in report["rows"] if (r["domain"], r["mode"]) != (domain, mode)] + [row]
+            save_report(args.out, report, markdown(report))  # after every row: a stopped run keeps what it measured
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

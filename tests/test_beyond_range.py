@@ -1,0 +1,27 @@
+"""benchmarks/beyond_range.py on the toy domain: both modes on the same targets, earlier rows kept."""
+
+import importlib.util
+import json
+
+from rba.settings import REPO_ROOT
+
+spec = importlib.util.spec_from_file_location("beyond_range", REPO_ROOT / "benchmarks" / "beyond_range.py")
+beyond_range = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(beyond_range)
+
+
+def test_measures_both_modes_and_keeps_rows_of_the_same_setting(toy_roots, monkeypatch, tmp_path):
+    monkeypatch.setenv("RBA_DATA_DIR", str(toy_roots[0]))
+    monkeypatch.setenv("RBA_MODELS_DIR", str(toy_roots[1]))
+    out = tmp_path / "b"
+    base = ["--domains", "toy", "--targets", "3", "--out", str(out)]
+    assert beyond_range.main(base) == 0
+    rows = json.loads(out.with_suffix(".json").read_text())["rows"]
+    library, gen = sorted(rows, key=lambda r: r["mode"] != "library")
+    assert (library["mode"], gen["mode"]) == ("library", "gen") and library["targets"] == gen["targets"] == 3
+    assert library["generation"] is None and gen["generation"]["searches"] >= 0
+    assert beyond_range.main([*base, "--modes", "gen"]) == 0  # one row again: the other is kept
+    assert [r["mode"] for r in json.loads(out.with_suffix(".json").read_text())["rows"]] == ["library", "gen"]
+    assert beyond_range.main([*base, "--modes", "gen", "--share", "0.2"]) == 0  # another setting: not mixed
+    assert len(json.loads(out.with_suffix(".json").read_text())["rows"]) == 1
+    assert "| toy | gen | 3 |" in out.with_suffix(".md").read_text()
