@@ -19,6 +19,7 @@ def test_high_precision_hits_fewer_and_spreads_wider_in_epsilon_units():
     table = zeta_residual.report([high, normal], "cmd")
     assert "| lane_change | onehot | high | sharpness" in table and "Command: `cmd`" in table
     moves = [m["zeta_move"]["gap"] for m in high["local"]]
-    assert [m["step"] for m in high["local"]] == list(zeta_residual.STEPS) and all(m["clips"] > 0 for m in high["local"])
+    assert [m["step"] for m in high["local"]] == list(zeta_residual.STEPS)
+    assert all(m["clips"] > 0 for m in high["local"])
     assert moves == sorted(moves) and moves[0] > 0  # a larger parameter step moves ζσ farther
     assert "## Residuals after a small parameter move" in table and "| lane_change | 0.01 |" in table
