@@ -46,6 +46,16 @@ def _positive(text: str) -> int:
     return value
 
 
+def _non_negative(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not value >= 0.0:
+        raise argparse.ArgumentTypeError(f"must be a number ≥ 0, got {text}")
+    return value
+
+
 def _share(text: str) -> float:
     """A share in (0, 0.5]: how far beyond the serve range targets may lie (``rba eval --beyond``)."""
     try:
@@ -154,6 +164,8 @@ def _generation(args) -> tuple[dict, Compute | None]:
     options: dict = {"config": SearchConfig(budget=args.gen_budget)}
     if args.gen_threshold is not None:
         options["threshold"] = args.gen_threshold
+    if args.gen_spread is not None:
+        options["spread"] = args.gen_spread
     if not args.ray and args.gen_workers == 1:
         return options, None
     from rba.compute import make_compute
@@ -341,9 +353,13 @@ def _eval_command(sub) -> argparse.ArgumentParser:
                         "default: on where the method can (RBA-Global) and the user can judge new clips (not "
                         "myopic); --no-generate: the library alone, to compare")
     e.add_argument("--gen-budget", type=_positive, default=48, help="simulations per generated clip at most")
-    e.add_argument("--gen-threshold", type=float, default=None,
+    e.add_argument("--gen-threshold", type=_non_negative, default=None,
                    help="ζσ distance (train range = 1) beyond which the agent generates; default: "
                         "rba.interact.generating.THRESHOLD (0.02); tune it on --split val")
+    e.add_argument("--gen-spread", type=_non_negative, default=None,
+                   help="generate only where the library clip is also off the target by more than this share of "
+                        "the belief's half interquartile range (0: by the threshold alone); default: "
+                        "rba.interact.generating.SPREAD (1.0); tune it on --split val")
     e.add_argument("--gen-workers", type=_positive, default=2,
                    help="local processes simulating candidates (1: this process)")
     _ray_option(e)

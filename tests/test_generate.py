@@ -83,7 +83,7 @@ def test_fixed_parameters_keep_the_start_clips_value(ctx, gap_roots, monkeypatch
 
 
 def test_state_round_trips_through_json_and_continues_identically(ctx, gap_roots):
-    agent = GeneratingGlobalAgent(_gen(ctx, gap_roots, threshold=0.0))  # generate at every round
+    agent = GeneratingGlobalAgent(_gen(ctx, gap_roots, threshold=0.0, spread=0.0))  # generate at every round
     user = parse_user("paper").build(TARGET, _eps(ctx) / 6, ctx.serve, 0)
     rid = agent.first_query()
     for _ in range(2):
@@ -91,7 +91,7 @@ def test_state_round_trips_through_json_and_continues_identically(ctx, gap_roots
             [agent.rollout(rid).proxies[a] for a in ctx.serve.attribute_names])
         rid = agent.update(user.respond(i))
     assert is_generated(rid) and agent.showing == rid
-    fresh = _gen(ctx, gap_roots, threshold=0.0)  # a restarted process: nothing in its store
+    fresh = _gen(ctx, gap_roots, threshold=0.0, spread=0.0)  # a restarted process: nothing in its store
     restored = GeneratingGlobalAgent.from_state(json.loads(json.dumps(agent.state_dict())), fresh)
     assert restored.state_dict() == agent.state_dict()
     np.testing.assert_array_equal(restored.rollout(rid).states, agent.rollout(rid).states)  # re-simulated
@@ -102,7 +102,7 @@ def test_state_round_trips_through_json_and_continues_identically(ctx, gap_roots
 
 
 def test_a_search_that_fell_short_is_not_run_again_for_a_target_near_its_own(ctx, gap_roots):
-    agent = GeneratingGlobalAgent(_gen(ctx, gap_roots, threshold=1e-9))  # no search ends this close
+    agent = GeneratingGlobalAgent(_gen(ctx, gap_roots, threshold=1e-9, spread=0.0))  # no search ends this close
     agent.first_query()
     (first,) = agent.searches
     assert first["reached"] > 1e-9 and first["target"] == agent.inner.target.tolist()
@@ -116,8 +116,22 @@ def test_a_search_that_fell_short_is_not_run_again_for_a_target_near_its_own(ctx
     assert len(restored.searches) == 2
 
 
+def test_no_search_while_the_belief_is_wider_than_the_library_clips_miss(ctx, gap_roots):
+    wide = GeneratingGlobalAgent(_gen(ctx, gap_roots, threshold=0.0))  # the default spread
+    assert not is_generated(wide.first_query()) and wide.searches == []  # the prior: quartiles far apart
+    eager = GeneratingGlobalAgent(_gen(ctx, gap_roots, threshold=0.0, spread=0.0))
+    assert is_generated(eager.first_query()) and len(eager.searches) == 1
+    sure = GeneratingGlobalAgent(_gen(ctx, gap_roots, threshold=0.0))
+    sure.first_query()
+    z, scale = sure.inner.target.copy(), ctx.bounds[1] - ctx.bounds[0]
+    sure.inner.answers = [(a, float(z[a] + d * scale[a]), h) for a in range(len(z))
+                          for d, h in ((-0.005, 1), (0.005, -1))] * 4
+    assert (sure.inner.widths() / scale).max() < 0.02  # answers pin the target: the library clip's miss counts
+    assert is_generated(sure._choose(None, [])) and len(sure.searches) == 1
+
+
 def test_the_stored_zeta_is_the_rankers(ctx, gap_roots):
-    gen = _gen(ctx, gap_roots, threshold=0.0)
+    gen = _gen(ctx, gap_roots, threshold=0.0, spread=0.0)
     agent = GeneratingGlobalAgent(gen)
     rid = agent.first_query()
     assert is_generated(rid)

@@ -176,6 +176,7 @@ def test_the_generating_row_sits_below_rba_global_and_generates(gap_roots, monke
     monkeypatch.setenv("RBA_MODELS_DIR", str(gap_roots[1]))
     rows = paper_tables.run(["toy"], ["normal"], 2, 0, ["RBA-Global", "RBA-Global+gen"])
     assert [(label, r.generate) for _, label, r in rows] == [("RBA-Global", False), ("RBA-Global+gen", True)]
-    assert rows[1][2].generation["searches"] > 0
+    # what generating cost is reported (these targets are near serve clips: whether it searched is test_generate's)
+    assert rows[0][2].generation is None and set(rows[1][2].generation) >= {"searches", "simulations", "shown"}
     text = paper_tables.markdown(rows, ["toy"], ["normal"], 2, 0, 1.0)
     assert text.index("| toy | RBA-Global |") < text.index("| toy | RBA-Global+gen |")

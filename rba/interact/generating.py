@@ -2,7 +2,9 @@
 
 ``GeneratingGlobalAgent`` wraps a ``GlobalAgent``: the inner agent keeps the belief and picks a library
 clip as always; when that clip's ζσ (the agent's own models, never proxies) is farther than ``threshold``
-from the target v_t in some attribute (ζσ ranges scaled to 1), a CMA-ES search makes a clip for v_t,
+from the target v_t in some attribute (ζσ ranges scaled to 1), and farther than the belief is sure of the
+target there (``spread``: early on, a library clip near a wide belief's median asks as well as a made one),
+a CMA-ES search makes a clip for v_t,
 starting from the nearest library and session clips, and shows it instead if it is nearer and moves the
 asked attributes the asked way. Feedback about a generated clip updates the belief at that clip's ζσ.
 A search whose best clip stayed farther than ``threshold`` from its target is not run again for a target
@@ -44,6 +46,9 @@ from rba.methods import get_method, methods
 # ζσ distance (max over attributes, train range = 1) above which the agent generates: about the high-precision ε
 # (1/42 of a range); so far checked on walker val targets only
 THRESHOLD = 0.02
+# ... and by more than this share of the belief's half interquartile range there: while the agent is unsure where the
+# target is, a library clip inside that spread asks as well as a made one, at no cost (0: generate by THRESHOLD alone)
+SPREAD = 1.0
 STARTS = 4  # nearest clips whose parameters start (and spread) the search
 STORE_SIZE = 256  # generated rollouts kept in memory per context; older ones are re-simulated when asked for
 OBJECTIVES = ("zeta", "reward")
@@ -89,6 +94,7 @@ class GenerationContext:
     simulate: Simulate = in_process  # Compute.simulate on the local pools or Ray
     config: SearchConfig = field(default_factory=SearchConfig)
     threshold: float = THRESHOLD
+    spread: float = SPREAD
     objective: str = "zeta"
     on_progress: Progress | None = None  # (generation k, of K) of the running search
     store: GeneratedStore = field(default_factory=GeneratedStore)
@@ -182,13 +188,22 @@ class GeneratingGlobalAgent(Agent):
                   if "target" in s and (s["reached"] is None or s["reached"] > self.ctx.threshold)]
         return bool(failed) and float(dist.distances(np.array(failed)).min()) <= self.ctx.threshold
 
+    def _off_target(self, dist: ZetaDistance, zeta: np.ndarray) -> bool:
+        """Whether a clip at ``zeta`` misses the target, on some attribute, by more than the threshold and more
+        than ``spread`` × half the belief's interquartile range (ranges scaled to 1)."""
+        off = np.abs(zeta - dist.target) / dist.scale
+        unsure = self.ctx.spread * self.inner.widths() / 2 / dist.scale
+        return bool(np.any(off > np.maximum(self.ctx.threshold, unsure)))
+
     def _choose(self, before: np.ndarray | None, asked: list[tuple[int, int]]) -> str:
         """The inner agent's library clip, or a generated one when that is too far from the target."""
         base, self.showing = self.ctx.base, None
         library = base.serve.ids[self.inner.shown]
         dist = self.ctx.distance(self.inner.target)
-        near = float(dist.distances(base.serve_zeta[self.inner.shown])[0])
-        if near <= self.ctx.threshold or (before is None and self.ctx.first_from_library) or self._failed_near(dist):
+        zeta = base.serve_zeta[self.inner.shown]
+        near = float(dist.distances(zeta)[0])
+        if (not self._off_target(dist, zeta) or (before is None and self.ctx.first_from_library)
+                or self._failed_near(dist)):
             return library
         found, zeta = self.ctx.generate(self.inner.target, self._starts(dist), len(self.searches))
         moves = before is None or all(h * (zeta[a] - before[a]) > 0 for a, h in asked)

@@ -131,6 +131,11 @@ class GlobalAgent(Agent):
     def _median(self, a: int) -> float:
         return self._quantile(a, 0.5)
 
+    def widths(self, mass: float = 0.5) -> np.ndarray:
+        """The belief's central ``mass`` per attribute, as a width in ζσ (0.5: the interquartile range)."""
+        return np.array([self._quantile(a, (1 + mass) / 2) - self._quantile(a, (1 - mass) / 2)
+                         for a in range(len(self.ctx.attribute_names))])
+
     def target_ranks(self, mass: float = 0.5) -> dict[str, tuple[float, float]]:
         """The belief's central ``mass`` per attribute, as the share of serve rollouts scoring below each end."""
         out = {}
@@ -161,7 +166,8 @@ class GlobalAgent(Agent):
         self.rejected.append(self.shown)
         nxt = self._argmax()
         width = self.ctx.bounds[1] - self.ctx.bounds[0]
-        step = {a: max(self._quantile(a, 0.75) - self._quantile(a, 0.25), 0.01 * width[a]) / 2 for a, _ in asked}
+        iqr = self.widths()
+        step = {a: max(iqr[a], 0.01 * width[a]) / 2 for a, _ in asked}
         for _ in range(MAX_PUSHES):
             if all(h * (self.ctx.serve_zeta[nxt, a] - z[a]) > 0 for a, h in asked):
                 break

@@ -16,6 +16,7 @@ from rba.export import read_export, replay
 from rba.generate import generated_id, is_generated
 from server.exporting import export_to_file
 from server.main import create_app
+from server.settings import Settings
 from tests.fakes import InProcessCompute
 from tests.server.conftest import more
 
@@ -25,7 +26,8 @@ SEARCH_SECONDS = 30
 @pytest.fixture
 def gen_settings(make_settings, gap_roots, database_url):
     data, models = gap_roots
-    return make_settings(data_dir=data, models_dir=models, database_url=database_url, generate=True)
+    return make_settings(data_dir=data, models_dir=models, database_url=database_url, generate=True,
+                         generate_spread=0.0)  # every answer off the target searches, however wide the belief
 
 
 def search_done(client: TestClient, sid: str) -> dict:
@@ -95,6 +97,17 @@ def test_a_generated_clip_is_served_listed_and_exported(gen_settings, tmp_path):
         update={"cache_dir": tmp_path / "cli-clips"}))  # `rba export`: remade and rendered in this process
     assert cli.rollout_id == profile.rollout_id and cli.params == profile.params and cli.seed == profile.seed
     assert read_export(tmp_path / "cli.zip").clip[4:8] == b"ftyp"  # a real MP4 this time
+
+
+def test_by_default_a_first_answer_shows_a_serve_clip_at_once(gen_settings):
+    """The default ``generate_spread``: while the belief is wide, a serve clip near its median asks as well."""
+    with TestClient(create_app(gen_settings.model_copy(update={"generate_spread": Settings().generate_spread}),
+                               InProcessCompute())) as client:
+        s = client.post("/api/sessions", json={"domain": "toy"}).json()
+        r = client.post(f"/api/sessions/{s['id']}/feedback", json=more("amplitude", s["step"], "less",
+                                                                       clip=s["clip"]["rollout_id"]))
+        assert r.status_code == 200 and r.json()["clip"]["generated"] is False, r.text
+        assert r.json()["step"] == s["step"] + 1 and r.json()["generation"] is None
 
 
 def test_refusals_name_what_is_valid(gen_settings):
