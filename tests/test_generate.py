@@ -233,6 +233,23 @@ def test_evaluate_beyond_the_range_with_and_without_generation(narrow_roots):
     assert on.success_rate > off.success_rate and on.generation["shown"] > 0
 
 
+def test_cli_gen_spread_option(gap_roots, monkeypatch, capsys, tmp_path):
+    monkeypatch.setenv("RBA_DATA_DIR", str(gap_roots[0]))
+    monkeypatch.setenv("RBA_MODELS_DIR", str(gap_roots[1]))
+    searches = {}
+    for spread in ("0", None):
+        out = tmp_path / f"{spread}.json"
+        extra = ["--gen-spread", spread] if spread else []
+        assert main(["eval", "--domain", "toy", "--targets", "2", "--gen-workers", "1", "--gen-budget", "16",
+                     "--json", str(out), *extra]) == 0
+        searches[spread] = json.loads(out.read_text())["generation"]["searches"]
+    assert searches["0"] > searches[None]  # spread 0: every clip off by the threshold searches, however unsure
+    with pytest.raises(SystemExit) as exit_:
+        main(["eval", "--domain", "toy", "--gen-spread", "-1"])
+    assert exit_.value.code == 2
+    assert "argument --gen-spread: must be a number ≥ 0, got -1" in capsys.readouterr().err
+
+
 def test_cli_beyond_option(narrow_roots, monkeypatch, capsys, tmp_path):
     monkeypatch.setenv("RBA_DATA_DIR", str(narrow_roots[0]))
     monkeypatch.setenv("RBA_MODELS_DIR", str(narrow_roots[1]))
