@@ -31,7 +31,8 @@ class Catalog:
 
     def __init__(self, settings: Settings) -> None:
         self.store = Store.from_settings(settings)
-        self._generate_spread = settings.generate_spread
+        # the generating agents' options the settings set (none: the agents' own defaults)
+        self._generate = {} if settings.generate_spread is None else {"spread": settings.generate_spread}
         self._contexts: dict[tuple[str, str, str, str], Any] = {}
         self._libraries: dict[str, SkillLibrary] = {}
         self._generation: dict[tuple[str, str, str, str], GenerationContext] = {}
@@ -126,7 +127,7 @@ class Catalog:
             if key not in self._generation:
                 self._generation[key] = GenerationContext.load(
                     self.context(*key), self.models(version).root, store=self.generated_store(domain),
-                    first_from_library=True, spread=self._generate_spread)
+                    first_from_library=True, **self._generate)
         return self._generation[key]
 
     def generated_store(self, domain: str) -> GeneratedStore:

@@ -6,7 +6,6 @@ import socket
 
 from pydantic import Field, model_validator
 
-from rba.interact.generating import SPREAD
 from rba.settings import LibrarySettings
 from rba.store import Store
 
@@ -43,10 +42,11 @@ class Settings(LibrarySettings):
                            "search on the compute layer) when no serve clip is near the agent's target; a session "
                            "may ask otherwise at creation (`generate`). Off by default: a search makes the person wait "
                            "(p95 0.4-8 s on 2 cores by domain, benchmarks/results/generation_latency.md)")
-    generate_spread: float = Field(default=SPREAD, ge=0, description="a generating session searches only where the "
-                                   "serve clip misses the agent's target by more than this share of its belief's half "
-                                   "interquartile range (and the threshold): early answers, while the belief is wide, "
-                                   "show serve clips at once; 0: search whenever the threshold is missed")
+    generate_spread: float | None = Field(default=None, ge=0, description="a generating session searches only "
+                                          "where the serve clip misses the agent's target by more than this share of "
+                                          "its belief's half interquartile range (and the threshold): early answers, "
+                                          "while the belief is wide, show serve clips at once; 0: search whenever the "
+                                          "threshold is missed; default: rba.interact.generating.SPREAD (1.0)")
     warm_start: bool = Field(default=True, description="load models and render first clips after start-up")
     replica: str | None = Field(default=None, max_length=120, description="this server's name among the API "
                                 "replicas on one database; default <hostname>:<port>. A restarted replica fails "
