@@ -220,8 +220,11 @@ def evaluate(domain_name: str, method: str, rep: str = "onehot", targets: int = 
             raise ValueError(f"the {domain_name} skill made no rollout beyond its serve range within {beyond:.0%}")
     start = time.perf_counter()
     agents = [make() for _ in chosen]
-    trials = [simulate(agent, t, eps, serve, spec, seed * 1000 + n)
-              for n, (agent, t) in enumerate(zip(agents, chosen, strict=True))]
+    trials = []
+    for n, (agent, t) in enumerate(zip(agents, chosen, strict=True)):
+        trials.append(simulate(agent, t, eps, serve, spec, seed * 1000 + n))
+        log.info("%s %s: trial %d of %d %s after %d feedbacks", domain_name, method, n + 1, len(chosen),
+                 "succeeded" if trials[-1].success else "failed", trials[-1].feedback_count)
     fb = np.array([t.feedback_count for t in trials if t.success], dtype=float)
     return EvalResult(domain_name, method, rep, precision, str(spec), seed,
                       success_rate=float(np.mean([t.success for t in trials])),
