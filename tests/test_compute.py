@@ -7,8 +7,11 @@ CPUs and two one-CPU worker nodes, all on 127.0.0.1) and run the same jobs on it
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -88,6 +91,35 @@ def test_the_local_pool_replaces_a_killed_worker_and_runs_the_task_again(toy_roo
             os.kill(pid, 9)
         time.sleep(0.5)
         assert compute.render(job).future.result(60) == expected
+
+
+def test_workers_exit_when_their_pool_process_is_killed(tmp_path):
+    """A server killed outright leaves no compute workers behind (they watch their parent)."""
+    script = ("import os, sys, time\n"
+              "from rba.compute.local import LocalCompute\n"
+              "compute = LocalCompute(workers=2, nice=0)\n"
+              "pids = {compute._urgent.submit(os.getpid).future.result(60) for _ in range(4)}\n"
+              "print(*pids, flush=True)\n"
+              "time.sleep(600)\n")
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    try:
+        workers = [int(p) for p in proc.stdout.readline().split()]
+        assert workers and all(_alive(p) for p in workers)
+    finally:
+        proc.kill()
+        proc.wait()
+    deadline = time.monotonic() + 30
+    while any(_alive(p) for p in workers) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not any(_alive(p) for p in workers), f"workers {workers} outlived their killed pool process"
+
+
+def _alive(pid: int) -> bool:
+    """Whether ``pid`` runs (a zombie, dead but not yet reaped by its new parent, does not)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
 
 
 def test_simulate_keeps_the_jobs_order(local_compute):

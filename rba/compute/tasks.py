@@ -10,6 +10,7 @@ import contextlib
 import os
 import shutil
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -17,6 +18,7 @@ from rba.domains import Rollout, load_domain
 
 TEMP_PREFIX = "rba-clip-"
 STALE_TEMP_SECONDS = 600  # a render takes seconds: older temporaries were left by a killed worker
+PARENT_POLL_SECONDS = 1.0  # how often a worker checks that the process that started it is alive
 _ready = False  # this process was set up as a worker
 
 
@@ -38,7 +40,16 @@ def init_worker(nice: int = 0, render_threads: int = 1) -> None:
         with contextlib.suppress(OSError):  # not allowed to lower it further: run as we are
             os.nice(nice)
     sweep_temporaries()
+    threading.Thread(target=_exit_with_parent, args=(os.getppid(),), name="rba-parent-watch", daemon=True).start()
     _ready = True
+
+
+def _exit_with_parent(parent_pid: int) -> None:
+    """Exit once the process that started this worker is gone: a pool killed outright (SIGKILL, OOM) never shuts
+    its workers down, and they would otherwise idle on, holding their models, until the machine restarts."""
+    while os.getppid() == parent_pid:
+        time.sleep(PARENT_POLL_SECONDS)
+    os._exit(0)
 
 
 def _prepare() -> None:
