@@ -166,8 +166,7 @@ class GlobalAgent(Agent):
         self.rejected.append(self.shown)
         nxt = self._argmax()
         width = self.ctx.bounds[1] - self.ctx.bounds[0]
-        iqr = self.widths()
-        step = {a: max(iqr[a], 0.01 * width[a]) / 2 for a, _ in asked}
+        step = {a: max(self._quantile(a, 0.75) - self._quantile(a, 0.25), 0.01 * width[a]) / 2 for a, _ in asked}
         for _ in range(MAX_PUSHES):
             if all(h * (self.ctx.serve_zeta[nxt, a] - z[a]) > 0 for a, h in asked):
                 break
