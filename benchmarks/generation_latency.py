@@ -95,7 +95,7 @@ def answer(client: httpx.Client, session: dict, feedback: list[dict], poll: floa
 
 def run_target(client: httpx.Client, domain: str, target: np.ndarray, eps: np.ndarray, serve: SkillLibrary,
                args: argparse.Namespace, seed: int, out: DomainRun) -> None:
-    """One person chasing ``target`` for at most ``rounds`` answers."""
+    """One person chasing ``target`` for at most ``args.rounds`` answers, watching each clip ``args.watch`` s."""
     r = client.post("/api/sessions", json={"domain": domain, "method": "global", "rep": "onehot", "generate": True})
     r.raise_for_status()
     session = r.json()

@@ -46,11 +46,16 @@ def _positive(text: str) -> int:
     return value
 
 
-def _non_negative(text: str) -> float:
+def _number(text: str) -> float:
+    """``text`` as a float; NaN (which every range check refuses) when it is not a number."""
     try:
-        value = float(text)
+        return float(text)
     except ValueError:
-        value = float("nan")
+        return float("nan")
+
+
+def _non_negative(text: str) -> float:
+    value = _number(text)
     if not value >= 0.0:
         raise argparse.ArgumentTypeError(f"must be a number ≥ 0, got {text}")
     return value
@@ -58,10 +63,7 @@ def _non_negative(text: str) -> float:
 
 def _share(text: str) -> float:
     """A share in (0, 0.5]: how far beyond the serve range targets may lie (``rba eval --beyond``)."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
+    value = _number(text)
     if not 0.0 < value <= 0.5:
         raise argparse.ArgumentTypeError(f"must be a share in (0, 0.5], e.g. 0.1 for 10 %; got {text}")
     return value

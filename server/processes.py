@@ -32,6 +32,7 @@ from pathlib import Path
 
 import psutil
 
+from rba.compute.tasks import watch_parent
 from rba.storage import load_json, save_json
 
 log = logging.getLogger(__name__)
@@ -79,12 +80,10 @@ def tie_to_parent(parent_pid: int) -> None:
             log.warning("prctl(PR_SET_PDEATHSIG) failed (errno %d): only the parent watch guards", ctypes.get_errno())
     if os.getppid() != parent_pid:  # the server died before the signal was set up
         _kill_own_group()
-    threading.Thread(target=_watch_parent, args=(parent_pid,), name="rba-parent-watch", daemon=True).start()
+    watch_parent(parent_pid, lambda: _parent_gone(parent_pid), PARENT_POLL_SECONDS)
 
 
-def _watch_parent(parent_pid: int) -> None:
-    while os.getppid() == parent_pid:
-        time.sleep(PARENT_POLL_SECONDS)
+def _parent_gone(parent_pid: int) -> None:
     log.error("the server (pid %d) is gone: stopping this job's processes", parent_pid)
     _kill_own_group()
 

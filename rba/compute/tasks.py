@@ -12,6 +12,7 @@ import shutil
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from rba.domains import Rollout, load_domain
@@ -40,16 +41,21 @@ def init_worker(nice: int = 0, render_threads: int = 1) -> None:
         with contextlib.suppress(OSError):  # not allowed to lower it further: run as we are
             os.nice(nice)
     sweep_temporaries()
-    threading.Thread(target=_exit_with_parent, args=(os.getppid(),), name="rba-parent-watch", daemon=True).start()
+    # a pool killed outright (SIGKILL, OOM) never shuts its workers down: they would idle on, holding their models
+    watch_parent(os.getppid(), lambda: os._exit(0), PARENT_POLL_SECONDS)
     _ready = True
 
 
-def _exit_with_parent(parent_pid: int) -> None:
-    """Exit once the process that started this worker is gone: a pool killed outright (SIGKILL, OOM) never shuts
-    its workers down, and they would otherwise idle on, holding their models, until the machine restarts."""
-    while os.getppid() == parent_pid:
-        time.sleep(PARENT_POLL_SECONDS)
-    os._exit(0)
+def watch_parent(parent_pid: int, on_gone: Callable[[], None], poll: float) -> None:
+    """Call ``on_gone`` (in a daemon thread) once ``parent_pid`` is no longer this process's parent: it died and
+    this process was handed to another. Compute workers exit so; the server's training jobs stop their group."""
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(poll)
+        on_gone()
+
+    threading.Thread(target=watch, name="rba-parent-watch", daemon=True).start()
 
 
 def _prepare() -> None:

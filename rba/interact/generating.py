@@ -188,11 +188,10 @@ class GeneratingGlobalAgent(Agent):
                   if "target" in s and (s["reached"] is None or s["reached"] > self.ctx.threshold)]
         return bool(failed) and float(dist.distances(np.array(failed)).min()) <= self.ctx.threshold
 
-    def _off_target(self, dist: ZetaDistance, zeta: np.ndarray) -> bool:
-        """Whether a clip at ``zeta`` misses the target, on some attribute, by more than the threshold and more
-        than ``spread`` × half the belief's interquartile range (ranges scaled to 1)."""
-        off = np.abs(zeta - dist.target) / dist.scale
-        unsure = self.ctx.spread * self.inner.widths() / 2 / dist.scale
+    def _off_target(self, off: np.ndarray, scale: np.ndarray) -> bool:
+        """Whether a clip ``off`` the target by this much per attribute (ranges scaled to 1) misses it, on some
+        attribute, by more than the threshold and more than ``spread`` × half the belief's interquartile range."""
+        unsure = self.ctx.spread * self.inner.widths() / 2 / scale
         return bool(np.any(off > np.maximum(self.ctx.threshold, unsure)))
 
     def _choose(self, before: np.ndarray | None, asked: list[tuple[int, int]]) -> str:
@@ -200,9 +199,9 @@ class GeneratingGlobalAgent(Agent):
         base, self.showing = self.ctx.base, None
         library = base.serve.ids[self.inner.shown]
         dist = self.ctx.distance(self.inner.target)
-        zeta = base.serve_zeta[self.inner.shown]
-        near = float(dist.distances(zeta)[0])
-        if (not self._off_target(dist, zeta) or (before is None and self.ctx.first_from_library)
+        off = np.abs(base.serve_zeta[self.inner.shown] - dist.target) / dist.scale
+        near = float(off.max())  # = dist.distances of that clip
+        if (not self._off_target(off, dist.scale) or (before is None and self.ctx.first_from_library)
                 or self._failed_near(dist)):
             return library
         found, zeta = self.ctx.generate(self.inner.target, self._starts(dist), len(self.searches))
