@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -58,6 +59,13 @@ def _non_negative(text: str) -> float:
     value = _number(text)
     if not value >= 0.0:
         raise argparse.ArgumentTypeError(f"must be a number ≥ 0, got {text}")
+    return value
+
+
+def _seconds(text: str) -> float:
+    value = _number(text)
+    if not 0.0 < value < math.inf:
+        raise argparse.ArgumentTypeError(f"must be a number of seconds > 0, got {text}")
     return value
 
 
@@ -163,7 +171,7 @@ def _generation(args) -> tuple[dict, Compute | None]:
         return {}, None
     from rba.generate import SearchConfig
 
-    options: dict = {"config": SearchConfig(budget=args.gen_budget)}
+    options: dict = {"config": SearchConfig(budget=args.gen_budget, seconds=args.gen_seconds)}
     if args.gen_threshold is not None:
         options["threshold"] = args.gen_threshold
     if args.gen_spread is not None:
@@ -355,6 +363,9 @@ def _eval_command(sub) -> argparse.ArgumentParser:
                         "default: on where the method can (RBA-Global) and the user can judge new clips (not "
                         "myopic); --no-generate: the library alone, to compare")
     e.add_argument("--gen-budget", type=_positive, default=48, help="simulations per generated clip at most")
+    e.add_argument("--gen-seconds", type=_seconds, default=None,
+                   help="bound each search in time as the app does (RBA_GENERATE_SECONDS): no CMA-ES generation "
+                        "starts that would end later than this; default: the budget alone (deterministic)")
     e.add_argument("--gen-threshold", type=_non_negative, default=None,
                    help="ζσ distance (train range = 1) beyond which the agent generates; default: "
                         "rba.interact.generating.THRESHOLD (0.02); tune it on --split val")

@@ -66,7 +66,12 @@ def replay(domain: str, params: dict[str, float], seed: int, simulate: Simulate 
 
 @dataclass(frozen=True)
 class SearchConfig:
-    """How hard to search: ``budget`` simulations in generations of ``popsize``; seeded."""
+    """How hard to search: ``budget`` simulations in generations of ``popsize``; seeded.
+
+    ``seconds`` bounds a search in time as well (the app: someone waits for the clip): no generation starts
+    that the mean of those before it says would end later than that after the search began; the first always
+    runs. A search so bounded depends on the machine's speed; ``rba eval`` leaves it off unless asked.
+    """
 
     budget: int = 48
     popsize: int = 8
@@ -74,6 +79,7 @@ class SearchConfig:
     seed: int = 0  # CMA-ES's own draws
     sim_seed: int = 0  # every candidate is simulated with this seed: candidates differ in parameters only
     good_enough: float | None = None  # stop early once the best objective is at most this
+    seconds: float | None = None  # stop before a generation predicted to end later than this (None: budget only)
 
     @property
     def generations(self) -> int:
@@ -96,6 +102,12 @@ def _first_step(space: ParamSpace, starts: list[dict[str, float]], config: Searc
     units = np.array([space.to_unit(p) for p in starts])
     spread = float(units.std(0).mean()) if len(units) > 1 else config.sigma[1]
     return np.clip(units[0], 0.0, 1.0), float(np.clip(spread, *config.sigma))
+
+
+def _out_of_time(elapsed: float, generations: int, seconds: float | None) -> bool:
+    """Whether another generation, as long as the mean of the ``generations`` run so far, would end after
+    ``seconds``."""
+    return seconds is not None and elapsed * (generations + 1) / generations > seconds
 
 
 def search(domain: str, starts: list[dict[str, float]], objective: Objective, simulate: Simulate = in_process,
@@ -128,6 +140,8 @@ def search(domain: str, starts: list[dict[str, float]], objective: Objective, si
         if on_progress:
             on_progress(k + 1, config.generations)
         if config.good_enough is not None and best_f <= config.good_enough:
+            break
+        if _out_of_time(time.perf_counter() - clock, k + 1, config.seconds):
             break
     seconds = time.perf_counter() - clock
     log.info("%s: generated %s (objective %.4f) from %d simulations in %.2f s", domain,

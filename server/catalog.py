@@ -12,6 +12,7 @@ import time
 from typing import Any
 
 from rba.domains import Domain, domain_names, get_domain
+from rba.generate import SearchConfig
 from rba.interact import load_context
 from rba.interact.generating import GeneratedStore, GenerationContext, generating_class
 from rba.library import SkillLibrary
@@ -32,7 +33,9 @@ class Catalog:
     def __init__(self, settings: Settings) -> None:
         self.store = Store.from_settings(settings)
         # the generating agents' options the settings set (none: the agents' own defaults)
-        self._generate = {} if settings.generate_spread is None else {"spread": settings.generate_spread}
+        self._generate: dict[str, Any] = {"config": SearchConfig(seconds=settings.generate_seconds)}
+        if settings.generate_spread is not None:
+            self._generate["spread"] = settings.generate_spread
         self._contexts: dict[tuple[str, str, str, str], Any] = {}
         self._libraries: dict[str, SkillLibrary] = {}
         self._generation: dict[tuple[str, str, str, str], GenerationContext] = {}

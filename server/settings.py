@@ -9,6 +9,8 @@ from pydantic import Field, model_validator
 from rba.settings import LibrarySettings
 from rba.store import Store
 
+GENERATE_SECONDS = 1.0  # a search's time: with the render (0.2-0.8 s) and the page's poll, a clip ~2 s after the answer
+
 
 class Settings(LibrarySettings):
     """What ``rba serve`` and the tests configure; defaults run the app from the repository."""
@@ -47,6 +49,11 @@ class Settings(LibrarySettings):
                                           "its belief's half interquartile range (and the threshold): early answers, "
                                           "while the belief is wide, show serve clips at once; 0: search whenever the "
                                           "threshold is missed; default: rba.interact.generating.SPREAD (1.0)")
+    generate_seconds: float = Field(default=GENERATE_SECONDS, gt=0, description="a search stops before a "
+                                           "CMA-ES generation that would end later than this many seconds after "
+                                           "the answer (the first always runs), so the new clip plays about "
+                                           "2 s after it on 2 cores (benchmarks/results/generation_latency.md); "
+                                           "a large value leaves the simulation budget (48) alone to bound it")
     warm_start: bool = Field(default=True, description="load models and render first clips after start-up")
     replica: str | None = Field(default=None, max_length=120, description="this server's name among the API "
                                 "replicas on one database; default <hostname>:<port>. A restarted replica fails "

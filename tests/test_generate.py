@@ -7,6 +7,7 @@ alone cannot succeed there; with generation it makes a clip that does, seeded an
 from __future__ import annotations
 
 import json
+import time
 
 import numpy as np
 import pytest
@@ -14,7 +15,7 @@ import pytest
 from rba.cli import main
 from rba.domains import ParamSpace, get_domain
 from rba.evaluate import beyond_targets, evaluate, simulate
-from rba.generate import SearchConfig, ZetaDistance, generated_id, is_generated, replay, search
+from rba.generate import SearchConfig, ZetaDistance, generated_id, in_process, is_generated, replay, search
 from rba.interact.generating import GeneratingGlobalAgent, GenerationContext, generating_agents
 from rba.interact.global_agent import GlobalAgent, GlobalContext
 from rba.interact.users import parse_user
@@ -72,6 +73,21 @@ def test_a_generated_id_replays_to_identical_states(ctx, gap_roots):
     np.testing.assert_array_equal(again.states, r.states)
     np.testing.assert_array_equal(again.replay, r.replay)
     assert generated_id("toy", {**r.params, "pace": r.params["pace"] + 1e-12}, r.seed) != r.id
+
+
+def test_a_search_bounded_in_time_stops_before_a_generation_that_would_end_late(ctx, gap_roots):
+    """``SearchConfig.seconds``: the app's searches end about when promised, whatever the budget."""
+    start = dict(zip(ctx.serve.param_names, map(float, ctx.serve.params[0]), strict=True))
+    dist = _gen(ctx, gap_roots).distance(ctx.serve_zeta[0] + 0.1)
+
+    def slow(jobs):  # a generation takes ≥ 0.3 s: a second one would end after 0.5 s
+        time.sleep(0.3)
+        return in_process(jobs)
+
+    bounded = search("toy", [start], dist, slow, SearchConfig(budget=32, popsize=8, seconds=0.5))
+    assert bounded.generations == 1 and bounded.simulations == 8 and bounded.rollout is not None
+    unbounded = search("toy", [start], dist, slow, SearchConfig(budget=32, popsize=8))
+    assert unbounded.generations == 4 and unbounded.simulations == 32
 
 
 def test_fixed_parameters_keep_the_start_clips_value(ctx, gap_roots, monkeypatch):
@@ -248,6 +264,21 @@ def test_cli_gen_spread_option(gap_roots, monkeypatch, capsys, tmp_path):
         main(["eval", "--domain", "toy", "--gen-spread", "-1"])
     assert exit_.value.code == 2
     assert "argument --gen-spread: must be a number ≥ 0, got -1" in capsys.readouterr().err
+
+
+def test_cli_gen_seconds_option(gap_roots, monkeypatch, capsys, tmp_path):
+    monkeypatch.setenv("RBA_DATA_DIR", str(gap_roots[0]))
+    monkeypatch.setenv("RBA_MODELS_DIR", str(gap_roots[1]))
+    out = tmp_path / "r.json"
+    assert main(["eval", "--domain", "toy", "--targets", "2", "--gen-workers", "1", "--gen-budget", "16",
+                 "--gen-spread", "0", "--gen-seconds", "1e-9", "--json", str(out)]) == 0
+    generation = json.loads(out.read_text())["generation"]
+    assert generation["searches"] > 0 and generation["simulations"] == 8 * generation["searches"]  # one generation
+    for bad in ("0", "inf", "soon"):
+        with pytest.raises(SystemExit) as exit_:
+            main(["eval", "--domain", "toy", "--gen-seconds", bad])
+        assert exit_.value.code == 2
+        assert f"argument --gen-seconds: must be a number of seconds > 0, got {bad}" in capsys.readouterr().err
 
 
 def test_cli_beyond_option(narrow_roots, monkeypatch, capsys, tmp_path):

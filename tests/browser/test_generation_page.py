@@ -22,7 +22,8 @@ def url(live_server, gap_roots, local_compute, tmp_path_factory) -> str:
     data, models = gap_roots
     settings = Settings(data_dir=data, models_dir=models, database_url=f"sqlite:///{tmp}/rba.db",
                         cache_dir=tmp / "clips", warm_start=False, prerender=False, generate=True,
-                        generate_spread=0.0)  # the first answer searches
+                        generate_spread=0.0,  # the first answer searches
+                        generate_seconds=60.0)  # for its whole budget: the progress stays long enough to see
     return live_server(settings, InProcessCompute(delay=1.0, renders=local_compute))
 
 

@@ -27,7 +27,8 @@ SEARCH_SECONDS = 30
 def gen_settings(make_settings, gap_roots, database_url):
     data, models = gap_roots
     return make_settings(data_dir=data, models_dir=models, database_url=database_url, generate=True,
-                         generate_spread=0.0)  # every answer off the target searches, however wide the belief
+                         generate_spread=0.0,  # every answer off the target searches, however wide the belief
+                         generate_seconds=60.0)  # searches run their whole budget: slow enough to watch
 
 
 def search_done(client: TestClient, sid: str) -> dict:
@@ -109,6 +110,19 @@ def test_by_default_a_first_answer_shows_a_serve_clip_at_once(gen_settings):
                                                                        clip=s["clip"]["rollout_id"]))
         assert r.status_code == 200 and r.json()["clip"]["generated"] is False, r.text
         assert r.json()["step"] == s["step"] + 1 and r.json()["generation"] is None
+
+
+def test_a_search_stops_at_its_seconds(gen_settings):
+    """``generate_seconds`` (default 1 s): no generation starts that would end after it; the first always runs."""
+    assert Settings().generate_seconds == 1.0
+    bounded = gen_settings.model_copy(update={"generate_seconds": 0.2})
+    with TestClient(create_app(bounded, InProcessCompute(delay=0.3))) as client:
+        s = client.post("/api/sessions", json={"domain": "toy"}).json()
+        r = client.post(f"/api/sessions/{s['id']}/feedback", json=more("amplitude", s["step"], "less",
+                                                                       clip=s["clip"]["rollout_id"]))
+        assert r.status_code == 202, r.text
+        progress = search_done(client, s["id"])
+        assert progress["state"] == "done" and (progress["generation"], progress["generations"]) == (1, 6)
 
 
 def test_refusals_name_what_is_valid(gen_settings):
