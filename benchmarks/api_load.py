@@ -97,6 +97,7 @@ class ServerOptions:
     register: str | None = None  # e.g. the test suite's toy domain, "toy=tests.toy:Toy", for a quick smoke run
     database_url: str | None = None  # default: a fresh SQLite file in the configuration's folder
     generate: bool = False  # RBA_GENERATE: RBA-Global sessions make new behaviours (benchmarks/generation_latency.py)
+    generate_seconds: float | None = None  # RBA_GENERATE_SECONDS (None: the server's default)
 
 
 def server_env(opts: ServerOptions, workdir: Path, cache_dir: Path) -> dict[str, str]:
@@ -105,6 +106,7 @@ def server_env(opts: ServerOptions, workdir: Path, cache_dir: Path) -> dict[str,
            "RBA_PRERENDER": str(opts.prerender).lower(), "RBA_WARM_START": str(opts.warm_start).lower(),
            "RBA_PRERENDER_LIBRARY": str(opts.prerender_library).lower(), "RBA_DEFAULT_DOMAIN": opts.domain,
            "RBA_GENERATE": str(opts.generate).lower(),
+           **({} if opts.generate_seconds is None else {"RBA_GENERATE_SECONDS": str(opts.generate_seconds)}),
            "RBA_LOG_LEVEL": "info", "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}  # info: renders are logged
     if opts.data_dir:
         env["RBA_DATA_DIR"] = str(opts.data_dir)

@@ -32,7 +32,7 @@ class Catalog:
 
     def __init__(self, settings: Settings) -> None:
         self.store = Store.from_settings(settings)
-        # the generating agents' options the settings set (none: the agents' own defaults)
+        # the generating agents' options from the settings: the searches' time bound, and the spread if set
         self._generate: dict[str, Any] = {"config": SearchConfig(seconds=settings.generate_seconds)}
         if settings.generate_spread is not None:
             self._generate["spread"] = settings.generate_spread

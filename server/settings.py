@@ -9,7 +9,7 @@ from pydantic import Field, model_validator
 from rba.settings import LibrarySettings
 from rba.store import Store
 
-GENERATE_SECONDS = 1.0  # a search's time: with the render (0.2-0.8 s) and the page's poll, a clip ~2 s after the answer
+GENERATE_SECONDS = 2.0  # a search's time bound: AF as with the whole budget, the clip ~3 s after the answer (walker)
 
 
 class Settings(LibrarySettings):

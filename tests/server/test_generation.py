@@ -113,8 +113,8 @@ def test_by_default_a_first_answer_shows_a_serve_clip_at_once(gen_settings):
 
 
 def test_a_search_stops_at_its_seconds(gen_settings):
-    """``generate_seconds`` (default 1 s): no generation starts that would end after it; the first always runs."""
-    assert Settings().generate_seconds == 1.0
+    """``generate_seconds`` (default 2 s): no generation starts that would end after it; the first always runs."""
+    assert Settings().generate_seconds == 2.0
     bounded = gen_settings.model_copy(update={"generate_seconds": 0.2})
     with TestClient(create_app(bounded, InProcessCompute(delay=0.3))) as client:
         s = client.post("/api/sessions", json={"domain": "toy"}).json()
