@@ -25,3 +25,6 @@ def test_measures_both_modes_and_keeps_rows_of_the_same_setting(toy_roots, monke
     assert beyond_range.main([*base, "--modes", "gen", "--share", "0.2"]) == 0  # another setting: not mixed
     assert len(json.loads(out.with_suffix(".json").read_text())["rows"]) == 1
     assert "| toy | gen | 3 |" in out.with_suffix(".md").read_text()
+    assert beyond_range.main([*base, "--modes", "gen", "--share", "0.2", "--gen-seconds", "5"]) == 0
+    (row,) = json.loads(out.with_suffix(".json").read_text())["rows"]
+    assert row["search_seconds"] == 5.0 and "| 5 s |" in out.with_suffix(".md").read_text()  # bounded as the app's
