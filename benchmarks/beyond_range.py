@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import os
 import platform
 import sys
@@ -45,10 +46,15 @@ def measure(domain: str, mode: str, args: argparse.Namespace) -> dict:
     row = {"domain": domain, "mode": mode, "share": args.share, "precision": args.precision, "seed": args.seed,
            "targets": len(r.trials), "success_rate": r.success_rate, "avg_feedback": r.avg_feedback,
            "std_feedback": r.std_feedback, "seconds": round(r.seconds, 1), "generation": r.generation,
-           "search_seconds": args.gen_seconds if generate else None,
+           "bound_s": args.gen_seconds if generate else None,
            "date": time.strftime("%Y-%m-%d %H:%M")}
     log.info("%s", row)
     return row
+
+
+def _key(row: dict) -> tuple:
+    """A row's identity within one setting: a bounded search's row does not replace the unbounded one."""
+    return row["domain"], row["mode"], row.get("bound_s")
 
 
 def markdown(report: dict) -> str:
@@ -63,11 +69,11 @@ def markdown(report: dict) -> str:
              "| domain | mode | targets | SR / AF (std) | searches (shown) | simulations | search bound | seconds | "
              "measured |", "|---|---|---:|---|---:|---:|---|---:|---|"]
     for r in sorted(report["rows"], key=lambda r: (DOMAINS.index(r["domain"]) if r["domain"] in DOMAINS else 99,
-                                                     r["mode"] != "library")):
+                                                     r["mode"] != "library", r.get("bound_s") or 0.0)):
         af = "–" if r["avg_feedback"] is None else f"{r['avg_feedback']:.2f} ({r['std_feedback']:.2f})"
         g = r["generation"] or {}
         searches = f"{g['searches']} ({g['shown']})" if g else "–"
-        bound = "–" if r.get("search_seconds") is None else f"{r['search_seconds']:g} s"
+        bound = "–" if r.get("bound_s") is None else f"{r['bound_s']:g} s"
         lines.append(f"| {r['domain']} | {r['mode']} | {r['targets']} | {r['success_rate']:.2f} / {af} | {searches} "
                      f"| {g.get('simulations', '–')} | {bound} | {r['seconds']:.0f} | {r['date']} |")
     lines += ["", f"Command: `{report['command']}` ({report['machine']}); rows of other domains come from earlier "
@@ -87,6 +93,8 @@ def main(argv: list[str] | None = None) -> int:
                     "(rba eval --gen-seconds); default: the simulation budget alone")
     ap.add_argument("--out", type=Path, default=RESULTS / "beyond_range", help="writes <out>.json and <out>.md")
     args = ap.parse_args(argv)
+    if args.gen_seconds is not None and not 0 < args.gen_seconds < math.inf:
+        ap.error(f"--gen-seconds must be a number of seconds > 0, got {args.gen_seconds}")
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     setting = {"share": args.share, "precision": args.precision, "seed": args.seed}
     old = args.out.with_suffix(".json")
@@ -98,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
     for domain in args.domains:
         for mode in args.modes:
             row = measure(domain, mode, args)
-            report["rows"] = [r for r in report["rows"] if (r["domain"], r["mode"]) != (domain, mode)] + [row]
+            report["rows"] = [r for r in report["rows"] if _key(r) != _key(row)] + [row]
             save_report(args.out, report, markdown(report))  # after every row: a stopped run keeps what it measured
     return 0
 

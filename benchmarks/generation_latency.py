@@ -145,7 +145,7 @@ def markdown(report: dict) -> str:
              f"{report['load'][0]:.2f} → {report['load'][1]:.2f}", "",
              __doc__.split("\n\n")[1].replace("\n", " "), ""]
     for bound in report["bounds"]:
-        lines += [f"## Searches bounded at {bound['search_seconds']} (`RBA_GENERATE_SECONDS`)", "",
+        lines += [f"## Searches bounded at {bound['bound_s']:g} s (`RBA_GENERATE_SECONDS`)", "",
                   "| domain | sessions (satisfied) | answers that searched: n, p50 / p95 / max (s) | their search "
                   "alone, p95 (s) | showed a generated clip | other answers: n, p50 / p95 (s) | errors |",
                   "|---|---:|---:|---:|---:|---:|---:|"]
@@ -197,7 +197,7 @@ def run_bound(bound: float, args: argparse.Namespace) -> dict:
                 "search_p95_s": pct([a.search_seconds for a in r.answers if a.searched], 95),
                 "generated_shown": sum(a.searched and a.generated for a in r.answers),
                 "answers": [asdict(a) for a in r.answers]} for r in runs]
-    return {"search_seconds": f"{bound:g} s", "domains": domains,
+    return {"bound_s": bound, "domains": domains,
             "all_searched": summary([a for r in runs for a in r.answers if a.searched])}
 
 

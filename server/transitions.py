@@ -4,7 +4,9 @@ Agents are restored from their JSON state for every computation, so the session'
 state is never mutated by a guess. Results are keyed by (model, state hash, feedback):
 prerendering computes them while the person watches, and the real feedback request then
 finds its answer already there. Sessions in the same state (every session starts in the
-same state) share entries.
+same state) share entries. A step that searched (a generating session) is time-bounded
+(``RBA_GENERATE_SECONDS``), so it depends on how busy the machine was: its memo entry keeps what that
+first search found, and another replica may find another clip for the same state and answer.
 """
 
 from __future__ import annotations

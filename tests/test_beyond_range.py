@@ -3,6 +3,8 @@
 import importlib.util
 import json
 
+import pytest
+
 from rba.settings import REPO_ROOT
 
 spec = importlib.util.spec_from_file_location("beyond_range", REPO_ROOT / "benchmarks" / "beyond_range.py")
@@ -25,6 +27,11 @@ def test_measures_both_modes_and_keeps_rows_of_the_same_setting(toy_roots, monke
     assert beyond_range.main([*base, "--modes", "gen", "--share", "0.2"]) == 0  # another setting: not mixed
     assert len(json.loads(out.with_suffix(".json").read_text())["rows"]) == 1
     assert "| toy | gen | 3 |" in out.with_suffix(".md").read_text()
-    assert beyond_range.main([*base, "--modes", "gen", "--share", "0.2", "--gen-seconds", "5"]) == 0
-    (row,) = json.loads(out.with_suffix(".json").read_text())["rows"]
-    assert row["search_seconds"] == 5.0 and "| 5 s |" in out.with_suffix(".md").read_text()  # bounded as the app's
+    assert beyond_range.main([*base, "--modes", "gen", "--share", "0.2", "--gen-seconds", "1e-9"]) == 0
+    unbounded, bounded = json.loads(out.with_suffix(".json").read_text())["rows"]  # both kept: the bound is the row's
+    assert unbounded["bound_s"] is None and bounded["bound_s"] == 1e-9
+    assert "| 1e-09 s |" in out.with_suffix(".md").read_text()
+    assert bounded["generation"]["simulations"] == 8 * bounded["generation"]["searches"]  # one generation each
+    for bad in ("0", "nan"):
+        with pytest.raises(SystemExit):
+            beyond_range.main([*base, "--gen-seconds", bad])

@@ -15,7 +15,16 @@ import pytest
 from rba.cli import main
 from rba.domains import ParamSpace, get_domain
 from rba.evaluate import beyond_targets, evaluate, simulate
-from rba.generate import SearchConfig, ZetaDistance, generated_id, in_process, is_generated, replay, search
+from rba.generate import (
+    SearchConfig,
+    ZetaDistance,
+    _out_of_time,
+    generated_id,
+    in_process,
+    is_generated,
+    replay,
+    search,
+)
 from rba.interact.generating import GeneratingGlobalAgent, GenerationContext, generating_agents
 from rba.interact.global_agent import GlobalAgent, GlobalContext
 from rba.interact.users import parse_user
@@ -73,6 +82,11 @@ def test_a_generated_id_replays_to_identical_states(ctx, gap_roots):
     np.testing.assert_array_equal(again.states, r.states)
     np.testing.assert_array_equal(again.replay, r.replay)
     assert generated_id("toy", {**r.params, "pace": r.params["pace"] + 1e-12}, r.seed) != r.id
+
+
+def test_the_time_bound_predicts_the_next_generation_from_the_mean_of_those_before():
+    assert not _out_of_time(1.0, 2, 1.6) and _out_of_time(1.0, 2, 1.4)  # two took 1 s: a third ends at 1.5 s
+    assert not _out_of_time(9.0, 1, None)  # no bound: the budget alone
 
 
 def test_a_search_bounded_in_time_stops_before_a_generation_that_would_end_late(ctx, gap_roots):
