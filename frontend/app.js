@@ -219,8 +219,11 @@ const pause = (ms) => new Promise((r) => { setTimeout(r, ms); });
 function searchProgress(g) {
   overlay("Making a new behaviour for you…");
   els.progress.setAttribute("aria-label", "Search progress");
-  const fraction = g.generations ? g.generation / g.generations : 0;
-  progress(fraction, `search generation ${g.generation} of ${g.generations} · ${g.elapsed_seconds.toFixed(0)} s`);
+  // a time-bounded search ends by its clock or its generations, whichever comes first
+  const byTime = g.seconds_at_most ? g.elapsed_seconds / g.seconds_at_most : 0;
+  const fraction = Math.min(1, Math.max(g.generations ? g.generation / g.generations : 0, byTime));
+  const bound = g.seconds_at_most ? ` of at most ${g.seconds_at_most.toFixed(0)} s` : " s";
+  progress(fraction, `search generation ${g.generation} of ${g.generations} · ${g.elapsed_seconds.toFixed(0)}${bound}`);
 }
 
 /** No stored clip fits: poll the agent's search until the session moves on (true) or the search fails. */

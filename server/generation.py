@@ -41,6 +41,7 @@ class Search:
 
     step: int
     generations: int
+    seconds_at_most: float | None = None  # the search's time bound (SearchConfig.seconds)
     started: float = field(default_factory=time.monotonic)
     ended: float | None = None
     generation: int = 0
@@ -61,6 +62,7 @@ class Search:
         elapsed = (self.ended or time.monotonic()) - self.started
         return GenerationPublic(step=self.step, state=self.state, generation=self.generation,
                                 generations=self.generations, elapsed_seconds=round(elapsed, 3),
+                                seconds_at_most=self.seconds_at_most,
                                 detail=None if self.error is None else str(self.error.detail))
 
 
@@ -86,7 +88,7 @@ class WouldSearch(Exception):
 def begin(svc: Services, s: TuningSession) -> Search:
     """A new search for the session's current step, registered so the progress route finds it."""
     gctx = svc.catalog.generation(s.domain, s.method, s.rep, s.model_set)
-    search = Search(s.step, gctx.config.generations)
+    search = Search(s.step, gctx.config.generations, gctx.config.seconds)
     with svc.search_lock:
         svc.searches.pop(s.id, None)  # to the end: the dict runs oldest first
         svc.searches[s.id] = search

@@ -277,6 +277,8 @@ class GenerationPublic(BaseModel):
     generation: int = Field(description="CMA-ES generations simulated so far")
     generations: int = Field(description="generations at most (the search may stop early)")
     elapsed_seconds: float = Field(description="since the answer, until the search ended")
+    seconds_at_most: float | None = Field(default=None, description="the search's time bound "
+                                          "(RBA_GENERATE_SECONDS): no generation starts that would end after it")
     detail: str | None = Field(default=None, description="why it failed")
 
 

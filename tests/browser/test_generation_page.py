@@ -45,6 +45,7 @@ def test_making_a_new_behaviour_shows_progress_and_locks_the_answers(url, browse
     page.wait_for_function("() => document.getElementById('progress-text').textContent.includes('generation')",
                            timeout=10_000)
     assert page.locator("#overlay-text").inner_text() == "Making a new behaviour for you…"
+    assert "of at most 60 s" in page.locator("#progress-text").inner_text()  # the server's time bound
     assert page.get_by_role("progressbar", name="Search progress").is_visible()
     assert less.get_attribute("aria-disabled") == "true" and less.is_disabled()
     assert "the agent is making a new behaviour" in page.locator("#controls-hint").inner_text()

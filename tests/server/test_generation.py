@@ -123,6 +123,7 @@ def test_a_search_stops_at_its_seconds(gen_settings):
         assert r.status_code == 202, r.text
         progress = search_done(client, s["id"])
         assert progress["state"] == "done" and (progress["generation"], progress["generations"]) == (1, 6)
+        assert progress["seconds_at_most"] == 0.2  # the page's progress runs against it
 
 
 def test_refusals_name_what_is_valid(gen_settings):
