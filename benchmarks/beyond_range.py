@@ -17,13 +17,13 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import math
 import os
 import platform
 import sys
 import time
 from pathlib import Path
 
+from rba.cli import seconds_arg
 from rba.domains import domain_names
 from rba.evaluate import EvalResult, evaluate
 from rba.generate import SearchConfig
@@ -89,12 +89,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--precision", choices=("normal", "high"), default="normal")
     ap.add_argument("--targets", type=int, default=20)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--gen-seconds", type=float, default=None, help="bound each search in time as the app does "
+    ap.add_argument("--gen-seconds", type=seconds_arg, default=None, help="bound each search in time as the app does "
                     "(rba eval --gen-seconds); default: the simulation budget alone")
     ap.add_argument("--out", type=Path, default=RESULTS / "beyond_range", help="writes <out>.json and <out>.md")
     args = ap.parse_args(argv)
-    if args.gen_seconds is not None and not 0 < args.gen_seconds < math.inf:
-        ap.error(f"--gen-seconds must be a number of seconds > 0, got {args.gen_seconds}")
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     setting = {"share": args.share, "precision": args.precision, "seed": args.seed}
     old = args.out.with_suffix(".json")

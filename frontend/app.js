@@ -222,7 +222,7 @@ function searchProgress(g) {
   // a time-bounded search ends by its clock or its generations, whichever comes first
   const byTime = g.seconds_at_most ? g.elapsed_seconds / g.seconds_at_most : 0;
   const fraction = Math.min(1, Math.max(g.generations ? g.generation / g.generations : 0, byTime));
-  const bound = g.seconds_at_most ? ` of at most ${g.seconds_at_most.toFixed(0)} s` : " s";
+  const bound = g.seconds_at_most ? ` of at most ${Number(g.seconds_at_most.toPrecision(2))} s` : " s";
   progress(fraction, `search generation ${g.generation} of ${g.generations} · ${g.elapsed_seconds.toFixed(0)}${bound}`);
 }
 

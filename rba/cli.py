@@ -62,7 +62,8 @@ def _non_negative(text: str) -> float:
     return value
 
 
-def _seconds(text: str) -> float:
+def seconds_arg(text: str) -> float:
+    """A search's time bound in seconds (> 0, finite): ``rba eval --gen-seconds`` and the benchmarks' options."""
     value = _number(text)
     if not 0.0 < value < math.inf:
         raise argparse.ArgumentTypeError(f"must be a number of seconds > 0, got {text}")
@@ -363,7 +364,7 @@ def _eval_command(sub) -> argparse.ArgumentParser:
                         "default: on where the method can (RBA-Global) and the user can judge new clips (not "
                         "myopic); --no-generate: the library alone, to compare")
     e.add_argument("--gen-budget", type=_positive, default=48, help="simulations per generated clip at most")
-    e.add_argument("--gen-seconds", type=_seconds, default=None,
+    e.add_argument("--gen-seconds", type=seconds_arg, default=None,
                    help="bound each search in time as the app does (RBA_GENERATE_SECONDS): no CMA-ES generation "
                         "starts that would end later than this; default: the budget alone (deterministic)")
     e.add_argument("--gen-threshold", type=_non_negative, default=None,

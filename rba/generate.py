@@ -81,6 +81,10 @@ class SearchConfig:
     good_enough: float | None = None  # stop early once the best objective is at most this
     seconds: float | None = None  # stop before a generation predicted to end later than this (None: budget only)
 
+    def __post_init__(self) -> None:
+        if self.seconds is not None and not 0.0 < self.seconds < math.inf:
+            raise ValueError(f"a search's time bound must be a number of seconds > 0, got {self.seconds}")
+
     @property
     def generations(self) -> int:
         return max(self.budget // self.popsize, 1)

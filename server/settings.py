@@ -49,12 +49,12 @@ class Settings(LibrarySettings):
                                           "its belief's half interquartile range (and the threshold): early answers, "
                                           "while the belief is wide, show serve clips at once; 0: search whenever the "
                                           "threshold is missed; default: rba.interact.generating.SPREAD (1.0)")
-    generate_seconds: float = Field(default=GENERATE_SECONDS, gt=0, description="a search stops before a "
-                                    "CMA-ES generation that would end later than this many seconds after the "
-                                    "search began (the first always runs); with 2 s the new clip played p95 "
-                                    "2.4-4.3 s after the answer on 2 cores (benchmarks/results/"
-                                    "generation_latency.md); a large value leaves the 48-simulation budget alone "
-                                    "to bound it")
+    generate_seconds: float = Field(default=GENERATE_SECONDS, gt=0, allow_inf_nan=False,
+                                    description="a search stops before a CMA-ES generation that would end later "
+                                    "than this many seconds after the search began (the first always runs); with "
+                                    "2 s the new clip played p95 2.4-4.3 s after the answer on 2 cores "
+                                    "(benchmarks/results/generation_latency.md); a large value leaves the "
+                                    "48-simulation budget alone to bound it")
     warm_start: bool = Field(default=True, description="load models and render first clips after start-up")
     replica: str | None = Field(default=None, max_length=120, description="this server's name among the API "
                                 "replicas on one database; default <hostname>:<port>. A restarted replica fails "

@@ -12,7 +12,7 @@ beyond_range = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(beyond_range)
 
 
-def test_measures_both_modes_and_keeps_rows_of_the_same_setting(toy_roots, monkeypatch, tmp_path):
+def test_measures_both_modes_and_keeps_rows_of_the_same_setting(toy_roots, monkeypatch, tmp_path, capsys):
     monkeypatch.setenv("RBA_DATA_DIR", str(toy_roots[0]))
     monkeypatch.setenv("RBA_MODELS_DIR", str(toy_roots[1]))
     out = tmp_path / "b"
@@ -33,5 +33,7 @@ def test_measures_both_modes_and_keeps_rows_of_the_same_setting(toy_roots, monke
     assert "| 1e-09 s |" in out.with_suffix(".md").read_text()
     assert bounded["generation"]["simulations"] == 8 * bounded["generation"]["searches"]  # one generation each
     for bad in ("0", "nan"):
-        with pytest.raises(SystemExit):
+        with pytest.raises(SystemExit) as exit_:
             beyond_range.main([*base, "--gen-seconds", bad])
+        assert exit_.value.code == 2
+        assert f"must be a number of seconds > 0, got {bad}" in capsys.readouterr().err

@@ -87,6 +87,9 @@ def test_a_generated_id_replays_to_identical_states(ctx, gap_roots):
 def test_the_time_bound_predicts_the_next_generation_from_the_mean_of_those_before():
     assert not _out_of_time(1.0, 2, 1.6) and _out_of_time(1.0, 2, 1.4)  # two took 1 s: a third ends at 1.5 s
     assert not _out_of_time(9.0, 1, None)  # no bound: the budget alone
+    for bad in (0.0, -1.0, float("inf"), float("nan")):
+        with pytest.raises(ValueError, match="a search's time bound must be a number of seconds > 0"):
+            SearchConfig(seconds=bad)
 
 
 def test_a_search_bounded_in_time_stops_before_a_generation_that_would_end_late(ctx, gap_roots):

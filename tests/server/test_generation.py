@@ -11,6 +11,7 @@ import time
 
 import pytest
 from fastapi.testclient import TestClient
+from pydantic import ValidationError
 
 from rba.export import read_export, replay
 from rba.generate import generated_id, is_generated
@@ -115,6 +116,9 @@ def test_by_default_a_first_answer_shows_a_serve_clip_at_once(gen_settings):
 def test_a_search_stops_at_its_seconds(gen_settings):
     """``generate_seconds`` (default 2 s): no generation starts that would end after it; the first always runs."""
     assert Settings.model_fields["generate_seconds"].default == GENERATE_SECONDS == 2.0
+    for bad in ("0", "inf", "nan"):
+        with pytest.raises(ValidationError, match="generate_seconds"):
+            Settings(generate_seconds=bad)
     bounded = gen_settings.model_copy(update={"generate_seconds": 0.2})
     with TestClient(create_app(bounded, InProcessCompute(delay=0.3))) as client:
         s = client.post("/api/sessions", json={"domain": "toy"}).json()
