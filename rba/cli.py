@@ -188,9 +188,10 @@ def _generation(args) -> tuple[dict, Compute | None]:
 
 
 def cmd_render(args) -> int:
+    from rba.compute.tasks import render_whole
     from rba.domains import get_domain
     from rba.library import SPLITS, SkillLibrary
-    from rba.video import write_mp4
+    from rba.storage import write_atomic
 
     split = args.rollout_id.split("-", 1)[0]
     if split not in SPLITS:
@@ -199,8 +200,9 @@ def cmd_render(args) -> int:
     lib = SkillLibrary.load(args.domain, split)
     rollout = lib.rollout(lib.index_of(args.rollout_id))
     domain = get_domain(args.domain)
-    n = write_mp4(domain.render(rollout, args.width, args.height), Path(args.out), domain.frame_rate)
-    print(f"wrote {args.out}: {n} frames at {domain.frame_rate:g} fps, proxies {rollout.proxies}")
+    clip = render_whole(domain, rollout, args.width, args.height)  # the app's clip, same bytes
+    write_atomic(Path(args.out), lambda tmp: Path(tmp).write_bytes(clip))
+    print(f"wrote {args.out}: {len(rollout.replay)} frames at {domain.frame_rate:g} fps, proxies {rollout.proxies}")
     return 0
 
 

@@ -26,8 +26,9 @@ log = logging.getLogger(__name__)
 
 STALE_TMP_SECONDS = 600
 # Part of every clip's key: bump it when rendering or encoding changes what a clip looks like, so a cache
-# filled before never mixes old clips with new ones (2: snake floor without reflection, one x264 thread).
-RENDERER_VERSION = 2
+# filled before never mixes old clips with new ones (2: snake floor without reflection, one x264 thread;
+# 3: a clip is encoded in ``rba.compute.base.CLIP_PARTS`` parts, joined).
+RENDERER_VERSION = 3
 CLAIM_TTL_SECONDS = 120  # a guess claimed longer ago than this was left by a crashed process: render it here
 GENERATED = "generated"  # the key's version of a generated rollout: its id already hashes what makes it
 Source = SkillLibrary | Rollout  # what a clip is rendered from: a library holding the rollout, or the rollout
@@ -103,6 +104,11 @@ class ClipCache:
     def pending(self, key: ClipKey) -> bool:
         with self._lock:
             return key in self._inflight
+
+    def urgent_pending(self) -> bool:
+        """Whether a clip someone asked for is being rendered (guesses wait for it: ``server.prefetch``)."""
+        with self._lock:
+            return any(render.urgent for render in self._inflight.values())
 
     def typical_seconds(self, domain: str) -> float | None:
         """Mean seconds a clip of ``domain`` took from submission to stored, in this process."""

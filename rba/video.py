@@ -82,6 +82,32 @@ def encode_mp4(frames: Iterable[np.ndarray], path: Path, fps: float) -> int:
     return count
 
 
+def concat_mp4(parts: list[bytes]) -> bytes:
+    """One MP4 of ``parts`` (each from ``encode_mp4``, same size and rate) played one after the other.
+
+    Stream copy through ffmpeg's concat demuxer: no re-encoding, a few tens of ms. Each part starts
+    on a key frame, so parts encoded in separate processes join into one clip that plays through."""
+    import imageio_ffmpeg
+
+    if not parts:
+        raise ValueError("no parts to join")
+    if len(parts) == 1:
+        return parts[0]
+    with tempfile.TemporaryDirectory(prefix="rba-join-") as tmp:
+        folder = Path(tmp)
+        for i, part in enumerate(parts):
+            (folder / f"{i}.mp4").write_bytes(part)
+        (folder / "parts.txt").write_text("".join(f"file '{i}.mp4'\n" for i in range(len(parts))))
+        out = folder / "clip.mp4"
+        done = subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-hide_banner", "-nostdin", "-loglevel", "error",
+                               "-xerror", "-f", "concat", "-safe", "0", "-i", str(folder / "parts.txt"), "-c", "copy",
+                               "-movflags", "+faststart", "-fflags", "+bitexact", "-f", "mp4", "-y", str(out)],
+                              capture_output=True, text=True, process_group=0)
+        if done.returncode != 0 or done.stderr.strip():  # without -xerror it skipped a broken part and exited 0
+            raise RuntimeError(f"ffmpeg could not join {len(parts)} parts ({done.returncode}): {done.stderr.strip()}")
+        return out.read_bytes()
+
+
 def _feed(stdin, first: np.ndarray, rest: Iterator[np.ndarray]) -> int:
     """Write the frames to ffmpeg's stdin and close it; returns how many were written."""
     count = 0

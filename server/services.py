@@ -98,7 +98,15 @@ class Services:
         jobs.recover()
         prefetch = Prefetcher(clips, _resolver(catalog, clips), settings.prerender_window or compute.capacity,
                               settings.background_nice)
-        return cls(settings, engine, catalog, compute, clips, Transitions(), thinker, prefetch, jobs, owns)
+        svc = cls(settings, engine, catalog, compute, clips, Transitions(), thinker, prefetch, jobs, owns)
+        prefetch.hold = svc.someone_waits  # the queue is made first: it has to exist in the Services
+        return svc
+
+    def someone_waits(self) -> bool:
+        """Whether a person waits on the compute layer now: a search simulating, or a clip they asked for."""
+        with self.search_lock:
+            searching = any(s.state == "searching" and s.simulating for s in self.searches.values())
+        return searching or self.clips.urgent_pending()
 
     @property
     def store(self) -> Store:

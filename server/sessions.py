@@ -190,6 +190,7 @@ def _search(svc: Services, s: TuningSession, body: FeedbackCreate, feedback: Fee
     A step that ends without simulating is the request's as any other: its failure is raised here.
     """
     search = generation.begin(svc, s)
+    stop_prerender(svc, s.id)  # guesses about the answers not given: they would only slow the search
     ctx = generation.step_context(svc, (s.domain, s.method, s.rep, s.model_set), search)
 
     def step() -> None:
@@ -202,11 +203,16 @@ def _search(svc: Services, s: TuningSession, body: FeedbackCreate, feedback: Fee
                 made = generation.generated_row(svc, db, s.domain, rollout_id, state)
                 _record_step(db, moving, body, feedback, rollout_id, state, made)
                 shown = made or (generation.lookup(db, s.domain, rollout_id) if is_generated(rollout_id) else None)
-            if shown is not None:  # rendered now: the page asks for it next
-                svc.clips.request(svc.clips.generated_key(s.domain, rollout_id),
-                                  generation.rollout_of(svc, shown), urgent=True)
-            _after_step(svc, moving, feedback)
+            if shown is None:
+                search.end()
+                _after_step(svc, moving, feedback)
+                return
+            # rendered now (the page asks for it next), and only then the guesses for the next answer: thinking
+            # beside this render would slow the clip the person waits for
+            clip = svc.clips.request(svc.clips.generated_key(s.domain, rollout_id),
+                                     generation.rollout_of(svc, shown), urgent=True)
             search.end()
+            clip.add_done_callback(lambda _: _after_step(svc, moving, feedback))
         except HTTPException as exc:
             search.end(exc)
         except Exception as exc:  # the searcher's thread must report, not die: the page is waiting on it

@@ -11,15 +11,18 @@ import subprocess
 import sys
 import threading
 import time
+from concurrent.futures import Future
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from rba.clips import ClipCache
-from rba.compute import RenderJob, SimJob, make_compute
+from rba.compute import RenderJob, SimJob, Task, make_compute
+from rba.compute.base import joined
 from rba.compute.local import LocalCompute
-from rba.domains import domain_target
+from rba.compute.tasks import render_whole
+from rba.domains import domain_target, get_domain
 from rba.library import SkillLibrary, build_all, generate
 from rba.store import ClipStore
 
@@ -128,3 +131,55 @@ def test_simulate_keeps_the_jobs_order(local_compute):
     got = list(local_compute.simulate(jobs))
     assert [r.seed for r in got] == list(range(9))
     assert all(np.array_equal(a.states, b.states) for a, b in zip(got, local_compute.simulate(jobs), strict=True))
+
+
+def test_a_clip_is_rendered_in_parts_on_the_workers_and_joined_into_the_clis_bytes(local_compute, tmp_path):
+    """Both workers render half the clip each; joined, it is every frame, the same bytes as ``rba render``."""
+    import imageio_ffmpeg
+
+    lib = SkillLibrary.load("walker", "serve")
+    rollout = lib.rollout(2)
+    job = RenderJob.of("walker", rollout, 96, 72)
+    assert [p.rows for p in job.parts()] == [(0, len(rollout.replay) // 2), (len(rollout.replay) // 2,
+                                                                              len(rollout.replay))]
+    clip = local_compute.render(job).future.result(120)
+    assert clip == render_whole(get_domain("walker"), rollout, 96, 72)
+    (tmp_path / "clip.mp4").write_bytes(clip)
+    assert imageio_ffmpeg.count_frames_and_secs(str(tmp_path / "clip.mp4"))[0] == len(rollout.replay)
+
+
+def _task() -> Task:
+    future: Future = Future()
+    return Task(future, future.cancel, future.running)
+
+
+def test_joined_tasks_join_the_parts_in_order_once_all_are_in():
+    parts, joins = [_task(), _task()], []
+
+    def join(results: list) -> Task:
+        joins.append(results)
+        done = _task()
+        done.future.set_result("+".join(results))
+        return done
+
+    task = joined(parts, join)
+    parts[1].future.set_result("b")
+    assert not joins and not task.future.done()
+    parts[0].future.set_result("a")
+    assert joins == [["a", "b"]] and task.future.result(1) == "a+b"
+
+
+def test_a_joined_task_fails_with_a_part_and_is_cancelled_with_one():
+    parts = [_task(), _task()]
+    task = joined(parts, lambda results: pytest.fail("joined a failed clip"))
+    parts[0].future.set_exception(RuntimeError("worker died"))
+    with pytest.raises(RuntimeError, match="worker died"):
+        task.future.result(1)
+    parts = [_task(), _task()]
+    parts[1].future.set_running_or_notify_cancel()  # started: cannot be cancelled any more
+    task = joined(parts, lambda results: pytest.fail("joined a cancelled clip"))
+    assert task.cancel() and task.future.cancelled() and parts[0].future.cancelled()
+    started = [_task(), _task()]
+    for part in started:
+        part.future.set_running_or_notify_cancel()
+    assert not joined(started, lambda results: pytest.fail("not in yet")).cancel()

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rba.video import encode_mp4, ffmpeg_command, write_mp4
+from rba.video import concat_mp4, encode_mp4, ffmpeg_command, write_mp4
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
@@ -39,6 +39,40 @@ def test_the_same_frames_give_the_same_bytes(tmp_path):
     assert a.read_bytes() == b.read_bytes()
     boxes = _boxes(a.read_bytes())
     assert boxes[0] == b"ftyp" and boxes.index(b"moov") < boxes.index(b"mdat")  # faststart: playable while loading
+
+
+def _decoded(data: bytes, tmp: Path) -> list[bytes]:
+    import imageio_ffmpeg
+
+    path = tmp / f"{hashlib.sha256(data).hexdigest()[:12]}.mp4"
+    path.write_bytes(data)
+    reader = imageio_ffmpeg.read_frames(str(path))
+    next(reader)  # the stream's metadata
+    return [bytes(frame) for frame in reader]
+
+
+def test_parts_join_into_one_clip_with_every_frame_of_each(tmp_path):
+    """The compute layer encodes a clip's parts on separate workers: joined, they play as one clip, frame for
+    frame what each part holds (stream copy: nothing re-encoded), playable while loading, the same bytes again."""
+    frames = _frames(12)
+    parts = []
+    for i, rows in enumerate((slice(0, 5), slice(5, 12))):
+        encode_mp4(frames[rows], tmp_path / f"part{i}.mp4", 30.0)
+        parts.append((tmp_path / f"part{i}.mp4").read_bytes())
+    clip = concat_mp4(parts)
+    assert _decoded(clip, tmp_path) == _decoded(parts[0], tmp_path) + _decoded(parts[1], tmp_path)
+    assert len(_decoded(clip, tmp_path)) == 12 and concat_mp4(parts) == clip
+    boxes = _boxes(clip)
+    assert boxes[0] == b"ftyp" and boxes.index(b"moov") < boxes.index(b"mdat")
+    assert concat_mp4(parts[:1]) == parts[0]
+
+
+def test_joining_nothing_or_a_broken_part_fails(tmp_path):
+    with pytest.raises(ValueError, match="no parts"):
+        concat_mp4([])
+    encode_mp4(_frames(3), tmp_path / "ok.mp4", 30.0)
+    with pytest.raises(RuntimeError, match="could not join 2 parts"):
+        concat_mp4([(tmp_path / "ok.mp4").read_bytes(), b"not an mp4"])
 
 
 def test_x264_threads_are_fixed_not_the_cpu_count(tmp_path):

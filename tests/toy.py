@@ -63,8 +63,8 @@ class Toy(Domain):
     def skill_policy(self, params: dict[str, float], seed: int) -> SkillPolicy:
         return ToyPolicy(params)
 
-    def render(self, rollout: Rollout, width: int, height: int):
-        for (x,) in rollout.replay:
+    def render(self, rollout: Rollout, width: int, height: int, frames: slice = slice(None)):
+        for (x,) in rollout.replay[frames]:
             frame = np.full((height, width, 3), 255, np.uint8)
             cx = int((x / 4 + 0.5) * (width - 1))
             frame[height // 2 - 4 : height // 2 + 4, max(cx - 4, 0) : cx + 4] = (200, 30, 30)

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import itertools
+import threading
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -21,18 +23,32 @@ class SimJob:
     seed: int
 
 
+# A clip is rendered and encoded in this many parts, each on its own worker, then joined (``rba.video.concat_mp4``):
+# the clip a person waits for renders on both cores of a 2-core machine. Fixed, not the machine's worker count:
+# the parts decide the clip's bytes, and a clip must be the same bytes wherever it is rendered (its ETag).
+CLIP_PARTS = 2
+
+
 @dataclass(frozen=True)
 class RenderJob:
-    """Render one rollout's replay to MP4 bytes at ``width`` x ``height``."""
+    """Render one rollout's replay (or its rows ``rows``: a part of the clip) to MP4 bytes at ``width`` x ``height``."""
 
     target: str
     rollout: Rollout  # only ``replay`` (and the ids) are read; ``for_render`` drops the states
     width: int
     height: int
+    rows: tuple[int, int] | None = None  # [start, stop) of the replay's rows; None: all of them
 
     @classmethod
     def of(cls, domain: str, rollout: Rollout, width: int, height: int) -> RenderJob:
         return cls(domain_target(domain), for_render(rollout), int(width), int(height))
+
+    def parts(self, n: int = CLIP_PARTS) -> list[RenderJob]:
+        """The clip in ``n`` consecutive parts of (nearly) equal length; fewer if it has fewer frames."""
+        frames = len(self.rollout.replay)
+        n = max(1, min(n, frames))
+        cuts = [frames * i // n for i in range(n + 1)]
+        return [replace(self, rows=(a, b)) for a, b in itertools.pairwise(cuts)]
 
 
 def for_render(rollout: Rollout) -> Rollout:
@@ -49,6 +65,50 @@ class Task:
     future: Future
     cancel: Callable[[], bool]
     running: Callable[[], bool] | None = None  # started on a worker (None: the backend cannot tell)
+
+
+def joined(parts: list[Task], join: Callable[[list], Task]) -> Task:
+    """One task of several: once every part is in, ``join(results)`` (a task itself) makes the result.
+
+    It fails with the first part that fails, and is cancelled if a part is: cancelling it cancels every
+    part not yet started (True if any was), so a clip is never joined from fewer parts than it has.
+    """
+    if len(parts) == 1:
+        return parts[0]
+    outer: Future = Future()
+    lock = threading.Lock()
+    tail: list[Task] = []  # the join's task, once submitted
+
+    def settle(fn: Callable[[], object]) -> None:
+        with lock:
+            if not outer.done():
+                fn()
+
+    def part_done(_: Future) -> None:
+        if any(p.future.cancelled() for p in parts):
+            settle(outer.cancel)
+        elif failed := next((p.future.exception() for p in parts if p.future.done() and p.future.exception()), None):
+            settle(lambda: outer.set_exception(failed))
+        elif all(p.future.done() for p in parts):
+            with lock:
+                if outer.done() or tail:
+                    return
+                tail.append(join([p.future.result() for p in parts]))
+            tail[0].future.add_done_callback(lambda f: settle(lambda: _copy(f, outer)))
+
+    for part in parts:
+        part.future.add_done_callback(part_done)
+    return Task(outer, lambda: any([p.cancel() for p in parts]),  # a list: try every part
+                lambda: any(p.running is None or p.running() for p in [*parts, *tail]))
+
+
+def _copy(source: Future, target: Future) -> None:
+    if source.cancelled():
+        target.cancel()
+    elif source.exception() is not None:
+        target.set_exception(source.exception())
+    else:
+        target.set_result(source.result())
 
 
 class Compute(ABC):

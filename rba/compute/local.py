@@ -18,7 +18,7 @@ from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 
 from rba.compute import tasks
-from rba.compute.base import Compute, RenderJob, SimJob, Task
+from rba.compute.base import Compute, RenderJob, SimJob, Task, joined
 from rba.domains import Rollout
 
 log = logging.getLogger(__name__)
@@ -110,8 +110,10 @@ class LocalCompute(Compute):
                                              [j.seed for j in jobs], chunksize=SIM_CHUNK)
 
     def render(self, job: RenderJob, urgent: bool = True) -> Task:
+        """The clip's parts on the pool's workers at once, joined on one of them."""
         pool = self._urgent if urgent else self._background
-        return pool.submit(tasks.render_clip, job.target, job.rollout, job.width, job.height)
+        parts = [pool.submit(tasks.render_clip, p.target, p.rollout, p.width, p.height, p.rows) for p in job.parts()]
+        return joined(parts, lambda clips: pool.submit(tasks.join_clips, *clips))
 
     def warm(self, target: str) -> None:
         """Start one urgent worker (for the first clip; the rest start when needed, after the API has loaded)."""

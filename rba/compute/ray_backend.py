@@ -47,6 +47,7 @@ class RayCompute(Compute):
         remote = ray.remote(num_cpus=1, max_retries=MAX_RETRIES)
         self._simulate = remote(tasks.simulate)
         self._render = remote(tasks.render_clip)
+        self._join = remote(tasks.join_clips)
         self._warm = remote(tasks.warm)
         log.info("compute: Ray cluster with %d CPUs", self.capacity)
 
@@ -66,11 +67,13 @@ class RayCompute(Compute):
 
     def render(self, job: RenderJob, urgent: bool = True) -> Task:
         """Ray has no task priorities: callers keep guesses few in flight, so a person's clip is next in line."""
-        ref = self._render.remote(job.target, job.rollout, job.width, job.height)
+        parts = [self._render.remote(p.target, p.rollout, p.width, p.height, p.rows) for p in job.parts()]
+        ref = self._join.remote(*parts) if len(parts) > 1 else parts[0]  # Ray hands it the parts' bytes
         future = ref.future()
 
         def cancel() -> bool:  # a pending task is dropped; a running one is interrupted (its future then fails)
-            self._ray.cancel(ref)
+            for r in [*parts, ref]:
+                self._ray.cancel(r)
             return True
 
         return Task(future, cancel)

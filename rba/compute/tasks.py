@@ -16,6 +16,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from rba.domains import Rollout, load_domain
+from rba.domains.base import ALL_FRAMES, Domain
 
 TEMP_PREFIX = "rba-clip-"
 STALE_TEMP_SECONDS = 600  # a render takes seconds: older temporaries were left by a killed worker
@@ -82,16 +83,37 @@ def simulate(target: str, params: dict[str, float], seed: int) -> Rollout:
     return load_domain(target).rollout(params, seed)
 
 
-def render_clip(target: str, rollout: Rollout, width: int, height: int) -> bytes:
-    """The MP4 of ``rollout`` (H.264, see ``rba.video``), as bytes: the caller stores it where it belongs."""
-    from rba.video import encode_mp4
+def render_clip(target: str, rollout: Rollout, width: int, height: int, rows: tuple[int, int] | None = None) -> bytes:
+    """The MP4 of ``rollout`` (or of its replay rows [start, stop): a part, ``RenderJob.parts``), as bytes (H.264,
+    see ``rba.video``): the caller stores it where it belongs."""
+    _prepare()
+    return _encode(load_domain(target), rollout, width, height, ALL_FRAMES if rows is None else slice(*rows))
+
+
+def join_clips(*parts: bytes) -> bytes:
+    """One clip of its parts' MP4s, in order (``rba.video.concat_mp4``)."""
+    from rba.video import concat_mp4
 
     _prepare()
-    domain = load_domain(target)
+    return concat_mp4(list(parts))
+
+
+def render_whole(domain: Domain, rollout: Rollout, width: int, height: int) -> bytes:
+    """The clip as the compute layer makes it (its parts, joined), here in the caller's process: the same bytes."""
+    from rba.compute.base import RenderJob
+    from rba.video import concat_mp4
+
+    parts = RenderJob(domain.name, rollout, width, height).parts()
+    return concat_mp4([_encode(domain, rollout, width, height, slice(*p.rows)) for p in parts])
+
+
+def _encode(domain: Domain, rollout: Rollout, width: int, height: int, frames: slice) -> bytes:
+    from rba.video import encode_mp4
+
     folder = Path(tempfile.mkdtemp(prefix=TEMP_PREFIX))
     try:
         path = folder / "clip.mp4"
-        encode_mp4(domain.render(rollout, width, height), path, domain.frame_rate)
+        encode_mp4(domain.render(rollout, width, height, frames), path, domain.frame_rate)
         return path.read_bytes()
     finally:
         shutil.rmtree(folder, ignore_errors=True)

@@ -16,6 +16,8 @@ from typing import Protocol
 
 import numpy as np
 
+ALL_FRAMES = slice(None)  # Domain.render's default: every replay row
+
 
 @dataclass(frozen=True)
 class Reading:
@@ -211,8 +213,11 @@ class Domain(ABC):
         """Simulate the skill; equal (params, seed) give equal rollouts. ``id`` is left ''."""
 
     @abstractmethod
-    def render(self, rollout: Rollout, width: int, height: int) -> Iterator[np.ndarray]:
-        """Yield HxWx3 uint8 frames off-screen, deterministically, from ``rollout.replay``."""
+    def render(self, rollout: Rollout, width: int, height: int, frames: slice = ALL_FRAMES) -> Iterator[np.ndarray]:
+        """Yield HxWx3 uint8 frames off-screen, deterministically: one per row of ``rollout.replay``, those
+        ``frames`` selects. A frame is the same whether its clip is rendered whole or in parts (the compute
+        layer renders a clip's parts on several workers), so a frame may read other rows (a camera set by
+        the first) but never depend on which frames were drawn before it."""
 
     def simulator(self) -> SkillSim:
         """A new simulator stepped by the skill's actions (``rba.gym``); domains without one raise."""

@@ -31,6 +31,7 @@ from types import MappingProxyType
 import numpy as np
 
 from rba.domains.base import (
+    ALL_FRAMES,
     AttributeSpec,
     Domain,
     FeedbackPhrases,
@@ -266,13 +267,13 @@ class LaneChange(Domain):
         return Rollout("", self.name, dict(params), seed, states, replay, proxies, bool(success),
                        info={"final_lateral_m": float(final_y), "crashed": float(sim.crashed)})
 
-    def render(self, rollout: Rollout, width: int, height: int, view: float = VIEW_METRES,
-               frames: np.ndarray | None = None, ego_at: float = 0.5) -> Iterator[np.ndarray]:
+    def render(self, rollout: Rollout, width: int, height: int, frames: slice | np.ndarray = ALL_FRAMES,
+               view: float = VIEW_METRES, ego_at: float = 0.5) -> Iterator[np.ndarray]:
         """Frames of ``rollout`` (or only the replay rows ``frames``), ``view`` metres of road across,
         the ego car ``ego_at`` of the way across from the left (traffic drives rightwards)."""
         env = self._env(int(width), int(height), view, ego_at)
         ego, follower = _scene(env, 10.0)
-        rows = rollout.replay if frames is None else rollout.replay[frames]
+        rows = rollout.replay[frames]
         for ex, ey, eh, fx, fy, fh in rows:
             ego.position, ego.heading = np.array([ex, ey]), float(eh)
             follower.position, follower.heading = np.array([fx, fy]), float(fh)

@@ -45,7 +45,7 @@ class LaneChangeImage(LaneChange):
         """uint8 [T, 3, 64, 64]: at each state time, the frames of this and the two previous state times."""
         n = len(rollout.states)
         rows = np.arange(n) * DECIDE_EVERY + DECIDE_EVERY - 1  # replay row of each state
-        rgb = self.render(rollout, SIZE, SIZE, IMAGE_VIEW, rows, EGO_AT)
+        rgb = self.render(rollout, SIZE, SIZE, rows, view=IMAGE_VIEW, ego_at=EGO_AT)
         gray = np.stack([f.mean(2) for f in rgb]).astype(np.uint8)
         idx = np.clip(np.arange(n)[:, None] - np.arange(STACK - 1, -1, -1)[None, :], 0, n - 1)
         return gray[idx]

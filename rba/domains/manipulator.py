@@ -38,6 +38,7 @@ import mujoco
 import numpy as np
 
 from rba.domains.base import (
+    ALL_FRAMES,
     AttributeSpec,
     Domain,
     FeedbackPhrases,
@@ -295,9 +296,9 @@ class Manipulator(Domain):
             states = stack_samples(rec.sim, STACK)
         return Rollout("", self.name, dict(params), seed, states, np.asarray(rec.replay), proxies, success, info)
 
-    def render(self, rollout: Rollout, width: int, height: int) -> Iterator[np.ndarray]:
+    def render(self, rollout: Rollout, width: int, height: int, frames: slice = ALL_FRAMES) -> Iterator[np.ndarray]:
         camera = Camera(CAMERA_DISTANCE, CAMERA_ELEVATION, CAMERA_LOOKAT)
-        return self._renderers.replay(self._physics(), rollout.replay, width, height, camera)
+        return self._renderers.replay(self._physics(), rollout.replay[frames], width, height, camera)
 
     def simulator(self) -> SkillSim:
         return ManipulatorSim(self._physics())

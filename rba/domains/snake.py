@@ -37,6 +37,7 @@ import mujoco
 import numpy as np
 
 from rba.domains.base import (
+    ALL_FRAMES,
     AttributeSpec,
     Domain,
     FeedbackPhrases,
@@ -377,11 +378,11 @@ class Snake(Domain):
                        np.asarray(rec.replay, dtype=np.float32),  # qpos for rendering: float32 halves the library
                        proxies, success, info)
 
-    def render(self, rollout: Rollout, width: int, height: int) -> Iterator[np.ndarray]:
-        y0 = float(rollout.replay[0][1])
+    def render(self, rollout: Rollout, width: int, height: int, frames: slice = ALL_FRAMES) -> Iterator[np.ndarray]:
+        y0 = float(rollout.replay[0][1])  # the first row's, in every part of the clip
         camera = Camera(CAMERA_DISTANCE, CAMERA_ELEVATION,  # follows the centre of mass forward
                         aim=lambda data: (float(data.subtree_com[1][0]) - 0.1, y0, 0.0))
-        return self._renderers.replay(self._physics(), rollout.replay, width, height, camera)
+        return self._renderers.replay(self._physics(), rollout.replay[frames], width, height, camera)
 
     def simulator(self) -> SkillSim:
         return SnakeSim(self._physics())

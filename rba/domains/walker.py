@@ -68,6 +68,7 @@ import mujoco
 import numpy as np
 
 from rba.domains.base import (
+    ALL_FRAMES,
     AttributeSpec,
     Domain,
     FeedbackPhrases,
@@ -852,10 +853,10 @@ class Walker(Domain):
                        success=m.success, info=m.info)
 
     # ------------------------------------------------------------------ rendering
-    def render(self, rollout: Rollout, width: int, height: int) -> Iterator[np.ndarray]:
+    def render(self, rollout: Rollout, width: int, height: int, frames: slice = ALL_FRAMES) -> Iterator[np.ndarray]:
         camera = Camera(CAMERA_DISTANCE, CAMERA_ELEVATION,  # follows the torso along x
                         aim=lambda data: (float(data.xpos[1, 0]), 0.0, CAMERA_LOOKAT_Z))
-        return self._renderers.replay(self.physics().model, rollout.replay, width, height, camera)
+        return self._renderers.replay(self.physics().model, rollout.replay[frames], width, height, camera)
 
     # ------------------------------------------------------------------ stepping (rba.gym)
     def simulator(self) -> SkillSim:

@@ -50,6 +50,18 @@ def test_render_is_deterministic_uint8(domain):
         np.testing.assert_array_equal(f, g)
 
 
+def test_a_clip_rendered_in_parts_has_the_frames_of_the_whole_clip(domain):
+    """The compute layer renders a clip's parts on separate workers (``RenderJob.parts``): every frame must be
+    the one the whole clip has, wherever its part starts (a camera aimed from the first row, a sky drawn once)."""
+    r = domain.rollout(domain.sample_params(np.random.default_rng(2)), seed=0)
+    r.replay = r.replay[: min(len(r.replay), 40): 4]  # ten rows a few steps apart: the body moves between parts
+    whole = list(domain.render(r, 64, 48))
+    parts = [f for rows in (slice(0, 3), slice(3, 7), slice(7, None)) for f in domain.render(r, 64, 48, rows)]
+    assert len(whole) == len(parts) == len(r.replay)
+    for i, (f, g) in enumerate(zip(whole, parts, strict=True)):
+        np.testing.assert_array_equal(f, g, err_msg=f"frame {i}")
+
+
 def test_sample_params_stay_inside_the_declared_parameter_space(domain):
     """What ``rba.generate`` may search covers every parameter the domain's own sampler draws."""
     space = domain.param_space()
