@@ -23,7 +23,6 @@ from rba.domains import Rollout
 
 log = logging.getLogger(__name__)
 SIM_CHUNK = 4  # rollouts per round trip when simulating a library
-URGENT_RENDER_THREADS = 4  # rasteriser threads of a worker rendering a clip someone waits for
 RETRIES = 2  # runs after a worker died, as Ray's default task retries
 
 
@@ -97,7 +96,9 @@ class LocalCompute(Compute):
     def __init__(self, workers: int = 2, nice: int = 5, background_nice: int = 15) -> None:
         self.workers = workers
         cores = len(os.sched_getaffinity(0))
-        self._urgent = _Pool(workers, nice, min(cores, URGENT_RENDER_THREADS))  # someone waits: use the cores
+        # someone waits: a clip's parts run on every worker at once, and the workers share the cores (one rasteriser
+        # thread each on 2 cores: a walker clip 0.76-0.79 s against 0.87-1.00 s with two)
+        self._urgent = _Pool(workers, nice, max(cores // workers, 1))
         self._background = _Pool(workers, background_nice)
 
     @property

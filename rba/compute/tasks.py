@@ -29,8 +29,9 @@ def init_worker(nice: int = 0, render_threads: int = 1) -> None:
 
     One thread for torch and BLAS, and ``render_threads`` for Mesa's software rasteriser: guesses and
     Ray tasks run one worker per CPU, so more threads would only fight over the cores; the pool for the
-    clip a person waits for may use every core. Rendered pixels do not depend on the rasteriser's thread
-    count, and the encoder's is fixed (``rba.video``), so clips are identical whatever the machine.
+    clip a person waits for shares the cores among its workers (a clip's parts render on all of them).
+    Rendered pixels do not depend on the rasteriser's thread count, and the encoder's is fixed
+    (``rba.video``), so clips are identical whatever the machine.
     """
     os.environ.setdefault("MUJOCO_GL", "egl")
     os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
