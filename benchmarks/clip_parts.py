@@ -2,12 +2,13 @@
 
 The compute layer renders a clip in ``CLIP_PARTS`` parts, one per worker of the pool, and joins
 them by stream copy (``rba.compute.base.RenderJob.parts``, ``rba.video.concat_mp4``). This measures
-what that buys on this machine: for each domain, ``--clips`` serve rollouts, each rendered through
-the local pool's urgent workers (``LocalCompute``, 2 workers) both ways, taking turns clip by clip so
-that a change in machine load hits both alike, wall-clock from submission to the MP4's bytes:
+what that buys on this machine: for each domain, ``--clips`` serve rollouts, each rendered both ways,
+taking turns clip by clip so that a change in machine load hits both alike, wall-clock from
+submission to the MP4's bytes:
 
-* ``whole``: the clip in one piece on one worker (``tasks.render_clip`` without rows), as before;
-* ``parts``: ``LocalCompute.render``, what the app runs now.
+* ``whole``: the clip in one piece on one urgent worker whose rasteriser has a thread per core
+  (``tasks.render_clip`` without rows on ``LocalCompute(workers=1)``), as the app rendered it before;
+* ``parts``: ``LocalCompute(workers=2).render``, what the app runs now (one rasteriser thread a worker).
 
 Nothing else runs on the pool. The decoded frame count of every ``parts`` clip is checked against
 the rollout's replay rows. Writes ``benchmarks/results/clip_parts.md`` and ``.json``.
@@ -27,7 +28,8 @@ import time
 from pathlib import Path
 
 import imageio_ffmpeg
-from api_load import pct, start_run
+import numpy as np
+from api_load import start_run
 
 from rba.compute import RenderJob, tasks
 from rba.compute.base import CLIP_PARTS
@@ -42,13 +44,13 @@ WAYS = ("whole", "parts")
 log = logging.getLogger("clip_parts")
 
 
-def render(compute: LocalCompute, job: RenderJob, way: str) -> tuple[float, bytes]:
+def render(computes: dict[str, LocalCompute], job: RenderJob, way: str) -> tuple[float, bytes]:
     """Seconds from submission to the MP4's bytes, and the bytes."""
     start = time.perf_counter()
-    if way == "whole":
-        task = compute._urgent.submit(tasks.render_clip, job.target, job.rollout, job.width, job.height)
+    if way == "whole":  # one task, no rows: the clip in one piece (the pool's own submit, as render did before)
+        task = computes[way]._urgent.submit(tasks.render_clip, job.target, job.rollout, job.width, job.height)
     else:
-        task = compute.render(job)
+        task = computes[way].render(job, urgent=True)
     clip = task.future.result(300)
     return time.perf_counter() - start, clip
 
@@ -60,12 +62,12 @@ def frame_count(clip: bytes) -> int:
         return imageio_ffmpeg.count_frames_and_secs(f.name)[0]
 
 
-def measure_domain(compute: LocalCompute, name: str, clips: int, size: tuple[int, int]) -> dict:
+def measure_domain(computes: dict[str, LocalCompute], name: str, clips: int, size: tuple[int, int]) -> dict:
     lib = SkillLibrary.load(name, "serve")
     picks = [round(i * (len(lib) - 1) / max(clips - 1, 1)) for i in range(clips)]
     for way in WAYS:  # warm-up: each worker imports the domain and makes its renderer
         for _ in range(2):
-            render(compute, RenderJob.of(name, lib.rollout(picks[0]), *size), way)
+            render(computes, RenderJob.of(name, lib.rollout(picks[0]), *size), way)
     seconds: dict[str, list[float]] = {w: [] for w in WAYS}
     sizes: dict[str, list[int]] = {w: [] for w in WAYS}
     frames, frames_ok = [], True
@@ -74,7 +76,7 @@ def measure_domain(compute: LocalCompute, name: str, clips: int, size: tuple[int
         job = RenderJob.of(name, rollout, *size)
         frames.append(len(rollout.replay))
         for way in (WAYS if n % 2 == 0 else WAYS[::-1]):
-            took, clip = render(compute, job, way)
+            took, clip = render(computes, job, way)
             seconds[way].append(took)
             sizes[way].append(len(clip))
             if way == "parts":
@@ -83,7 +85,7 @@ def measure_domain(compute: LocalCompute, name: str, clips: int, size: tuple[int
            "all_frames_in_parts": frames_ok}
     for way in WAYS:
         row[way] = {"mean_ms": round(statistics.mean(seconds[way]) * 1000, 1),
-                    "p95_ms": round(pct(seconds[way], 95) * 1000, 1),
+                    "p95_ms": round(float(np.percentile(seconds[way], 95)) * 1000, 1),
                     "kb_mean": round(statistics.mean(sizes[way]) / 1024, 1)}
     row["saved"] = round(1 - row["parts"]["mean_ms"] / row["whole"]["mean_ms"], 3)
     log.info("%s: whole %.0f ms, parts %.0f ms", name, row["whole"]["mean_ms"], row["parts"]["mean_ms"])
@@ -94,7 +96,7 @@ def markdown(report: dict) -> str:
     lines = ["# A waited-for clip: whole on one worker, or in parts on every worker", "",
              f"`{report['command']}`  ", f"{report['date']} · {report['machine']} · load average (1 min) "
              f"{report['load'][0]:.2f} → {report['load'][1]:.2f} · clips {report['size']} · "
-             f"{report['workers']} urgent workers · {CLIP_PARTS} parts", "",
+             f"{CLIP_PARTS} parts", "",
              __doc__.split("\n\n")[1].replace("\n", " "), "",
              "| domain | clips | frames (mean) | whole: mean / p95 ms | **parts: mean / p95 ms** | saved | "
              "MP4 kB mean (whole → parts) | every frame in the joined clip |",
@@ -119,10 +121,10 @@ def main(argv: list[str] | None = None) -> int:
     size = (settings.clip_width, settings.clip_height)
     run = start_run("clip_parts.py", argv)
     load = [float(Path("/proc/loadavg").read_text().split()[0])]
-    with LocalCompute(workers=2) as compute:
-        rows = [measure_domain(compute, d, args.clips, size) for d in args.domains]
+    with LocalCompute(workers=1) as whole, LocalCompute(workers=2) as parts:
+        rows = [measure_domain({"whole": whole, "parts": parts}, d, args.clips, size) for d in args.domains]
     load.append(float(Path("/proc/loadavg").read_text().split()[0]))
-    report = {**run, "load": load, "size": f"{size[0]}x{size[1]}", "workers": 2, "domains": rows}
+    report = {**run, "load": load, "size": f"{size[0]}x{size[1]}", "domains": rows}
     save_report(args.out, report, markdown(report))
     print(markdown(report))
     return 0
