@@ -22,6 +22,7 @@ import itertools
 import logging
 from collections import Counter, defaultdict
 from collections.abc import Callable, Iterator
+from concurrent.futures import Future
 from dataclasses import dataclass
 
 from sqlmodel import Session, select
@@ -80,11 +81,13 @@ def next_clips(svc: Services, key: ContextKey, generate: bool, state: dict, last
     return list(dict.fromkeys(nexts))
 
 
-def schedule_prerender(svc: Services, s: TuningSession, last: Feedback | None) -> None:
+def schedule_prerender(svc: Services, s: TuningSession, last: Feedback | None, after: Future | None = None) -> None:
     """While the person watches: work out what every possible answer would show, and queue those clips first.
 
     The thinker keeps only a session's newest job: an answer given before the guesses were worked out
     replaces them. The clips go to the prefetcher's first tier as they are found, most likely first.
+    ``after``: the render of the clip the person waits for; the thinking starts once it is done, since beside
+    it, it slowed that render (the step counts as scheduled meanwhile: ``resume_prerender`` leaves it).
     """
     if svc.thinker is None or not svc.settings.prerender:
         return
@@ -100,7 +103,10 @@ def schedule_prerender(svc: Services, s: TuningSession, last: Feedback | None) -
         if not stale():
             svc.prefetch.offer(session_id, [ClipRef(key[0], rid) for rid in clips])
 
-    svc.thinker.submit(session_id, think)
+    if after is None:
+        svc.thinker.submit(session_id, think)
+    else:
+        after.add_done_callback(lambda _: svc.thinker.submit(session_id, think))
 
 
 def stop_prerender(svc: Services, session_id: str) -> None:

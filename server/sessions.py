@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from concurrent.futures import Future
 from typing import Any
 
 from fastapi import HTTPException
@@ -177,9 +178,10 @@ def _advance(svc: Services, ctx: Any, s: TuningSession, feedback: Feedback) -> t
         raise invalid(str(exc)) from exc
 
 
-def _after_step(svc: Services, s: TuningSession, feedback: Feedback) -> None:
+def _after_step(svc: Services, s: TuningSession, feedback: Feedback, clip: Future | None = None) -> None:
+    """Guess the next answers' clips (once ``clip``, the one the person now waits for, is rendered)."""
     if s.status == SessionStatus.active:
-        schedule_prerender(svc, s, None if feedback == SATISFIED else feedback)
+        schedule_prerender(svc, s, None if feedback == SATISFIED else feedback, clip)
     else:
         stop_prerender(svc, s.id)
 
@@ -207,12 +209,10 @@ def _search(svc: Services, s: TuningSession, body: FeedbackCreate, feedback: Fee
                 search.end()
                 _after_step(svc, moving, feedback)
                 return
-            # rendered now (the page asks for it next), and only then the guesses for the next answer: thinking
-            # beside this render would slow the clip the person waits for
-            clip = svc.clips.request(svc.clips.generated_key(s.domain, rollout_id),
-                                     generation.rollout_of(svc, shown), urgent=True)
+            clip = svc.clips.request(svc.clips.generated_key(s.domain, rollout_id),  # rendered now: the page
+                                     generation.rollout_of(svc, shown), urgent=True)  # asks for it next
             search.end()
-            clip.add_done_callback(lambda _: _after_step(svc, moving, feedback))
+            _after_step(svc, moving, feedback, clip)
         except HTTPException as exc:
             search.end(exc)
         except Exception as exc:  # the searcher's thread must report, not die: the page is waiting on it

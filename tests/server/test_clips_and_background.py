@@ -210,6 +210,31 @@ def test_the_prefetcher_takes_sessions_round_robin_newest_first_then_the_sources
         prefetch.stop()
 
 
+def test_guesses_wait_while_someone_waits_on_the_compute_layer(fake_cache):
+    """``hold`` (``Services.someone_waits``): no guess starts while it says a person waits; they start after."""
+    cache, compute, lib = fake_cache
+    waiting = [True]
+    prefetch = Prefetcher(cache, lambda rid: (cache.key(lib, rid), lib), window=2, hold=lambda: waiting[0])
+    try:
+        prefetch.offer("s", ["serve-00003", "serve-00005"])
+        with pytest.raises(TimeoutError):
+            compute.next_rollout(timeout=0.5)
+        waiting[0] = False
+        assert compute.next_rollout(timeout=5) == "serve-00003" and compute.next_rollout(timeout=5) == "serve-00005"
+    finally:
+        prefetch.stop()
+
+
+def test_an_urgent_render_in_flight_is_pending_a_guess_is_not(fake_cache):
+    cache, compute, lib = fake_cache
+    cache.request(cache.key(lib, "serve-00002"), lib, urgent=False)
+    assert not cache.urgent_pending()
+    cache.request(cache.key(lib, "serve-00004"), lib, urgent=True)
+    assert cache.urgent_pending()
+    compute.submitted[-1][1].set_result(b"x")
+    assert not cache.urgent_pending()
+
+
 def test_prerender_library_renders_every_serve_clip_once(make_settings, toy_roots, tmp_path):
     from rba.library import build_all
 

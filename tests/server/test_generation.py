@@ -18,7 +18,7 @@ from rba.generate import generated_id, is_generated
 from server.exporting import export_to_file
 from server.main import create_app
 from server.settings import GENERATE_SECONDS, Settings
-from tests.fakes import InProcessCompute
+from tests.fakes import FakeCompute, InProcessCompute, InstantCompute
 from tests.server.conftest import more
 
 SEARCH_SECONDS = 30
@@ -198,3 +198,30 @@ def test_guesses_never_search(gen_settings):
         assert compute.jobs and not any(is_generated(j.rollout.id) for j in compute.jobs)  # the serve clips only
         answer_generating(client, s)  # the real answer still searches
         assert compute.batches >= 1
+
+
+class HoldsGeneratedRenders(InstantCompute):
+    """Serve clips render at once; a generated clip's render waits until the test finishes it."""
+
+    def render(self, job, urgent=True):
+        return FakeCompute.render(self, job, urgent) if is_generated(job.rollout.id) else super().render(job, urgent)
+
+
+def test_a_generating_answer_guesses_the_next_clips_only_once_its_clip_is_rendered(gen_settings):
+    """Working out the next answers' clips beside the render of the clip someone waits for slowed it: the step
+    drops its old guesses, and the new ones are scheduled when the clip is stored. Meanwhile no guess starts."""
+    renders = HoldsGeneratedRenders()
+    with TestClient(create_app(gen_settings.model_copy(update={"prerender": True}),
+                               InProcessCompute(renders=renders))) as client:
+        svc = client.app.state.services
+        s = client.post("/api/sessions", json={"domain": "toy"}).json()
+        assert svc.wait_idle(SEARCH_SECONDS) and svc.prerendering[s["id"]] == s["step"]
+        now = answer_generating(client, s)
+        assert is_generated(now["clip"]["rollout_id"]) and renders.jobs[-1].rollout.id == now["clip"]["rollout_id"]
+        thought = svc.thinker.done
+        time.sleep(0.3)  # the thinker would have started at once
+        assert svc.someone_waits() and svc.thinker.done == thought  # the clip renders alone
+        assert svc.prerendering[s["id"]] == now["step"]  # scheduled, so reading the session does not start it
+        renders.submitted[-1][1].set_result(InstantCompute.CLIP)
+        assert svc.thinker.wait_idle(SEARCH_SECONDS) and svc.thinker.done == thought + 1 and not svc.someone_waits()
+        assert client.get(now["clip"]["url"]).content == InstantCompute.CLIP
