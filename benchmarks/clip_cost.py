@@ -19,8 +19,9 @@ pass, the camera's aim, ``update_scene``; for the lane change, placing the cars)
 GL render and read-back (``Renderer.render``; for the lane change, highway-env's drawing and
 the read-back); *encode* = piping the frames, already in memory, through ffmpeg to an MP4. The
 stage loop mirrors ``ThreadRenderers.replay`` (and the lane change's render) with timers; for
-``after`` its frames are checked against the production ``render``. *streamed* is the clip as
-the app makes it, frames piped to ffmpeg as they are rendered (so encoding overlaps rendering).
+``after`` its frames are checked against the production ``render``. *streamed* is the clip in one
+process, frames piped to ffmpeg as they are rendered (so encoding overlaps rendering), as a compute
+worker makes each part of a clip (the parts run on separate workers: ``clip_parts.py``).
 A warm-up clip per configuration comes first; the renderer's creation (EGL context, MuJoCo's GL
 context; highway-env's environment) is timed on its own. Writes
 ``benchmarks/results/clip_cost.md`` and ``.json``.
@@ -547,8 +548,9 @@ def markdown(report: dict) -> str:
              f"{report['load_after']} · clips {report['size']} · {report['clips']} clips per domain, each stage "
              f"the fastest of {report['repeat']} run(s), configurations taking turns", "",
              "ms per clip (per frame in brackets). *stages* = replay + render + encode, each timed on its own "
-             "(encode: frames already in memory); *streamed* = the clip as the app makes it, frames piped to "
-             "ffmpeg as they are rendered, so encoding overlaps rendering; *CPU* = this process's CPU time in "
+             "(encode: frames already in memory); *streamed* = the clip in one process, frames piped to "
+             "ffmpeg as they are rendered, so encoding overlaps rendering (a compute worker makes each part of a "
+             "clip so; the parts run on separate workers, `clip_parts.md`); *CPU* = this process's CPU time in "
              "replay and render (every thread: llvmpipe rasterises on its own) and ffmpeg's user + system time, "
              "what a clip costs a busy server, and what moves least when other work shares the machine.",
              "", *_stage_table(report), "", *_change_table(report), "", *_check_table(report),

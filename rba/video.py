@@ -93,7 +93,7 @@ def concat_mp4(parts: list[bytes]) -> bytes:
         raise ValueError("no parts to join")
     if len(parts) == 1:
         return parts[0]
-    with tempfile.TemporaryDirectory(prefix="rba-join-") as tmp:
+    with tempfile.TemporaryDirectory(prefix="rba-clip-join-") as tmp:  # swept as rba-clip-*
         folder = Path(tmp)
         for i, part in enumerate(parts):
             (folder / f"{i}.mp4").write_bytes(part)

@@ -106,7 +106,7 @@ def schedule_prerender(svc: Services, s: TuningSession, last: Feedback | None, a
     if after is None:
         svc.thinker.submit(session_id, think)
     else:
-        after.add_done_callback(lambda _: svc.thinker.submit(session_id, think))
+        after.add_done_callback(lambda _: None if stale() else svc.thinker.submit(session_id, think))
 
 
 def stop_prerender(svc: Services, session_id: str) -> None:

@@ -26,6 +26,7 @@ from sqlalchemy.engine import Engine
 
 from rba.clips import ClipCache, ClipKey
 from rba.compute import Compute, make_compute
+from rba.compute.base import CLIP_PARTS
 from rba.library import SkillLibrary
 from rba.locks import KeyedLocks
 from rba.store import Store
@@ -96,8 +97,8 @@ class Services:
         thinker = Background(1, "rba-think") if busy else None
         jobs = JobRunner(settings, engine)
         jobs.recover()
-        prefetch = Prefetcher(clips, _resolver(catalog, clips), settings.prerender_window or compute.capacity,
-                              settings.background_nice)
+        window = settings.prerender_window or max(compute.capacity // CLIP_PARTS, 1)  # a clip: CLIP_PARTS tasks
+        prefetch = Prefetcher(clips, _resolver(catalog, clips), window, settings.background_nice)
         svc = cls(settings, engine, catalog, compute, clips, Transitions(), thinker, prefetch, jobs, owns)
         prefetch.hold = svc.someone_waits  # the queue is made first: it has to exist in the Services
         return svc

@@ -1,4 +1,4 @@
-"""benchmarks/clip_parts.py, tiny: both ways measured on the same clips, the joined clips checked frame for frame."""
+"""benchmarks/clip_parts.py, tiny: both ways measured on the same clips, every frame counted in the joined clips."""
 
 import importlib.util
 import json

@@ -175,6 +175,7 @@ def test_a_joined_task_fails_with_a_part_and_is_cancelled_with_one():
     parts[0].future.set_exception(RuntimeError("worker died"))
     with pytest.raises(RuntimeError, match="worker died"):
         task.future.result(1)
+    assert parts[1].future.cancelled()  # not started: dropped, no wasted render
     parts = [_task(), _task()]
     parts[1].future.set_running_or_notify_cancel()  # started: cannot be cancelled any more
     task = joined(parts, lambda results: pytest.fail("joined a cancelled clip"))
@@ -183,3 +184,23 @@ def test_a_joined_task_fails_with_a_part_and_is_cancelled_with_one():
     for part in started:
         part.future.set_running_or_notify_cancel()
     assert not joined(started, lambda results: pytest.fail("not in yet")).cancel()
+
+
+def test_a_joined_task_is_cancelled_with_its_queued_join_and_fails_if_the_join_cannot_start():
+    """An urgent request for a guess whose parts are in but whose join still waits in the guess queue cancels
+    that join (and resubmits the clip as urgent), rather than waiting behind the guesses."""
+    parts, join = [_task(), _task()], _task()
+    task = joined(parts, lambda results: join)
+    for part in parts:
+        part.future.set_result(b"part")
+    assert not task.future.done() and task.cancel() and join.future.cancelled() and task.future.cancelled()
+
+    def broken(results: list) -> Task:
+        raise RuntimeError("the pool is shut down")
+
+    parts = [_task(), _task()]
+    task = joined(parts, broken)
+    for part in parts:
+        part.future.set_result(b"part")
+    with pytest.raises(RuntimeError, match="shut down"):
+        task.future.result(1)

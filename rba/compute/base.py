@@ -6,7 +6,7 @@ import itertools
 import threading
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import Future
+from concurrent.futures import CancelledError, Future
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -70,36 +70,49 @@ class Task:
 def joined(parts: list[Task], join: Callable[[list], Task]) -> Task:
     """One task of several: once every part is in, ``join(results)`` (a task itself) makes the result.
 
-    It fails with the first part that fails, and is cancelled if a part is: cancelling it cancels every
-    part not yet started (True if any was), so a clip is never joined from fewer parts than it has.
+    It fails with the first part that fails (the others are dropped if not started), and is cancelled if a
+    part is: cancelling it cancels every part, and the join, not yet started (True if any was), so a clip is
+    never joined from fewer parts than it has. Its future is settled outside any lock of ours: its callbacks
+    (the clip cache's) take their own locks, and a canceller may hold those already.
     """
     if len(parts) == 1:
         return parts[0]
     outer: Future = Future()
     lock = threading.Lock()
+    decided: list[bool] = []  # one entry once the outcome is someone's to set
     tail: list[Task] = []  # the join's task, once submitted
 
-    def settle(fn: Callable[[], object]) -> None:
+    def claim() -> bool:
         with lock:
-            if not outer.done():
-                fn()
+            first = not decided
+            decided.append(True)
+            return first
 
     def part_done(_: Future) -> None:
-        if any(p.future.cancelled() for p in parts):
-            settle(outer.cancel)
-        elif failed := next((p.future.exception() for p in parts if p.future.done() and p.future.exception()), None):
-            settle(lambda: outer.set_exception(failed))
-        elif all(p.future.done() for p in parts):
-            with lock:
-                if outer.done() or tail:
-                    return
-                tail.append(join([p.future.result() for p in parts]))
-            tail[0].future.add_done_callback(lambda f: settle(lambda: _copy(f, outer)))
+        futures = [p.future for p in parts]
+        if any(f.cancelled() for f in futures):
+            if claim():
+                outer.cancel()
+        elif failed := next((f.exception() for f in futures if f.done() and f.exception() is not None), None):
+            if claim():
+                outer.set_exception(failed)
+                for p in parts:
+                    p.cancel()
+        elif all(f.done() for f in futures) and claim():
+            try:
+                tail.append(join([f.result() for f in futures]))
+            except CancelledError:  # a part was cancelled after the check above
+                outer.cancel()
+                return
+            except Exception as exc:
+                outer.set_exception(exc)
+                return
+            tail[0].future.add_done_callback(lambda f: _copy(f, outer))
 
     for part in parts:
         part.future.add_done_callback(part_done)
-    return Task(outer, lambda: any([p.cancel() for p in parts]),  # a list: try every part
-                lambda: any(p.running is None or p.running() for p in [*parts, *tail]))
+    return Task(outer, lambda: any([t.cancel() for t in [*parts, *tail]]),  # a list: try every one
+                lambda: any(t.running is None or t.running() for t in [*parts, *tail]))
 
 
 def _copy(source: Future, target: Future) -> None:

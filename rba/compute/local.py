@@ -23,6 +23,7 @@ from rba.domains import Rollout
 
 log = logging.getLogger(__name__)
 SIM_CHUNK = 4  # rollouts per round trip when simulating a library
+MAX_RENDER_THREADS = 4  # rasteriser threads of an urgent worker at most
 RETRIES = 2  # runs after a worker died, as Ray's default task retries
 
 
@@ -97,8 +98,9 @@ class LocalCompute(Compute):
         self.workers = workers
         cores = len(os.sched_getaffinity(0))
         # someone waits: a clip's parts run on every worker at once, and the workers share the cores (one rasteriser
-        # thread each on 2 cores: a walker clip 0.76-0.79 s against 0.87-1.00 s with two)
-        self._urgent = _Pool(workers, nice, max(cores // workers, 1))
+        # thread each on 2 cores: a walker clip 0.76-0.79 s against 0.87-1.00 s with two); more than 4 threads
+        # only fight over a 320x240 frame
+        self._urgent = _Pool(workers, nice, min(max(cores // workers, 1), MAX_RENDER_THREADS))
         self._background = _Pool(workers, background_nice)
 
     @property
