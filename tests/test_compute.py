@@ -204,3 +204,13 @@ def test_a_joined_task_is_cancelled_with_its_queued_join_and_fails_if_the_join_c
         part.future.set_result(b"part")
     with pytest.raises(RuntimeError, match="shut down"):
         task.future.result(1)
+
+
+def test_warming_up_starts_every_urgent_worker():
+    """The first clip's parts render on every urgent worker: warming starts them all, not one."""
+    with LocalCompute(workers=2, nice=0) as compute:
+        compute.warm(domain_target("toy"))
+        deadline = time.monotonic() + 60
+        while len(compute._urgent.executor._processes) < 2 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert len(compute._urgent.executor._processes) == 2

@@ -119,8 +119,10 @@ class LocalCompute(Compute):
         return joined(parts, lambda clips: pool.submit(tasks.join_clips, *clips))
 
     def warm(self, target: str) -> None:
-        """Start one urgent worker (for the first clip; the rest start when needed, after the API has loaded)."""
-        self._urgent.submit(tasks.warm, target)
+        """Start the urgent workers, importing ``target`` in each: the first clip's parts render on all of them
+        (submitted together, the tasks start one process each; the guess pool starts when needed)."""
+        for _ in range(self.workers):
+            self._urgent.submit(tasks.warm, target)
 
     def close(self) -> None:
         for pool in (self._urgent, self._background):
