@@ -105,10 +105,10 @@ class ClipCache:
         with self._lock:
             return key in self._inflight
 
-    def urgent_pending(self) -> bool:
-        """Whether a clip someone asked for is being rendered (guesses wait for it: ``server.prefetch``)."""
+    def urgent_pending(self, version: str | None = None) -> bool:
+        """Whether a clip someone asked for is being rendered (of ``version`` only, e.g. ``GENERATED``)."""
         with self._lock:
-            return any(render.urgent for render in self._inflight.values())
+            return any(render.urgent and version in (None, key.version) for key, render in self._inflight.items())
 
     def typical_seconds(self, domain: str) -> float | None:
         """Mean seconds a clip of ``domain`` took from submission to stored, in this process."""

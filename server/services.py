@@ -24,7 +24,7 @@ from typing import NamedTuple
 
 from sqlalchemy.engine import Engine
 
-from rba.clips import ClipCache, ClipKey
+from rba.clips import GENERATED, ClipCache, ClipKey
 from rba.compute import Compute, make_compute
 from rba.compute.base import CLIP_PARTS
 from rba.library import SkillLibrary
@@ -97,17 +97,21 @@ class Services:
         thinker = Background(1, "rba-think") if busy else None
         jobs = JobRunner(settings, engine)
         jobs.recover()
-        window = settings.prerender_window or max(compute.capacity // CLIP_PARTS, 1)  # a clip: CLIP_PARTS tasks
+        # a guess is CLIP_PARTS tasks; where they queue with a person's (Ray), fewer guesses keep that queue short
+        window = settings.prerender_window or (compute.capacity if compute.prioritised
+                                               else max(compute.capacity // CLIP_PARTS, 1))
         prefetch = Prefetcher(clips, _resolver(catalog, clips), window, settings.background_nice)
         svc = cls(settings, engine, catalog, compute, clips, Transitions(), thinker, prefetch, jobs, owns)
         prefetch.hold = svc.someone_waits  # the queue is made first: it has to exist in the Services
         return svc
 
     def someone_waits(self) -> bool:
-        """Whether a person waits on the compute layer now: a search simulating, or a clip they asked for."""
+        """Whether a person waits on a search now: simulating, or rendering the clip it made. (Not on any clip:
+        with ten users someone nearly always waits for one, and guesses held then were missed more, so answers
+        waited longer; there niceness alone serves better, ``api_load_cold.md``.)"""
         with self.search_lock:
             searching = any(s.state == "searching" and s.simulating for s in self.searches.values())
-        return searching or self.clips.urgent_pending()
+        return searching or self.clips.urgent_pending(GENERATED)
 
     @property
     def store(self) -> Store:

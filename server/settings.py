@@ -43,7 +43,7 @@ class Settings(LibrarySettings):
     generate: bool = Field(default=False, description="RBA-Global sessions make a new behaviour (a CMA-ES "
                            "search on the compute layer) when no serve clip is near the agent's target; a session "
                            "may ask otherwise at creation (`generate`). Off by default: a search makes the person wait "
-                           "(p95 2.4-4.3 s on 2 cores where it searches, benchmarks/results/generation_latency.md)")
+                           "(p95 2.4-4.1 s on 2 cores where it searches, benchmarks/results/generation_latency.md)")
     generate_spread: float | None = Field(default=None, ge=0, description="a generating session searches only "
                                           "where the serve clip misses the agent's target by more than this share of "
                                           "its belief's half interquartile range (and the threshold): early answers, "
@@ -52,7 +52,7 @@ class Settings(LibrarySettings):
     generate_seconds: float = Field(default=GENERATE_SECONDS, gt=0, allow_inf_nan=False,
                                     description="a search stops before a CMA-ES generation that would end later "
                                     "than this many seconds after the search began (the first always runs); with "
-                                    "2 s the new clip played p95 2.4-4.3 s after the answer on 2 cores "
+                                    "2 s the new clip played p95 2.4-4.1 s after the answer on 2 cores "
                                     "(benchmarks/results/generation_latency.md); a large value leaves the "
                                     "48-simulation budget alone to bound it")
     warm_start: bool = Field(default=True, description="load models and render first clips after start-up")

@@ -7,7 +7,7 @@ import threading
 import pytest
 from fastapi.testclient import TestClient
 
-from rba.clips import ClipCache, ClipStatus
+from rba.clips import GENERATED, ClipCache, ClipStatus
 from rba.interact import AttributeFeedback
 from rba.library import SkillLibrary
 from rba.store import ClipStore
@@ -225,14 +225,19 @@ def test_guesses_wait_while_someone_waits_on_the_compute_layer(fake_cache):
         prefetch.stop()
 
 
-def test_an_urgent_render_in_flight_is_pending_a_guess_is_not(fake_cache):
+def test_urgent_renders_in_flight_are_pending_by_version_a_guess_is_not(fake_cache):
     cache, compute, lib = fake_cache
     cache.request(cache.key(lib, "serve-00002"), lib, urgent=False)
     assert not cache.urgent_pending()
     cache.request(cache.key(lib, "serve-00004"), lib, urgent=True)
-    assert cache.urgent_pending()
-    compute.submitted[-1][1].set_result(b"x")
-    assert not cache.urgent_pending()
+    assert cache.urgent_pending() and not cache.urgent_pending(GENERATED)  # a library clip, not a search's
+    made = lib.rollout(5)
+    made.id = "gen-0123456789abcdef"
+    cache.request(cache.generated_key("toy", made.id), made, urgent=True)
+    assert cache.urgent_pending(GENERATED)
+    for _, future in compute.submitted[-2:]:
+        future.set_result(b"x")
+    assert not cache.urgent_pending() and not cache.urgent_pending(GENERATED)
 
 
 def test_prerender_library_renders_every_serve_clip_once(make_settings, toy_roots, tmp_path):
