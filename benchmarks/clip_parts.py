@@ -1,14 +1,16 @@
 """A clip someone waits for, whole on one worker or in parts on every worker: the wait, the bytes.
 
-The compute layer renders a clip in ``CLIP_PARTS`` parts, one per worker of the pool, and joins
-them by stream copy (``rba.compute.base.RenderJob.parts``, ``rba.video.concat_mp4``). This measures
-what that buys on this machine: for each domain, ``--clips`` serve rollouts, each rendered both ways,
-taking turns clip by clip so that a change in machine load hits both alike, wall-clock from
+The compute layer renders a generated clip (someone always waits for it) in ``CLIP_PARTS`` parts,
+one per worker of the pool, and joins them by stream copy (``rba.compute.base.RenderJob.parts``,
+``rba.video.concat_mp4``). This measures what that buys on this machine: for each domain,
+``--clips`` serve rollouts, each rendered both ways, taking turns clip by clip so that a change in
+machine load hits both alike, wall-clock from
 submission to the MP4's bytes:
 
 * ``whole``: the clip in one piece on one urgent worker whose rasteriser has a thread per core
   (``tasks.render_clip`` without rows on ``LocalCompute(workers=1)``), as the app rendered it before;
-* ``parts``: ``LocalCompute(workers=2).render``, what the app runs now (one rasteriser thread a worker).
+* ``parts``: ``LocalCompute(workers=2).render`` of the job split in ``CLIP_PARTS``, what the app runs for a
+  generated clip now (one rasteriser thread a worker).
 
 Nothing else runs on the pool. The decoded frame count of every ``parts`` clip is checked against
 the rollout's replay rows. Writes ``benchmarks/results/clip_parts.md`` and ``.json``.
@@ -25,6 +27,7 @@ import statistics
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import imageio_ffmpeg
@@ -50,7 +53,7 @@ def render(computes: dict[str, LocalCompute], job: RenderJob, way: str) -> tuple
     if way == "whole":  # one task, no rows: the clip in one piece (the pool's own submit, as render did before)
         task = computes[way]._urgent.submit(tasks.render_clip, job.target, job.rollout, job.width, job.height)
     else:
-        task = computes[way].render(job, urgent=True)
+        task = computes[way].render(replace(job, split=CLIP_PARTS), urgent=True)
     clip = task.future.result(300)
     return time.perf_counter() - start, clip
 

@@ -201,7 +201,7 @@ def cmd_render(args) -> int:
     lib = SkillLibrary.load(args.domain, split)
     rollout = lib.rollout(lib.index_of(args.rollout_id))
     domain = get_domain(args.domain)
-    clip = render_whole(domain, rollout, args.width, args.height)  # the app's clip, same bytes
+    clip = render_whole(domain, rollout, args.width, args.height)  # a library clip: whole, as the app's
     write_atomic(Path(args.out), lambda tmp: Path(tmp).write_bytes(clip))
     print(f"wrote {args.out}: {len(rollout.replay)} frames at {domain.frame_rate:g} fps, proxies {rollout.proxies}")
     return 0

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from rba.compute import Compute, RenderJob, Task
+from rba.compute.base import CLIP_PARTS
 from rba.domains import Rollout
 from rba.library import SkillLibrary
 from rba.store import ClipStore
@@ -27,7 +28,7 @@ log = logging.getLogger(__name__)
 STALE_TMP_SECONDS = 600
 # Part of every clip's key: bump it when rendering or encoding changes what a clip looks like, so a cache
 # filled before never mixes old clips with new ones (2: snake floor without reflection, one x264 thread;
-# 3: a clip is encoded in ``rba.compute.base.CLIP_PARTS`` parts, joined).
+# 3: a generated clip is encoded in ``rba.compute.base.CLIP_PARTS`` parts, joined).
 RENDERER_VERSION = 3
 CLAIM_TTL_SECONDS = 120  # a guess claimed longer ago than this was left by a crashed process: render it here
 GENERATED = "generated"  # the key's version of a generated rollout: its id already hashes what makes it
@@ -158,7 +159,8 @@ class ClipCache:
 
     def _submit(self, key: ClipKey, source: Source, urgent: bool) -> _Render:
         rollout = source if isinstance(source, Rollout) else source.rollout(source.index_of(key.rollout_id))
-        job = RenderJob.of(key.domain, rollout, key.width, key.height)
+        job = RenderJob.of(key.domain, rollout, key.width, key.height,  # someone waits for a generated clip
+                           split=CLIP_PARTS if key.version == GENERATED else 1)
         render = _Render(self.compute.render(job, urgent), urgent)
         self._inflight[key] = render
         render.task.future.add_done_callback(lambda f: self._finish(key, render, f))

@@ -26,7 +26,6 @@ from sqlalchemy.engine import Engine
 
 from rba.clips import GENERATED, ClipCache, ClipKey
 from rba.compute import Compute, make_compute
-from rba.compute.base import CLIP_PARTS
 from rba.library import SkillLibrary
 from rba.locks import KeyedLocks
 from rba.store import Store
@@ -97,9 +96,7 @@ class Services:
         thinker = Background(1, "rba-think") if busy else None
         jobs = JobRunner(settings, engine)
         jobs.recover()
-        # a guess is CLIP_PARTS tasks; where they queue with a person's (Ray), fewer guesses keep that queue short
-        window = settings.prerender_window or (compute.capacity if compute.prioritised
-                                               else max(compute.capacity // CLIP_PARTS, 1))
+        window = settings.prerender_window or compute.capacity
         prefetch = Prefetcher(clips, _resolver(catalog, clips), window, settings.background_nice)
         svc = cls(settings, engine, catalog, compute, clips, Transitions(), thinker, prefetch, jobs, owns)
         prefetch.hold = svc.someone_waits  # the queue is made first: it has to exist in the Services

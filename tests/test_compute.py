@@ -19,7 +19,7 @@ import pytest
 
 from rba.clips import ClipCache
 from rba.compute import RenderJob, SimJob, Task, make_compute
-from rba.compute.base import joined
+from rba.compute.base import CLIP_PARTS, joined
 from rba.compute.local import LocalCompute
 from rba.compute.tasks import render_whole
 from rba.domains import domain_target, get_domain
@@ -133,17 +133,21 @@ def test_simulate_keeps_the_jobs_order(local_compute):
     assert all(np.array_equal(a.states, b.states) for a, b in zip(got, local_compute.simulate(jobs), strict=True))
 
 
-def test_a_clip_is_rendered_in_parts_on_the_workers_and_joined_into_the_clis_bytes(local_compute, tmp_path):
-    """Both workers render half the clip each; joined, it is every frame, the same bytes as ``rba render``."""
+def test_a_generated_clip_is_rendered_in_parts_on_the_workers_and_joined(local_compute, tmp_path):
+    """Both workers render half the clip each; joined, it is every frame, the same bytes in any process. A
+    library clip (split 1) renders whole, as ``rba render`` makes it."""
     import imageio_ffmpeg
 
     lib = SkillLibrary.load("walker", "serve")
     rollout = lib.rollout(2)
-    job = RenderJob.of("walker", rollout, 96, 72)
-    assert [p.rows for p in job.parts()] == [(0, len(rollout.replay) // 2), (len(rollout.replay) // 2,
-                                                                              len(rollout.replay))]
+    job = RenderJob.of("walker", rollout, 96, 72, split=CLIP_PARTS)
+    half = len(rollout.replay) // 2
+    assert [p.rows for p in job.parts()] == [(0, half), (half, len(rollout.replay))]
     clip = local_compute.render(job).future.result(120)
-    assert clip == render_whole(get_domain("walker"), rollout, 96, 72)
+    assert clip == render_whole(get_domain("walker"), rollout, 96, 72, split=CLIP_PARTS)
+    whole = RenderJob.of("walker", rollout, 96, 72)
+    assert [p.rows for p in whole.parts()] == [(0, len(rollout.replay))]
+    assert local_compute.render(whole).future.result(120) == render_whole(get_domain("walker"), rollout, 96, 72)
     (tmp_path / "clip.mp4").write_bytes(clip)
     assert imageio_ffmpeg.count_frames_and_secs(str(tmp_path / "clip.mp4"))[0] == len(rollout.replay)
 

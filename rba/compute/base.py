@@ -23,9 +23,11 @@ class SimJob:
     seed: int
 
 
-# A clip is rendered and encoded in this many parts, each on its own worker, then joined (``rba.video.concat_mp4``):
-# the clip a person waits for renders on both cores of a 2-core machine. Fixed, not the machine's worker count:
-# the parts decide the clip's bytes, and a clip must be the same bytes wherever it is rendered (its ETag).
+# A generated clip is rendered and encoded in this many parts, each on its own worker, then joined
+# (``rba.video.concat_mp4``): someone always waits for it (right after its search), and so it renders on both cores
+# of a 2-core machine. A library clip renders whole: most are rendered ahead as guesses, where parts cost throughput
+# (a second encoder and the join: with ten users fewer clips were ready in time, ``api_load_cold.md``). Fixed per
+# kind of clip, never by the machine or the urgency: the parts decide the bytes, and a clip's ETag promises them.
 CLIP_PARTS = 2
 
 
@@ -38,15 +40,16 @@ class RenderJob:
     width: int
     height: int
     rows: tuple[int, int] | None = None  # [start, stop) of the replay's rows; None: all of them
+    split: int = 1  # parts the clip is rendered in (CLIP_PARTS for a generated clip)
 
     @classmethod
-    def of(cls, domain: str, rollout: Rollout, width: int, height: int) -> RenderJob:
-        return cls(domain_target(domain), for_render(rollout), int(width), int(height))
+    def of(cls, domain: str, rollout: Rollout, width: int, height: int, split: int = 1) -> RenderJob:
+        return cls(domain_target(domain), for_render(rollout), int(width), int(height), split=split)
 
-    def parts(self, n: int = CLIP_PARTS) -> list[RenderJob]:
-        """The clip in ``n`` consecutive parts of (nearly) equal length; fewer if it has fewer frames."""
+    def parts(self) -> list[RenderJob]:
+        """The clip in ``split`` consecutive parts of (nearly) equal length; fewer if it has fewer frames."""
         frames = len(self.rollout.replay)
-        n = max(1, min(n, frames))
+        n = max(1, min(self.split, frames))
         cuts = [frames * i // n for i in range(n + 1)]
         return [replace(self, rows=(a, b)) for a, b in itertools.pairwise(cuts)]
 

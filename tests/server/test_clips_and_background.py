@@ -8,6 +8,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from rba.clips import GENERATED, ClipCache, ClipStatus
+from rba.compute.base import CLIP_PARTS
 from rba.interact import AttributeFeedback
 from rba.library import SkillLibrary
 from rba.store import ClipStore
@@ -235,6 +236,7 @@ def test_urgent_renders_in_flight_are_pending_by_version_a_guess_is_not(fake_cac
     made.id = "gen-0123456789abcdef"
     cache.request(cache.generated_key("toy", made.id), made, urgent=True)
     assert cache.urgent_pending(GENERATED)
+    assert [job.split for job in compute.jobs] == [1, 1, CLIP_PARTS]  # only the generated clip renders in parts
     for _, future in compute.submitted[-2:]:
         future.set_result(b"x")
     assert not cache.urgent_pending() and not cache.urgent_pending(GENERATED)
