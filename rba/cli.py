@@ -189,10 +189,9 @@ def _generation(args) -> tuple[dict, Compute | None]:
 
 
 def cmd_render(args) -> int:
-    from rba.compute.tasks import render_whole
     from rba.domains import get_domain
     from rba.library import SPLITS, SkillLibrary
-    from rba.storage import write_atomic
+    from rba.video import write_mp4
 
     split = args.rollout_id.split("-", 1)[0]
     if split not in SPLITS:
@@ -201,9 +200,8 @@ def cmd_render(args) -> int:
     lib = SkillLibrary.load(args.domain, split)
     rollout = lib.rollout(lib.index_of(args.rollout_id))
     domain = get_domain(args.domain)
-    clip = render_whole(domain, rollout, args.width, args.height)  # a library clip: whole, as the app's
-    write_atomic(Path(args.out), lambda tmp: Path(tmp).write_bytes(clip))
-    print(f"wrote {args.out}: {len(rollout.replay)} frames at {domain.frame_rate:g} fps, proxies {rollout.proxies}")
+    n = write_mp4(domain.render(rollout, args.width, args.height), Path(args.out), domain.frame_rate)
+    print(f"wrote {args.out}: {n} frames at {domain.frame_rate:g} fps, proxies {rollout.proxies}")
     return 0
 
 

@@ -27,9 +27,10 @@ log = logging.getLogger(__name__)
 
 STALE_TMP_SECONDS = 600
 # Part of every clip's key: bump it when rendering or encoding changes what a clip looks like, so a cache
-# filled before never mixes old clips with new ones (2: snake floor without reflection, one x264 thread;
-# 3: a generated clip is encoded in ``rba.compute.base.CLIP_PARTS`` parts, joined).
-RENDERER_VERSION = 3
+# filled before never mixes old clips with new ones (2: snake floor without reflection, one x264 thread). Not
+# bumped for generated clips encoded in ``rba.compute.base.CLIP_PARTS`` parts: the same frames, and library clips,
+# nearly all of a cache, are the same bytes as before.
+RENDERER_VERSION = 2
 CLAIM_TTL_SECONDS = 120  # a guess claimed longer ago than this was left by a crashed process: render it here
 GENERATED = "generated"  # the key's version of a generated rollout: its id already hashes what makes it
 Source = SkillLibrary | Rollout  # what a clip is rendered from: a library holding the rollout, or the rollout
@@ -106,10 +107,10 @@ class ClipCache:
         with self._lock:
             return key in self._inflight
 
-    def urgent_pending(self, version: str | None = None) -> bool:
-        """Whether a clip someone asked for is being rendered (of ``version`` only, e.g. ``GENERATED``)."""
+    def urgent_pending(self, version: str) -> bool:
+        """Whether a clip of ``version`` (e.g. ``GENERATED``) someone asked for is being rendered."""
         with self._lock:
-            return any(render.urgent and version in (None, key.version) for key, render in self._inflight.items())
+            return any(render.urgent and key.version == version for key, render in self._inflight.items())
 
     def typical_seconds(self, domain: str) -> float | None:
         """Mean seconds a clip of ``domain`` took from submission to stored, in this process."""

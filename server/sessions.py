@@ -205,12 +205,8 @@ def _search(svc: Services, s: TuningSession, body: FeedbackCreate, feedback: Fee
                 made = generation.generated_row(svc, db, s.domain, rollout_id, state)
                 _record_step(db, moving, body, feedback, rollout_id, state, made)
                 shown = made or (generation.lookup(db, s.domain, rollout_id) if is_generated(rollout_id) else None)
-            if shown is None:
-                search.end()
-                _after_step(svc, moving, feedback)
-                return
-            clip = svc.clips.request(svc.clips.generated_key(s.domain, rollout_id),  # rendered now: the page
-                                     generation.rollout_of(svc, shown), urgent=True)  # asks for it next
+            clip = None if shown is None else svc.clips.request(  # rendered now: the page asks for it next
+                svc.clips.generated_key(s.domain, rollout_id), generation.rollout_of(svc, shown), urgent=True)
             search.end()
             _after_step(svc, moving, feedback, clip)
         except HTTPException as exc:

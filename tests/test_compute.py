@@ -21,8 +21,7 @@ from rba.clips import ClipCache
 from rba.compute import RenderJob, SimJob, Task, make_compute
 from rba.compute.base import CLIP_PARTS, joined
 from rba.compute.local import LocalCompute
-from rba.compute.tasks import render_whole
-from rba.domains import domain_target, get_domain
+from rba.domains import domain_target
 from rba.library import SkillLibrary, build_all, generate
 from rba.store import ClipStore
 
@@ -134,9 +133,11 @@ def test_simulate_keeps_the_jobs_order(local_compute):
 
 
 def test_a_generated_clip_is_rendered_in_parts_on_the_workers_and_joined(local_compute, tmp_path):
-    """Both workers render half the clip each; joined, it is every frame, the same bytes in any process. A
-    library clip (split 1) renders whole, as ``rba render`` makes it."""
+    """Both workers render half the clip each; joined, it is every frame, and the split, not the number of workers,
+    decides the bytes. A library clip (split 1) renders whole: the bytes ``rba render`` writes."""
     import imageio_ffmpeg
+
+    from rba.cli import main
 
     lib = SkillLibrary.load("walker", "serve")
     rollout = lib.rollout(2)
@@ -144,12 +145,15 @@ def test_a_generated_clip_is_rendered_in_parts_on_the_workers_and_joined(local_c
     half = len(rollout.replay) // 2
     assert [p.rows for p in job.parts()] == [(0, half), (half, len(rollout.replay))]
     clip = local_compute.render(job).future.result(120)
-    assert clip == render_whole(get_domain("walker"), rollout, 96, 72, split=CLIP_PARTS)
-    whole = RenderJob.of("walker", rollout, 96, 72)
-    assert [p.rows for p in whole.parts()] == [(0, len(rollout.replay))]
-    assert local_compute.render(whole).future.result(120) == render_whole(get_domain("walker"), rollout, 96, 72)
+    with LocalCompute(workers=1, nice=0) as one:  # the parts one after the other on one worker
+        assert one.render(job).future.result(120) == clip
     (tmp_path / "clip.mp4").write_bytes(clip)
     assert imageio_ffmpeg.count_frames_and_secs(str(tmp_path / "clip.mp4"))[0] == len(rollout.replay)
+    whole = RenderJob.of("walker", rollout, 96, 72)
+    assert [p.rows for p in whole.parts()] == [(0, len(rollout.replay))]
+    out = tmp_path / "cli.mp4"
+    assert main(["render", "walker", lib.ids[2], str(out), "--width", "96", "--height", "72"]) == 0
+    assert local_compute.render(whole).future.result(120) == out.read_bytes() != clip
 
 
 def _task() -> Task:

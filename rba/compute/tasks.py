@@ -99,15 +99,6 @@ def join_clips(*parts: bytes) -> bytes:
     return concat_mp4(list(parts))
 
 
-def render_whole(domain: Domain, rollout: Rollout, width: int, height: int, split: int = 1) -> bytes:
-    """The clip as the compute layer makes it (its ``split`` parts, joined), in the caller's process: the same bytes."""
-    from rba.compute.base import RenderJob
-    from rba.video import concat_mp4
-
-    parts = RenderJob(domain.name, rollout, width, height, split=split).parts()
-    return concat_mp4([_encode(domain, rollout, width, height, slice(*p.rows)) for p in parts])
-
-
 def _encode(domain: Domain, rollout: Rollout, width: int, height: int, frames: slice) -> bytes:
     from rba.video import encode_mp4
 

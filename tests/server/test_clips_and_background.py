@@ -229,9 +229,9 @@ def test_guesses_wait_while_someone_waits_on_the_compute_layer(fake_cache):
 def test_urgent_renders_in_flight_are_pending_by_version_a_guess_is_not(fake_cache):
     cache, compute, lib = fake_cache
     cache.request(cache.key(lib, "serve-00002"), lib, urgent=False)
-    assert not cache.urgent_pending()
+    assert not cache.urgent_pending(lib.version)  # a guess
     cache.request(cache.key(lib, "serve-00004"), lib, urgent=True)
-    assert cache.urgent_pending() and not cache.urgent_pending(GENERATED)  # a library clip, not a search's
+    assert cache.urgent_pending(lib.version) and not cache.urgent_pending(GENERATED)  # not a search's clip
     made = lib.rollout(5)
     made.id = "gen-0123456789abcdef"
     cache.request(cache.generated_key("toy", made.id), made, urgent=True)
@@ -239,7 +239,7 @@ def test_urgent_renders_in_flight_are_pending_by_version_a_guess_is_not(fake_cac
     assert [job.split for job in compute.jobs] == [1, 1, CLIP_PARTS]  # only the generated clip renders in parts
     for _, future in compute.submitted[-2:]:
         future.set_result(b"x")
-    assert not cache.urgent_pending() and not cache.urgent_pending(GENERATED)
+    assert not cache.urgent_pending(lib.version) and not cache.urgent_pending(GENERATED)
 
 
 def test_prerender_library_renders_every_serve_clip_once(make_settings, toy_roots, tmp_path):
