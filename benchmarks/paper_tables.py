@@ -36,13 +36,16 @@ import sys
 from pathlib import Path
 
 from rba.artifacts import ModelNotFoundError
+from rba.compute import make_compute
 from rba.domains import domain_names
 from rba.domains.base import EPSILON_FRACTIONS, ROBUST_QUANTILES
 from rba.evaluate import EvalResult, evaluate
+from rba.generate import Simulate
 from rba.interact import load_context
 from rba.interact.users import USER_KINDS, UserSpec, parse_user
 from rba.library import LibraryNotFoundError
 from rba.methods import methods
+from rba.settings import LibrarySettings
 from rba.storage import load_json, save_json, save_text
 
 log = logging.getLogger("paper_tables")
@@ -120,8 +123,11 @@ def _jobs(domain: str, label: str, precisions: list[str], labels: list[str],
 
 
 def run(domains: list[str], precisions: list[str], targets: int, seed: int, labels: list[str],
-        on_row=None, users: list[UserSpec] = ()) -> list[Row]:
-    """Evaluate every requested domain × method × precision (and teacher kind); ``on_row(rows so far)`` after each."""
+        on_row=None, users: list[UserSpec] = (), simulate: Simulate | None = None) -> list[Row]:
+    """Evaluate every requested domain × method × precision (and teacher kind); ``on_row(rows so far)`` after each.
+
+    ``simulate``: where generating rows simulate their candidates (``Compute.simulate``); None: this process.
+    Either way the same rollouts, so the same rows."""
     out = []
     for domain in domains:
         for method, rep, label, generate in METHODS:
@@ -135,7 +141,8 @@ def run(domains: list[str], precisions: list[str], targets: int, seed: int, labe
                 continue
             for user, precision in jobs:
                 r = evaluate(domain, method, rep, targets, seed, precision=precision, user=user, context=ctx,
-                             split=SPLIT, generate=generate)
+                             split=SPLIT, generate=generate,
+                             generate_options={"simulate": simulate} if generate and simulate else None)
                 log.info("%s %s %s %s: SR %.2f AF %s (%.0f s)", domain, label, precision, user, r.success_rate,
                          r.avg_feedback, r.seconds)
                 out.append((domain, label, r))
@@ -322,6 +329,9 @@ def _parser() -> argparse.ArgumentParser:
                          f"only rows of split {SPLIT!r} with the current ε")
     ap.add_argument("--report-only", action="store_true",
                     help="measure nothing: write the report from the --merge files (runs made in parallel)")
+    ap.add_argument("--gen-workers", type=int, default=1,
+                    help=f"local processes simulating {GENERATING}'s candidates (1: this process); the rows do "
+                         "not depend on it")
     ap.add_argument("--check", type=Path, metavar="REPORT_JSON",
                     help="re-measure and compare with this report instead of writing one; exit 1 if a row differs")
     return ap
@@ -349,12 +359,20 @@ def main(argv: list[str] | None = None) -> None:
         save_json(args.out.with_suffix(".json"), json_rows(rows))
         return text
 
-    measure = dict(targets=args.targets, seed=args.seed, labels=args.methods, users=args.users)
-    if args.check:
-        text, same = check(run(args.domains, args.precisions, **measure), args.check)
-        print(text)
-        sys.exit(0 if same else 1)
-    rows = [] if args.report_only else run(args.domains, args.precisions, **measure, on_row=write)
+    compute = None
+    if args.gen_workers > 1 and not args.report_only:
+        compute = make_compute(LibrarySettings(compute_workers=args.gen_workers))
+    measure = dict(targets=args.targets, seed=args.seed, labels=args.methods, users=args.users,
+                   simulate=compute.simulate if compute else None)
+    try:
+        if args.check:
+            text, same = check(run(args.domains, args.precisions, **measure), args.check)
+            print(text)
+            sys.exit(0 if same else 1)
+        rows = [] if args.report_only else run(args.domains, args.precisions, **measure, on_row=write)
+    finally:
+        if compute is not None:
+            compute.close()
     print(write(rows))
 
 
