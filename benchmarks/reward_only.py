@@ -7,6 +7,11 @@ seed, for the largest return Σ_t rθ(s_t | v*) of the simulated rollout: no pro
 searches is the skill prior's, from ``Domain.sample_params``). A profile is reproduced when the best
 parameters' measured attributes are within ε (``Domain.epsilons(serve proxies, "normal")``) of the profile's.
 
+``--ceiling`` runs the same search a second time with rθ replaced by what it was trained to rank by: the
+distance of a rollout's standardised ζσ (the ranker's) to v*. No reward learned from ζσ labels can do better
+than that, so its share bounds the reward-only share: a profile it misses lies where ζσ itself cannot tell
+the found behaviour from the chosen one within ε.
+
     python benchmarks/reward_only.py --domain walker     # 20 profiles from test sessions
 """
 
@@ -19,15 +24,21 @@ import platform
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import cma
 import numpy as np
+import torch
 
+from rba.artifacts import load_model
 from rba.domains import Domain, get_domain
 from rba.evaluate import simulate
-from rba.export import ExportSource, read_export, write_export
+from rba.export import Export, ExportSource, read_export, write_export
 from rba.interact import load_context, new_agent
+from rba.learn.common import Ragged
+from rba.learn.global_reward import GlobalReward
+from rba.learn.ranker import AttributeRanker
 from rba.library import HELD_OUT, SkillLibrary
 from rba.storage import save_report
 from rba.store import model_files
@@ -70,8 +81,31 @@ def profiles(args: argparse.Namespace, folder: Path) -> list[Path]:
     return out
 
 
-def search(path: Path, domain: Domain, box: tuple[np.ndarray, np.ndarray], budget: int, seed: int) -> dict:
-    """CMA-ES over the box (scaled to [0, 1]) maximising the export's return; the best params' attributes."""
+Loss = Callable[[Export, np.ndarray], float]  # (export, a rollout's states) -> what the search minimises
+
+
+def reward_loss(export: Export, states: np.ndarray) -> float:
+    """−Σ_t rθ(s_t | v*): the export's own reward, all the benchmark's search may see."""
+    return -export.reward.total(states)
+
+
+class ZetaLoss:
+    """‖standardised ζσ(τ) − v*‖: the ranking rθ was trained to reproduce (the ceiling's objective)."""
+
+    def __init__(self, ranker: AttributeRanker, reward: GlobalReward) -> None:
+        self.ranker, self.reward = ranker, reward
+
+    def __call__(self, export: Export, states: np.ndarray) -> float:
+        zeta = self.ranker.score(Ragged.from_numpy(states, np.array([0, len(states)])))
+        with torch.no_grad():
+            v = self.reward.zeta_norm(torch.as_tensor(zeta, dtype=torch.float32)).numpy()[0]
+        return float(np.linalg.norm(v - np.asarray(export.reward.condition["v_star"])))
+
+
+def search(path: Path, domain: Domain, box: tuple[np.ndarray, np.ndarray], budget: int, seed: int,
+           loss_of: Loss = reward_loss) -> dict:
+    """CMA-ES over the box (scaled to [0, 1]) minimising ``loss_of`` (by default: maximising the export's return);
+    the best params' attributes."""
     export = read_export(path)
     p, lo, hi = export.profile, *box
 
@@ -79,7 +113,7 @@ def search(path: Path, domain: Domain, box: tuple[np.ndarray, np.ndarray], budge
         return dict(zip(domain.param_names, (lo + np.clip(x, 0, 1) * (hi - lo)).tolist(), strict=True))
 
     def loss(x: np.ndarray) -> float:
-        return -export.reward.total(domain.rollout(params_of(np.asarray(x)), p.seed).states)
+        return loss_of(export, domain.rollout(params_of(np.asarray(x)), p.seed).states)
 
     es = cma.CMAEvolutionStrategy(np.full(len(lo), 0.5), 0.3,
                                   {"bounds": [0, 1], "maxfevals": budget, "seed": seed + 1, "verbose": -9})
@@ -91,13 +125,14 @@ def search(path: Path, domain: Domain, box: tuple[np.ndarray, np.ndarray], budge
     measured = domain.rollout(best, p.seed).proxies
     return {"profile": path.name, "rollout_id": p.rollout_id, "target": p.proxies, "found": measured,
             "params": best, "evaluations": int(es.result.evaluations), "seconds": round(time.perf_counter() - start, 1),
-            "return_found": -float(es.result.fbest),
+            "return_found": export.reward.total(domain.rollout(best, p.seed).states),
             "return_profile": export.reward.total(domain.rollout(p.params, p.seed).states)}
 
 
 def _search_once(path: Path, domain: Domain, box: tuple[np.ndarray, np.ndarray], args: argparse.Namespace,
-                 searched: dict[str, dict]) -> dict:
-    """``search``, or the result of an earlier profile that chose the same rollout: the same v*, seed and search.
+                 searched: dict[str, dict], ceiling: ZetaLoss | None) -> dict:
+    """``search`` (and with ``ceiling`` the ceiling's, under "ceiling"), or the result of an earlier profile that
+    chose the same rollout: the same v*, seed and search.
 
     Sessions often end on the same clip; its export's reward is rθ(· | ζσ of that clip), so the search would
     repeat itself exactly. The copy names the profile it repeats (``same_as``).
@@ -106,23 +141,40 @@ def _search_once(path: Path, domain: Domain, box: tuple[np.ndarray, np.ndarray],
     if rollout_id in searched:
         first = searched[rollout_id]
         return {**first, "profile": path.name, "same_as": first["profile"], "seconds": 0.0}
-    searched[rollout_id] = search(path, domain, box, args.budget, args.seed)
-    return searched[rollout_id]
+    r = search(path, domain, box, args.budget, args.seed)
+    if ceiling is not None:
+        c = search(path, domain, box, args.budget, args.seed, ceiling)
+        r["ceiling"] = {k: c[k] for k in ("found", "params", "evaluations", "seconds", "return_found")}
+    searched[rollout_id] = r
+    return r
+
+
+def _within(found: dict[str, float], target: dict[str, float], eps: np.ndarray) -> bool:
+    return bool(np.all(np.abs(np.array(list(found.values())) - np.array(list(target.values()))) <= eps))
+
+
+def _fmt(values: dict[str, float]) -> str:
+    return ", ".join(f"{k} {v:.3f}" for k, v in values.items())
 
 
 def markdown(report: dict) -> str:
-    rows = ["| profile | target | found | within ε | return: found / profile's params | rollouts |",
-            "|---|---|---|---|---|---|"]
+    ceiling = "ceiling_within" in report
+    head = "| profile | target | found | within ε | return: found / profile's params | rollouts |"
+    rows = [head + (" ceiling: found | within ε |" if ceiling else ""), "|---" * (8 if ceiling else 6) + "|"]
     for r in report["results"]:
-        fmt = lambda d: ", ".join(f"{k} {v:.3f}" for k, v in d.items())  # noqa: E731
-        rows.append(f"| {r['profile']} ({r['rollout_id']}) | {fmt(r['target'])} | {fmt(r['found'])} | "
-                    f"{'yes' if r['within'] else 'no'} | {r['return_found']:.2f} / {r['return_profile']:.2f} | "
-                    f"{r['evaluations']} |")
+        row = (f"| {r['profile']} ({r['rollout_id']}) | {_fmt(r['target'])} | {_fmt(r['found'])} | "
+               f"{'yes' if r['within'] else 'no'} | {r['return_found']:.2f} / {r['return_profile']:.2f} | "
+               f"{r['evaluations']} |")
+        if ceiling:
+            row += f" {_fmt(r['ceiling']['found'])} | {'yes' if r['ceiling']['within'] else 'no'} |"
+        rows.append(row)
     eps = ", ".join(f"{k} {v:.3f}" for k, v in report["epsilon"].items())
-    budget = report["args"]["budget"]
+    budget, n = report["args"]["budget"], len(report["results"])
+    bound = (f" The same search by ζσ distance to v* (the ceiling: what rθ was trained to rank by) finds them in "
+             f"**{report['ceiling_within']} of {n}** ({report['ceiling_within'] / max(n, 1):.0%})." if ceiling else "")
     return (f"# Reward-only search\n\nA search that sees only an export's rθ(s | v*) (CMA-ES, {budget}"
             f" rollouts) finds skill parameters within ε of the profile in **{report['within']} of "
-            f"{len(report['results'])}** profiles ({report['share']:.0%}).\n\n"
+            f"{n}** profiles ({report['share']:.0%}).{bound}\n\n"
             f"- Setting: {report['args']['domain']}, RBA-Global/{report['args']['rep']}, profiles from simulated "
             f"sessions on `{report['args']['split']}` targets (paper user, normal precision), ε = {eps}.\n"
             f"- Command: `{report['command']}` ({report['date']}, {report['machine']}).\n"
@@ -138,6 +190,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--split", choices=HELD_OUT, default="test", help="where the sessions' targets come from")
     p.add_argument("--budget", type=int, default=120, help="simulated rollouts per search")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--ceiling", action="store_true",
+                   help="search each profile again by ζσ distance to v* (what rθ was trained to rank by): the bound "
+                        "on what any reward learned from the same labels can find")
     p.add_argument("--out", type=Path, default=None, help="writes <out>.json and <out>.md; default "
                    "benchmarks/results/reward_only_<domain>")
     args = p.parse_args(argv)
@@ -154,13 +209,16 @@ def main(argv: list[str] | None = None) -> int:
            "machine": f"{os.cpu_count()} cores, {platform.machine()}, Python {platform.python_version()}"}
     eps = domain.epsilons(SkillLibrary.load(args.domain, "serve").proxies, "normal")
     box = prior_box(domain, args.seed)
+    ceiling = (ZetaLoss(load_model(args.domain, "ranker", args.rep).model,
+                        load_model(args.domain, "global_reward", args.rep).model) if args.ceiling else None)
     with tempfile.TemporaryDirectory(prefix="rba-reward-only-") as folder:
         paths = profiles(args, Path(folder))
         results, searched = [], {}  # rollout id -> its first profile's result
         for path in paths:
-            r = _search_once(path, domain, box, args, searched)
-            r["within"] = bool(np.all(np.abs(np.array(list(r["found"].values()))
-                                             - np.array(list(r["target"].values()))) <= eps))
+            r = _search_once(path, domain, box, args, searched, ceiling)
+            r["within"] = _within(r["found"], r["target"], eps)
+            if "ceiling" in r:
+                r["ceiling"] = {**r["ceiling"], "within": _within(r["ceiling"]["found"], r["target"], eps)}
             log.info("%s: within ε %s after %d rollouts (%.0f s)", path.name, r["within"], r["evaluations"],
                      r["seconds"])
             results.append(r)
@@ -168,6 +226,8 @@ def main(argv: list[str] | None = None) -> int:
     report = {**run, "args": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
               "epsilon": dict(zip(domain.attribute_names, eps.tolist(), strict=True)), "results": results,
               "within": within, "share": within / len(results) if results else 0.0}
+    if ceiling is not None:
+        report["ceiling_within"] = sum(r["ceiling"]["within"] for r in results)
     save_report(args.out, report, markdown(report))
     log.info("wrote %s.json and %s.md", args.out, args.out)
     return 0

@@ -27,3 +27,30 @@ def test_reports_every_profile_and_searches_each_chosen_rollout_once(toy_roots, 
             firsts[r["rollout_id"]] = r
     assert len(firsts) < len(results)  # toy sessions (seed 0) end twice on one clip: the copy was taken
     assert f"in **{report['within']} of 6** profiles" in out.with_suffix(".md").read_text()
+
+
+def test_ceiling_searches_by_zeta_distance_to_the_profiles_target(toy_roots, monkeypatch, tmp_path):
+    """The ceiling's objective is zero at the profile's own rollout (v* is its ζσ) and positive elsewhere; each
+    profile reports the ceiling's find, and the report its share."""
+    from rba.artifacts import load_model
+    from rba.domains import get_domain
+    from rba.export import read_export
+
+    monkeypatch.setenv("RBA_DATA_DIR", str(toy_roots[0]))
+    monkeypatch.setenv("RBA_MODELS_DIR", str(toy_roots[1]))
+    out = tmp_path / "r"
+    assert reward_only.main(["--domain", "toy", "--profiles", "3", "--budget", "12", "--ceiling",
+                             "--out", str(out)]) == 0
+    report = json.loads(out.with_suffix(".json").read_text())
+    assert report["ceiling_within"] == sum(r["ceiling"]["within"] for r in report["results"])
+    assert all(r["ceiling"]["evaluations"] >= 12 for r in report["results"])
+    assert f"finds them in **{report['ceiling_within']} of 3**" in out.with_suffix(".md").read_text()
+
+    args = reward_only.parse_args(["--domain", "toy", "--profiles", "1"])
+    (path,) = reward_only.profiles(args, tmp_path)
+    export, domain = read_export(path), get_domain("toy")
+    loss = reward_only.ZetaLoss(load_model("toy", "ranker", "onehot").model,
+                                load_model("toy", "global_reward", "onehot").model)
+    own = domain.rollout(export.profile.params, export.profile.seed).states
+    other = domain.rollout(domain.sample_params(__import__("numpy").random.default_rng(5)), export.profile.seed)
+    assert loss(export, own) < 1e-4 < loss(export, other.states)
