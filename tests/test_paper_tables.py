@@ -180,3 +180,45 @@ def test_the_generating_row_sits_below_rba_global_and_generates(gap_roots, monke
     assert rows[0][2].generation is None and set(rows[1][2].generation) >= {"searches", "simulations", "shown"}
     text = paper_tables.markdown(rows, ["toy"], ["normal"], 2, 0, 1.0)
     assert text.index("| toy | RBA-Global |") < text.index("| toy | RBA-Global+gen |")
+
+
+README_DOMAINS = {"walker": "walker", "manipulator": "manipulator", "snake": "snake", "lane change": "lane_change"}
+
+
+def _readme_tables() -> list[tuple[str, list[str], list[list[str]]]]:
+    """(precision, column domains, rows of cells) of each results table in the README's Results section."""
+    section = (REPO_ROOT / "README.md").read_text().split("## Results", 1)[1].split("\n## ", 1)[0]
+    tables, precision = [], None
+    for block in section.split("\n\n"):
+        first = block.strip().splitlines()[0] if block.strip() else ""
+        if first.startswith(("Normal precision", "High precision")):
+            precision = "normal" if first.startswith("Normal") else "high"
+        elif first.startswith("| method |"):
+            lines = [[c.strip() for c in line.strip().strip("|").split("|")] for line in block.strip().splitlines()]
+            tables.append((precision, [README_DOMAINS[c] for c in lines[0][1:]], lines[2:]))
+    return tables
+
+
+def test_readme_results_say_what_the_report_says():
+    """Every SR / AF in the README's results tables is the report's row, and every paper number the paper's: a
+    re-measured report with a README left behind fails here."""
+    report = {(r["domain"], r["label"], r["precision"]): r
+              for r in json.loads((REPO_ROOT / "benchmarks/results/paper_tables.json").read_text())
+              if r["user"] == paper_tables.PAPER_USER}
+    tables = _readme_tables()
+    assert [p for p, *_ in tables] == ["normal", "high"]
+    checked = 0
+    for precision, domains, rows in tables:
+        for cells in rows:
+            label = cells[0].split(" (")[0]
+            for domain, cell in zip(domains, cells[1:], strict=True):
+                ours, _, paper = cell.partition(" (")
+                row = report[(domain, label, precision)]
+                assert ours == paper_tables._cell(row["success_rate"], row["avg_feedback"], 0.0).split(" (")[0], \
+                    (domain, label, precision)
+                if paper:
+                    sr, af, _ = paper_tables.PAPER[precision][domain][paper_tables.PAPER_LABELS.index(label)]
+                    want = f"{sr:.2f} / " + ("–" if af is None else f"{af:.2f}")
+                    assert paper.rstrip(")").removeprefix("paper ") == want, (domain, label, precision)
+                checked += 1
+    assert checked >= 30
