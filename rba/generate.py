@@ -69,8 +69,9 @@ class SearchConfig:
     """How hard to search: ``budget`` simulations in generations of ``popsize``; seeded.
 
     ``seconds`` bounds a search in time as well (the app: someone waits for the clip): no generation starts
-    that the mean of those before it says would end later than that after the search began; the first always
-    runs. A search so bounded depends on the machine's speed; ``rba eval`` leaves it off unless asked.
+    that the mean of those before it says would end later than that after the search began, and one running
+    past it ends with the candidates simulated by then (once one of them succeeded; the others are not waited
+    for). A search so bounded depends on the machine's speed; ``rba eval`` leaves it off unless asked.
     """
 
     budget: int = 48
@@ -114,6 +115,24 @@ def _out_of_time(elapsed: float, generations: int, seconds: float | None) -> boo
     return seconds is not None and elapsed * (generations + 1) / generations > seconds
 
 
+def _simulate_until(simulate: Simulate, jobs: list[SimJob], deadline: float) -> list[Rollout]:
+    """The jobs' rollouts in order, or those before the first to arrive after ``deadline`` (``perf_counter``)
+    once one succeeded: closing the stream cancels the jobs not started (a slow candidate, e.g. a snake
+    that swims its whole horizon, must not hold the clip a person waits for)."""
+    rollouts: list[Rollout] = []
+    stream = iter(simulate(jobs))
+    try:
+        for rollout in stream:
+            rollouts.append(rollout)
+            if time.perf_counter() > deadline and any(r.success for r in rollouts):
+                break
+    finally:
+        close = getattr(stream, "close", None)
+        if close is not None:
+            close()
+    return rollouts
+
+
 def search(domain: str, starts: list[dict[str, float]], objective: Objective, simulate: Simulate = in_process,
            config: SearchConfig = SearchConfig(), on_progress: Progress | None = None) -> Generation:
     """CMA-ES from ``starts`` (best first: library clips' parameters) to the candidate minimising ``objective``.
@@ -130,12 +149,15 @@ def search(domain: str, starts: list[dict[str, float]], objective: Objective, si
         "bounds": [0.0, 1.0], "popsize": config.popsize, "seed": math.nan,  # nan: leave numpy's global seed alone
         "randn": lambda *shape: rng.standard_normal(shape), "verbose": -9, "verb_log": 0, "verb_disp": 0})
     best, best_f, done, clock = None, math.inf, 0, time.perf_counter()
+    deadline = clock + (config.seconds if config.seconds is not None else math.inf)
     for k in range(config.generations):
         units = es.ask()
         params = [space.from_unit(u, starts[0]) for u in units]
-        rollouts = list(simulate([SimJob(target, p, config.sim_seed) for p in params]))
+        rollouts = _simulate_until(simulate, [SimJob(target, p, config.sim_seed) for p in params], deadline)
         f = np.where([r.success for r in rollouts], objective(rollouts), FAILED)
-        es.tell(units, f.tolist())
+        cut = len(rollouts) < len(units)  # out of time within the generation: CMA-ES is told nothing more
+        if not cut:
+            es.tell(units, f.tolist())
         done += len(rollouts)
         i = int(np.argmin(f))
         if f[i] < best_f and rollouts[i].success:
@@ -145,7 +167,7 @@ def search(domain: str, starts: list[dict[str, float]], objective: Objective, si
             on_progress(k + 1, config.generations)
         if config.good_enough is not None and best_f <= config.good_enough:
             break
-        if _out_of_time(time.perf_counter() - clock, k + 1, config.seconds):
+        if cut or _out_of_time(time.perf_counter() - clock, k + 1, config.seconds):
             break
     seconds = time.perf_counter() - clock
     log.info("%s: generated %s (objective %.4f) from %d simulations in %.2f s", domain,

@@ -51,7 +51,8 @@ class Settings(LibrarySettings):
                                           "threshold is missed; default: rba.interact.generating.SPREAD (1.0)")
     generate_seconds: float = Field(default=GENERATE_SECONDS, gt=0, allow_inf_nan=False,
                                     description="a search stops before a CMA-ES generation that would end later "
-                                    "than this many seconds after the search began (the first always runs); with "
+                                    "than this many seconds after the search began, and one running past it ends with "
+                                    "the candidates simulated by then (rba.generate.SearchConfig); with "
                                     "2 s the new clip played p95 2.4-4.1 s after the answer on 2 cores "
                                     "(benchmarks/results/generation_latency.md); a large value leaves the "
                                     "48-simulation budget alone to bound it")

@@ -107,6 +107,28 @@ def test_a_search_bounded_in_time_stops_before_a_generation_that_would_end_late(
     assert unbounded.generations == 4 and unbounded.simulations == 32
 
 
+def test_a_generation_running_past_the_bound_ends_with_what_was_simulated_by_then(ctx, gap_roots):
+    """One slow generation cannot hold the clip: the search shows the best candidate that arrived in time
+    and does not wait for (or start) the rest; without a bound every candidate is simulated."""
+    start = dict(zip(ctx.serve.param_names, map(float, ctx.serve.params[0]), strict=True))
+    dist = _gen(ctx, gap_roots).distance(ctx.serve_zeta[0] + 0.1)
+    started: list[int] = []
+
+    def slow(jobs):  # each candidate takes 0.1 s, one after another: 8 take 0.8 s
+        for i, rollout in enumerate(in_process(jobs)):
+            started.append(i)
+            time.sleep(0.1)
+            yield rollout
+
+    bounded = search("toy", [start], dist, slow, SearchConfig(budget=32, popsize=8, seconds=0.25))
+    assert bounded.generations == 1 and 3 <= bounded.simulations <= 4 and bounded.rollout is not None
+    assert len(started) == bounded.simulations  # the stream was closed: the rest were never simulated
+    assert bounded.seconds < 0.6
+    started.clear()
+    unbounded = search("toy", [start], dist, slow, SearchConfig(budget=16, popsize=8))
+    assert unbounded.simulations == len(started) == 16
+
+
 def test_fixed_parameters_keep_the_start_clips_value(ctx, gap_roots, monkeypatch):
     monkeypatch.setattr(Toy, "param_space",
                         lambda self: ParamSpace.box({"amplitude": (0.2, 2.0), "pace": (0.5, 3.0)}, frozenset({"pace"})))
@@ -290,7 +312,8 @@ def test_cli_gen_seconds_option(gap_roots, monkeypatch, capsys, tmp_path):
     assert main(["eval", "--domain", "toy", "--targets", "2", "--gen-workers", "1", "--gen-budget", "16",
                  "--gen-spread", "0", "--gen-seconds", "1e-9", "--json", str(out)]) == 0
     generation = json.loads(out.read_text())["generation"]
-    assert generation["searches"] > 0 and generation["simulations"] == 8 * generation["searches"]  # one generation
+    # out of time at once: each search ends at its first finished candidate, not after a whole generation of 8
+    assert 0 < generation["searches"] <= generation["simulations"] < 8 * generation["searches"]
     for bad in ("0", "inf", "soon"):
         with pytest.raises(SystemExit) as exit_:
             main(["eval", "--domain", "toy", "--gen-seconds", bad])

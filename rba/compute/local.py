@@ -108,9 +108,12 @@ class LocalCompute(Compute):
         return self.workers
 
     def simulate(self, jobs: Iterable[SimJob]) -> Iterator[Rollout]:
+        """In chunks of up to ``SIM_CHUNK`` for a library; one by one for a search's few candidates, whose
+        simulations differ in length (a chunk of slow ones on one worker would keep the other idle)."""
         jobs = list(jobs)
+        chunk = max(1, min(SIM_CHUNK, len(jobs) // (SIM_CHUNK * self.workers)))
         yield from self._urgent.executor.map(tasks.simulate, [j.target for j in jobs], [j.params for j in jobs],
-                                             [j.seed for j in jobs], chunksize=SIM_CHUNK)
+                                             [j.seed for j in jobs], chunksize=chunk)
 
     def render(self, job: RenderJob, urgent: bool = True) -> Task:
         """The clip's parts on the pool's workers at once, joined on one of them."""
