@@ -39,7 +39,7 @@ PAPER = {
     ("local", "language"): (0.90, 5.16, 3.08),
     ("pbrl", "onehot"): (1.0, 84.6, 79.87),
 }
-LABELS = {(m.name, rep): m.label_for(rep) for m in methods() for rep in m.run_reps}
+LABELS = {(m.name, rep): m.label_for(rep) for m in methods(include_reference=True) for rep in m.run_reps}
 
 
 def _af(r: EvalResult) -> str:
