@@ -9,7 +9,7 @@ parallel and be combined). Writes ``benchmarks/results/beyond_range.md`` and ``.
 
     python benchmarks/beyond_range.py --domains walker manipulator snake lane_change
     python benchmarks/beyond_range.py --domains snake --modes gen   # re-measure one row, keep the rest
-    python benchmarks/beyond_range.py --domains snake --modes gen --gen-seconds 1   # searches bounded as the app's
+    python benchmarks/beyond_range.py --domains snake --modes gen --gen-seconds 2   # searches bounded as the app's
 """
 
 from __future__ import annotations

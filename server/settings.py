@@ -9,7 +9,7 @@ from pydantic import Field, model_validator
 from rba.settings import LibrarySettings
 from rba.store import Store
 
-GENERATE_SECONDS = 1.0  # a search's time bound: on val, SR as with the whole budget (generation_seconds_val.md)
+GENERATE_SECONDS = 2.0  # a search's time bound: the shortest that kept SR on val (generation_seconds_val.md)
 
 
 class Settings(LibrarySettings):
@@ -43,7 +43,7 @@ class Settings(LibrarySettings):
     generate: bool = Field(default=False, description="RBA-Global sessions make a new behaviour (a CMA-ES "
                            "search on the compute layer) when no serve clip is near the agent's target; a session "
                            "may ask otherwise at creation (`generate`). Off by default: a search makes the person wait "
-                           "(p95 1.2-2.4 s on 2 cores where it searches, benchmarks/results/generation_latency.md)")
+                           "(p95 1.7-2.4 s on 2 cores where it searches, benchmarks/results/generation_latency.md)")
     generate_spread: float | None = Field(default=None, ge=0, description="a generating session searches only "
                                           "where the serve clip misses the agent's target by more than this share of "
                                           "its belief's half interquartile range (and the threshold): early answers, "
@@ -52,9 +52,9 @@ class Settings(LibrarySettings):
     generate_seconds: float = Field(default=GENERATE_SECONDS, gt=0, allow_inf_nan=False,
                                     description="a search stops before a CMA-ES generation that would end later "
                                     "than this many seconds after the search began, and one running past it ends with "
-                                    "the candidates simulated by then (rba.generate.SearchConfig); with 1 s "
-                                    "the new clip played p95 1.5 s (walker) to 2.4 s (snake) after the answer on 2 "
-                                    "cores (benchmarks/results/generation_latency.md); a large value leaves the "
+                                    "the candidates simulated by then (rba.generate.SearchConfig); with 2 s "
+                                    "the new clip played p95 1.7 s (manipulator) to 2.4 s (snake) after the answer on "
+                                    "2 cores (benchmarks/results/generation_latency.md); a large value leaves the "
                                     "48-simulation budget alone to bound it")
     warm_start: bool = Field(default=True, description="load models and render first clips after start-up")
     replica: str | None = Field(default=None, max_length=120, description="this server's name among the API "

@@ -114,9 +114,9 @@ def test_by_default_a_first_answer_shows_a_serve_clip_at_once(gen_settings):
 
 
 def test_a_search_stops_at_its_seconds(gen_settings):
-    """``generate_seconds`` (default 1 s): no generation starts that would end after it (the first
+    """``generate_seconds`` (default 2 s): no generation starts that would end after it (the first
     is cut short once a candidate arrived late: rba.generate's own tests)."""
-    assert Settings.model_fields["generate_seconds"].default == GENERATE_SECONDS == 1.0
+    assert Settings.model_fields["generate_seconds"].default == GENERATE_SECONDS == 2.0
     for bad in ("0", "inf", "nan"):
         with pytest.raises(ValidationError, match="generate_seconds"):
             Settings(generate_seconds=bad)
