@@ -20,6 +20,9 @@ from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
+from paper_tables import PAPER as PAPER_TABLES  # a sibling script, on sys.path when run as one
+from paper_tables import PAPER_LABELS
+
 from rba.artifacts import ModelNotFoundError, load_model
 from rba.evaluate import EvalResult, evaluate
 from rba.interact import load_context
@@ -31,14 +34,8 @@ from rba.training import LocalTrainConfig, train_local
 log = logging.getLogger("walker_methods")
 
 RESULTS = Path(__file__).resolve().parent / "results"
-# Paper Table 1, walker column: SR, AF, std of AF
-PAPER = {
-    ("global", "onehot"): (1.0, 3.75, 1.47),
-    ("global", "language"): (0.95, 3.78, 2.25),
-    ("local", "onehot"): (0.95, 5.47, 3.52),
-    ("local", "language"): (0.90, 5.16, 3.08),
-    ("pbrl", "onehot"): (1.0, 84.6, 79.87),
-}
+# Paper Table 1, walker column, by row label: (SR, AF, std of AF); paper_tables keeps every table of the paper
+PAPER = dict(zip(PAPER_LABELS, PAPER_TABLES["normal"]["walker"], strict=True))
 LABELS = {(m.name, rep): m.label_for(rep) for m in methods(include_reference=True) for rep in m.run_reps}
 
 
@@ -46,10 +43,10 @@ def _af(r: EvalResult) -> str:
     return "–" if r.avg_feedback is None else f"{r.avg_feedback:.2f} ({r.std_feedback:.2f})"
 
 
-def _paper(method: str, rep: str, user: str) -> tuple[str, str]:
-    if user != "paper" or (method, rep) not in PAPER:
+def _paper(label: str, user: str) -> tuple[str, str]:
+    if user != "paper" or label not in PAPER:
         return "", ""
-    sr, af, sd = PAPER[(method, rep)]
+    sr, af, sd = PAPER[label]
     return f"{sr:.2f}", f"{af:.2f} ({sd:.2f})"
 
 
@@ -143,7 +140,7 @@ def main(argv: list[str] | None = None) -> int:
         "|---|---|---|---|---|---|---|---|",
     ]
     for label, r in rows:
-        psr, paf = _paper(r.method, r.rep, r.user)
+        psr, paf = _paper(label, r.user)
         rep = r.rep if get_method(r.method).reps else "–"
         lines.append(f"| {label} | {rep} | {r.user} | {r.success_rate:.2f} | {_af(r)} | "
                      f"{psr} | {paf} | {r.seconds:.0f} |")

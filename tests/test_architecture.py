@@ -1,17 +1,14 @@
 """The shape rules of docs/ARCHITECTURE.md, checked on the source: imports run one way, no cycles, short functions."""
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import pytest
 
+from tests.benchmark_scripts import load_benchmark
+
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
-spec = importlib.util.spec_from_file_location("code_shape", REPO_ROOT / "benchmarks" / "code_shape.py")
-code_shape = importlib.util.module_from_spec(spec)
-sys.modules[spec.name] = code_shape  # dataclasses look their module up
-spec.loader.exec_module(code_shape)
+code_shape = load_benchmark("code_shape")
 
 MAX_FUNCTION_LINES = 60
 

@@ -1,15 +1,12 @@
 """benchmarks/beyond_range.py on the toy domain: both modes on the same targets, earlier rows kept."""
 
-import importlib.util
 import json
 
 import pytest
 
-from rba.settings import REPO_ROOT
+from tests.benchmark_scripts import load_benchmark
 
-spec = importlib.util.spec_from_file_location("beyond_range", REPO_ROOT / "benchmarks" / "beyond_range.py")
-beyond_range = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(beyond_range)
+beyond_range = load_benchmark("beyond_range")
 
 
 def test_measures_both_modes_and_keeps_rows_of_the_same_setting(toy_roots, monkeypatch, tmp_path, capsys):

@@ -1,21 +1,18 @@
 """benchmarks/clip_parts.py, tiny: both ways measured on the same clips, every frame counted in the joined clips."""
 
-import importlib.util
 import json
 import sys
 
 import pytest
 
 from rba.settings import REPO_ROOT
+from tests.benchmark_scripts import load_benchmark
 
 
 @pytest.fixture
 def clip_parts(monkeypatch):
     monkeypatch.syspath_prepend(str(REPO_ROOT / "benchmarks"))  # it imports api_load's helpers, as when run
-    spec = importlib.util.spec_from_file_location("clip_parts", REPO_ROOT / "benchmarks" / "clip_parts.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    yield module
+    yield load_benchmark("clip_parts")
     sys.modules.pop("api_load", None)
 
 

@@ -1,14 +1,11 @@
 """benchmarks/label_noise.py: the full-preset ζσ cards listed beside the grid (pairwise only, first folder wins)."""
 
-import importlib.util
 
 from rba.domains import get_domain
-from rba.settings import REPO_ROOT
 from rba.storage import save_json
+from tests.benchmark_scripts import load_benchmark
 
-spec = importlib.util.spec_from_file_location("label_noise", REPO_ROOT / "benchmarks" / "label_noise.py")
-label_noise = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(label_noise)
+label_noise = load_benchmark("label_noise")
 
 
 def _card(folder, domain: str, mode: str, accuracy: float) -> None:

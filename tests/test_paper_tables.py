@@ -1,7 +1,6 @@
 """benchmarks/paper_tables.py: merging (a re-measured row replaces the merged one; stale rows are refused), the
 headline order, the teacher-kind tables, the state views, the labels link and ``--check``."""
 
-import importlib.util
 import json
 
 import pytest
@@ -9,10 +8,9 @@ import pytest
 from rba.evaluate import EvalResult
 from rba.settings import REPO_ROOT
 from rba.storage import save_json
+from tests.benchmark_scripts import load_benchmark
 
-spec = importlib.util.spec_from_file_location("paper_tables", REPO_ROOT / "benchmarks" / "paper_tables.py")
-paper_tables = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(paper_tables)
+paper_tables = load_benchmark("paper_tables")
 
 
 def _result(domain: str, precision: str, sr: float, user: str = "paper", method: str = "global") -> EvalResult:

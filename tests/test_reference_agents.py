@@ -13,7 +13,7 @@ from rba.interact.reference import OracleAgent, RandomAgent, ReferenceContext
 from rba.interact.users import SKIP, MyopicUser, SimulatedUser
 from rba.library import SkillLibrary
 from rba.methods import get_method, methods
-from rba.settings import REPO_ROOT
+from tests.benchmark_scripts import load_benchmark
 from tests.toy import Toy
 
 
@@ -88,11 +88,7 @@ def test_reference_rows_run_in_eval_but_the_web_app_does_not_offer_them():
 
 
 def test_paper_tables_put_the_floor_first_the_ceiling_last_and_high_precision_first():
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("paper_tables", REPO_ROOT / "benchmarks" / "paper_tables.py")
-    paper_tables = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(paper_tables)
+    paper_tables = load_benchmark("paper_tables")
     assert paper_tables.LABELS[0] == "Random" and paper_tables.LABELS[-1] == "Oracle"
     assert "RBA-Global" in paper_tables.LABELS[1:-1] and paper_tables.PRECISIONS[0] == "high"
 

@@ -1,13 +1,10 @@
 """benchmarks/reward_only.py on the toy domain: every profile is reported, a repeated one is not searched again."""
 
-import importlib.util
 import json
 
-from rba.settings import REPO_ROOT
+from tests.benchmark_scripts import load_benchmark
 
-spec = importlib.util.spec_from_file_location("reward_only", REPO_ROOT / "benchmarks" / "reward_only.py")
-reward_only = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(reward_only)
+reward_only = load_benchmark("reward_only")
 
 
 def test_reports_every_profile_and_searches_each_chosen_rollout_once(toy_roots, monkeypatch, tmp_path):

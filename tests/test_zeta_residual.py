@@ -1,13 +1,10 @@
 """benchmarks/zeta_residual.py: a tighter ε can only lower the share of ζσ-near clips that satisfy the user;
 moved parameters move ζσ."""
 
-import importlib.util
 
-from rba.settings import REPO_ROOT
+from tests.benchmark_scripts import load_benchmark
 
-spec = importlib.util.spec_from_file_location("zeta_residual", REPO_ROOT / "benchmarks" / "zeta_residual.py")
-zeta_residual = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(zeta_residual)
+zeta_residual = load_benchmark("zeta_residual")
 
 
 def test_high_precision_hits_fewer_and_spreads_wider_in_epsilon_units():
