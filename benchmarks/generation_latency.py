@@ -34,7 +34,7 @@ from rba.interact import SATISFIED
 from rba.interact.users import parse_user
 from rba.library import SkillLibrary
 from rba.storage import save_report
-from server.settings import GENERATE_SECONDS
+from server.settings import GENERATE_SECONDS, GENERATE_SECONDS_OTHERS
 
 RESULTS = Path(__file__).resolve().parents[1] / "benchmarks" / "results"
 DOMAINS = ("walker", "manipulator", "lane_change", "snake")
@@ -146,7 +146,7 @@ def markdown(report: dict) -> str:
              f"{report['load'][0]:.2f} → {report['load'][1]:.2f}", "",
              __doc__.split("\n\n")[1].replace("\n", " "), ""]
     for bound in report["bounds"]:
-        lines += [f"## Searches bounded at {bound['bound_s']:g} s (`RBA_GENERATE_SECONDS`)", "",
+        lines += [f"## Searches bounded at {bound_text(bound['bound_s'])}", "",
                   "| domain | sessions (satisfied) | answers that searched: n, p50 / p95 / max (s) | their search "
                   "alone, p95 (s) | showed a generated clip | other answers: n, p50 / p95 (s) | errors |",
                   "|---|---:|---:|---:|---:|---:|---:|"]
@@ -162,6 +162,19 @@ def markdown(report: dict) -> str:
     return "\n".join(lines)
 
 
+def bound_text(bound: float | None) -> str:
+    """How a table's searches were bounded: one value for every domain, or the server's per-domain default."""
+    if bound is not None:
+        return f"{bound:g} s (`RBA_GENERATE_SECONDS`)"
+    named = ", ".join(f"{d} {s:g} s" for d, s in GENERATE_SECONDS.items())
+    return f"the default bounds ({named}, others {GENERATE_SECONDS_OTHERS:g} s: `server.settings.GENERATE_SECONDS`)"
+
+
+def bound_arg(text: str) -> float | None:
+    """``--search-seconds``: a number of seconds for every domain, or ``default`` (the server's per domain)."""
+    return None if text == "default" else seconds_arg(text)
+
+
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--domains", nargs="+", default=list(DOMAINS), choices=DOMAINS)
@@ -170,9 +183,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--poll", type=float, default=0.05, help="seconds between polls of a running search")
     p.add_argument("--watch", type=float, default=1.0, help="seconds a person watches a clip before answering "
                    "(the page unlocks the answers after 1 s of playing)")
-    p.add_argument("--search-seconds", type=seconds_arg, nargs="+", default=[GENERATE_SECONDS],
-                   help="RBA_GENERATE_SECONDS for the server, one server (and table) each, in turn; default: the "
-                        "server's own (server.settings.GENERATE_SECONDS)")
+    p.add_argument("--search-seconds", type=bound_arg, nargs="+", default=[None],
+                   help="RBA_GENERATE_SECONDS for the server, one server (and table) each, in turn: seconds, or "
+                        "'default' for the server's own per domain (server.settings.GENERATE_SECONDS); default: "
+                        "default")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, default=RESULTS / "generation_latency", help="writes <out>.json and <out>.md")
     args = p.parse_args(argv)
@@ -182,8 +196,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return args
 
 
-def run_bound(bound: float, args: argparse.Namespace) -> dict:
-    """Every domain's sessions on a fresh server whose searches stop at ``bound`` seconds."""
+def run_bound(bound: float | None, args: argparse.Namespace) -> dict:
+    """Every domain's sessions on a fresh server whose searches stop at ``bound`` seconds (None: its default)."""
     with tempfile.TemporaryDirectory(prefix="rba-genlat-") as tmp:
         server = LiveServer(ServerOptions(prerender=True, generate=True, generate_seconds=bound),
                             Path(tmp), Path(tmp) / "clips")

@@ -8,10 +8,15 @@ that are also within ε on every attribute: the chance that a clip at the right 
 1 / share is about the rounds spent once the belief has converged. ``--local N`` also asks whether a search
 that stays near a shown clip could keep its residual (and so let bisection absorb it as an offset): N val
 clips are re-simulated with their parameters moved a little (Gaussian steps in the unit parameter box, the
-clip's own seed), and the report gives how much of the residual survives the move. A tuning measurement:
-never on test. Writes ``benchmarks/results/zeta_residual.md`` and ``.json``.
+clip's own seed), and the report gives how much of the residual survives the move. ``--generated N`` asks
+whether a clip *made* for a ζσ target satisfies as often as a library clip at that ζσ: for N val clips, the
+search the generating agent runs (``rba.generate.search`` from the nearest serve clips, ζσ distance, stopping
+within the threshold) for the clip's own ζσ, and the share of the clips it made within the threshold that are
+within ε of the val clip's proxies, against the serve clips within the threshold for the same targets (a search
+optimises ζσ, so it may find where ζσ errs). A tuning measurement: never on test. Writes
+``benchmarks/results/zeta_residual.md`` and ``.json``.
 
-    python benchmarks/zeta_residual.py --domains walker manipulator snake lane_change --local 40
+    python benchmarks/zeta_residual.py --domains walker manipulator snake lane_change --local 40 --generated 40
 """
 
 from __future__ import annotations
@@ -27,9 +32,9 @@ from sklearn.isotonic import IsotonicRegression
 
 from rba.artifacts import load_model
 from rba.domains import domain_target, get_domain, load_domain
-from rba.generate import ZetaDistance
+from rba.generate import SearchConfig, ZetaDistance, search
 from rba.interact import load_context
-from rba.interact.generating import THRESHOLD
+from rba.interact.generating import STARTS, THRESHOLD
 from rba.library import SkillLibrary
 from rba.storage import save_text
 
@@ -37,8 +42,10 @@ RESULTS = Path(__file__).resolve().parent / "results"
 STEPS = (0.01, 0.03, 0.1)  # std of the parameter moves, in units of each free parameter's range
 
 
-def measure(domain: str, rep: str, precisions: list[str], local: int = 0, seed: int = 0) -> list[dict]:
-    """One row per precision, from one load of the models and libraries (and ``local`` clips moved)."""
+def measure(domain: str, rep: str, precisions: list[str], local: int = 0, seed: int = 0,
+            generated: int = 0) -> list[dict]:
+    """One row per precision, from one load of the models and libraries (and ``local`` clips moved, and
+    ``generated`` searches)."""
     ctx = load_context(domain, "global", rep)
     val = SkillLibrary.load(domain, "val")
     ranker = load_model(domain, "ranker", rep).model
@@ -48,12 +55,15 @@ def measure(domain: str, rep: str, precisions: list[str], local: int = 0, seed: 
     fits = [IsotonicRegression(out_of_bounds="clip").fit(ctx.serve_zeta[:, a], ctx.serve.proxies[:, a])
             for a in range(len(ctx.attribute_names))]
     moved = _moved(domain, val, local, seed) if local else []
+    made = _made(domain, ctx, ranker, val_zeta, scale, generated, seed) if generated else []
     rows = []
     for p in precisions:
         eps = get_domain(domain).epsilons(ctx.serve.proxies, p)
         row = _row(domain, rep, p, ctx, val, val_zeta, near, fits, eps)
         if moved:
             row["local"] = _local(ctx, ranker, fits, eps, scale, moved)
+        if made:
+            row["generated"] = _generated(ctx, val, near, eps, made)
         rows.append(row)
     return rows
 
@@ -78,6 +88,34 @@ def _moved(domain: str, val: SkillLibrary, clips: int, seed: int) -> list[tuple[
                 pairs.append((r, moved))
         out.append(([a for a, _ in pairs], [b for _, b in pairs]))
     return out
+
+
+def _made(domain: str, ctx, ranker, val_zeta: np.ndarray, scale: np.ndarray, n: int, seed: int) -> list[tuple]:
+    """For ``n`` val clips: (index, ζσ distance reached, proxies) of the clip a search made for the clip's ζσ,
+    started as the generating agent starts it (the ``STARTS`` serve clips nearest in ζσ); None if all failed."""
+    names, serve = ctx.attribute_names, ctx.serve
+    out = []
+    for i in np.random.default_rng(seed + 1).choice(len(val_zeta), min(n, len(val_zeta)), replace=False):
+        dist = ZetaDistance(ranker, val_zeta[i], scale)
+        starts = [dict(zip(serve.param_names, map(float, serve.params[j]), strict=True))
+                  for j in np.argsort(dist.distances(ctx.serve_zeta), kind="stable")[:STARTS]]
+        found = search(domain, starts, dist, config=SearchConfig(seed=int(i), good_enough=THRESHOLD))
+        r = found.rollout
+        out.append((int(i), None if r is None else found.objective,
+                    None if r is None else np.array([r.proxies[a] for a in names])))
+    return out
+
+
+def _generated(ctx, val, near, eps: np.ndarray, made: list[tuple]) -> dict:
+    """Of the made clips within the threshold, the share within ε; the serve clips' share for the same targets."""
+    hits, lib = [], []
+    for i, reached, proxies in made:
+        if reached is not None and reached <= THRESHOLD:
+            hits.append(bool(np.all(np.abs(proxies - val.proxies[i]) <= eps)))
+        if near[i].any():
+            lib.append(float(np.mean(np.all(np.abs(ctx.serve.proxies[near[i]] - val.proxies[i]) <= eps, axis=1))))
+    return {"searches": len(made), "reached": len(hits), "hit_share": float(np.mean(hits)) if hits else None,
+            "library_targets": len(lib), "library_hit_share": float(np.mean(lib)) if lib else None}
 
 
 def _local(ctx, ranker, fits, eps, scale, moved) -> list[dict]:
@@ -140,6 +178,22 @@ def report(rows: list[dict], command: str) -> str:
             for m in r["local"]:
                 lines.append(f"| {r['domain']} | {m['step']} | {m['clips']} | {fmt(m['zeta_move'])} | "
                              f"{fmt(m['residual_change'])} | {fmt(m['residual_corr'])} |")
+    made = [r for r in rows if "generated" in r]
+    if made:
+        lines += ["", "## Clips made for a ζσ target against library clips at it", "",
+                  "For val clips as targets, the search the generating agent runs for the clip's ζσ (from the "
+                  f"{STARTS} nearest serve clips, stopping within the threshold {THRESHOLD}, 48 simulations at most): "
+                  "how many searches reached the threshold, and the share of those clips within ε of the target's "
+                  "proxies on every attribute; against the share of serve clips within the threshold that are, "
+                  "over the same targets that have such a clip. A made clip that satisfies less often than a "
+                  "library clip at the same ζσ means the search finds where ζσ errs.", "",
+                  "| domain | precision | searches reaching the threshold | made clips' hit share "
+                  "| targets with a near serve clip | serve clips' hit share |", "|---|---|---|---|---|---|"]
+        share = lambda v: "–" if v is None else f"{v:.3f}"  # noqa: E731
+        for r in made:
+            g = r["generated"]
+            lines.append(f"| {r['domain']} | {r['precision']} | {g['reached']} / {g['searches']} | "
+                         f"{share(g['hit_share'])} | {g['library_targets']} | {share(g['library_hit_share'])} |")
     lines += ["", f"Command: `{command}`; {dt.date.today().isoformat()}."]
     return "\n".join(lines) + "\n"
 
@@ -151,11 +205,15 @@ def main() -> None:
     ap.add_argument("--precisions", nargs="+", default=["high", "normal"])
     ap.add_argument("--local", type=int, default=0, metavar="N",
                     help="also move the parameters of N val clips and measure how much residual survives")
+    ap.add_argument("--generated", type=int, default=0, metavar="N",
+                    help="also search for the ζσ of N val clips and measure how often the made clip satisfies")
     args = ap.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
-    rows = [row for d in args.domains for row in measure(d, args.rep, args.precisions, args.local)]
+    rows = [row for d in args.domains for row in measure(d, args.rep, args.precisions, args.local,
+                                                         generated=args.generated)]
     command = " ".join(["python benchmarks/zeta_residual.py", "--domains", *args.domains, "--rep", args.rep,
-                       "--precisions", *args.precisions, "--local", str(args.local)])
+                       "--precisions", *args.precisions, "--local", str(args.local), "--generated",
+                       str(args.generated)])
     save_text(RESULTS / "zeta_residual.json", json.dumps(rows, indent=1) + "\n")
     save_text(RESULTS / "zeta_residual.md", report(rows, command))
 

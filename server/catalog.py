@@ -14,7 +14,7 @@ from typing import Any
 from rba.domains import Domain, domain_names, get_domain
 from rba.generate import SearchConfig
 from rba.interact import load_context
-from rba.interact.generating import GeneratedStore, GenerationContext, generating_class
+from rba.interact.generating import SPREAD, GeneratedStore, GenerationContext, generating_class
 from rba.library import SkillLibrary
 from rba.locks import KeyedLocks
 from rba.methods import get_method
@@ -32,10 +32,9 @@ class Catalog:
 
     def __init__(self, settings: Settings) -> None:
         self.store = Store.from_settings(settings)
-        # the generating agents' options from the settings: the searches' time bound, and the spread if set
-        self._generate: dict[str, Any] = {"config": SearchConfig(seconds=settings.generate_seconds)}
-        if settings.generate_spread is not None:
-            self._generate["spread"] = settings.generate_spread
+        # the generating agents' options from the settings: a domain's search time bound, and the spread
+        self._search_seconds = settings.search_seconds
+        self._spread = SPREAD if settings.generate_spread is None else settings.generate_spread
         self._contexts: dict[tuple[str, str, str, str], Any] = {}
         self._libraries: dict[str, SkillLibrary] = {}
         self._generation: dict[tuple[str, str, str, str], GenerationContext] = {}
@@ -130,7 +129,8 @@ class Catalog:
             if key not in self._generation:
                 self._generation[key] = GenerationContext.load(
                     self.context(*key), self.models(version).root, store=self.generated_store(domain),
-                    first_from_library=True, **self._generate)
+                    first_from_library=True, config=SearchConfig(seconds=self._search_seconds(domain)),
+                    spread=self._spread)
         return self._generation[key]
 
     def generated_store(self, domain: str) -> GeneratedStore:

@@ -9,7 +9,10 @@ from pydantic import Field, model_validator
 from rba.settings import LibrarySettings
 from rba.store import Store
 
-GENERATE_SECONDS = 2.0  # a search's time bound: the shortest that kept SR on val (generation_seconds_val.md)
+# a search's time bound (s) per domain, the shortest that kept SR on val (generation_seconds_val.md): the walker's
+# and the manipulator's keep SR (and AF) at 1 s, the snake's need 2 s; a domain not named here gets 2 s
+GENERATE_SECONDS = {"walker": 1.0, "manipulator": 1.0}
+GENERATE_SECONDS_OTHERS = 2.0
 
 
 class Settings(LibrarySettings):
@@ -49,13 +52,13 @@ class Settings(LibrarySettings):
                                           "its belief's half interquartile range (and the threshold): early answers, "
                                           "while the belief is wide, show serve clips at once; 0: search whenever the "
                                           "threshold is missed; default: rba.interact.generating.SPREAD (1.0)")
-    generate_seconds: float = Field(default=GENERATE_SECONDS, gt=0, allow_inf_nan=False,
-                                    description="a search stops before a CMA-ES generation that would end later "
-                                    "than this many seconds after the search began, and one running past it ends with "
-                                    "the candidates simulated by then (rba.generate.SearchConfig); with 2 s "
-                                    "the new clip played p95 1.7 s (manipulator) to 2.4 s (snake) after the answer on "
-                                    "2 cores (benchmarks/results/generation_latency.md); a large value leaves the "
-                                    "48-simulation budget alone to bound it")
+    generate_seconds: float | None = Field(
+        default=None, gt=0, allow_inf_nan=False, description="a search stops before a CMA-ES generation that would "
+        "end later than this many seconds after the search began, and one running past it ends with the candidates "
+        "simulated by then (rba.generate.SearchConfig); default: per domain, chosen on val (walker and "
+        "manipulator 1 s, the others 2 s: server.settings.GENERATE_SECONDS); a value here bounds every domain's "
+        "searches, a large one leaves the 48-simulation budget alone to bound them. How long people then wait: "
+        "benchmarks/results/generation_latency.md")
     warm_start: bool = Field(default=True, description="load models and render first clips after start-up")
     replica: str | None = Field(default=None, max_length=120, description="this server's name among the API "
                                 "replicas on one database; default <hostname>:<port>. A restarted replica fails "
@@ -72,6 +75,12 @@ class Settings(LibrarySettings):
             raise ValueError(f"job_stale_seconds ({self.job_stale_seconds:g}) must exceed twice "
                              f"job_heartbeat_seconds ({self.job_heartbeat_seconds:g}), or live jobs look dead")
         return self
+
+    def search_seconds(self, domain: str) -> float:
+        """The time bound of a search in ``domain``: ``generate_seconds`` if set, else the domain's default."""
+        if self.generate_seconds is not None:
+            return self.generate_seconds
+        return GENERATE_SECONDS.get(domain, GENERATE_SECONDS_OTHERS)
 
     @property
     def replica_name(self) -> str:

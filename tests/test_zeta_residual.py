@@ -1,5 +1,5 @@
 """benchmarks/zeta_residual.py: a tighter ε can only lower the share of ζσ-near clips that satisfy the user;
-moved parameters move ζσ."""
+moved parameters move ζσ; a search made for a val clip's ζσ is scored against that clip's proxies."""
 
 
 from tests.benchmark_scripts import load_benchmark
@@ -8,7 +8,8 @@ zeta_residual = load_benchmark("zeta_residual")
 
 
 def test_high_precision_hits_fewer_and_spreads_wider_in_epsilon_units():
-    high, normal = zeta_residual.measure("lane_change", "onehot", ["high", "normal"], local=6)
+    high, normal = zeta_residual.measure("lane_change", "onehot", ["high", "normal"], local=6,
+                                         generated=3)
     assert set(high["residual_over_epsilon"]) == {"sharpness", "gap"}
     assert 0.0 <= high["hit_share"] <= normal["hit_share"] <= 1.0
     assert all(high["residual_over_epsilon"][a] > normal["residual_over_epsilon"][a] for a in ("sharpness", "gap"))
@@ -20,3 +21,7 @@ def test_high_precision_hits_fewer_and_spreads_wider_in_epsilon_units():
     assert all(m["clips"] > 0 for m in high["local"])
     assert moves == sorted(moves) and moves[0] > 0  # a larger parameter step moves ζσ farther
     assert "## Residuals after a small parameter move" in table and "| lane_change | 0.01 |" in table
+    made = high["generated"]
+    assert made["searches"] == 3 and 0 <= made["reached"] <= 3 and made["library_targets"] <= 3
+    assert made["hit_share"] is None or 0.0 <= made["hit_share"] <= normal["generated"]["hit_share"] <= 1.0
+    assert "## Clips made for a ζσ target" in table and "| lane_change | high | " in table

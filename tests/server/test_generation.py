@@ -17,7 +17,7 @@ from rba.export import read_export, replay
 from rba.generate import generated_id, is_generated
 from server.exporting import export_to_file
 from server.main import create_app
-from server.settings import GENERATE_SECONDS, Settings
+from server.settings import GENERATE_SECONDS, GENERATE_SECONDS_OTHERS, Settings
 from tests.fakes import FakeCompute, InProcessCompute, InstantCompute
 from tests.server.conftest import more
 
@@ -114,13 +114,13 @@ def test_by_default_a_first_answer_shows_a_serve_clip_at_once(gen_settings):
 
 
 def test_a_search_stops_at_its_seconds(gen_settings):
-    """``generate_seconds`` (default 2 s): no generation starts that would end after it (the first
-    is cut short once a candidate arrived late: rba.generate's own tests)."""
-    assert Settings.model_fields["generate_seconds"].default == GENERATE_SECONDS == 2.0
+    """``generate_seconds``: no generation starts that would end after it (the first is cut short once a
+    candidate arrived late: rba.generate's own tests)."""
     for bad in ("0", "inf", "nan"):
         with pytest.raises(ValidationError, match="generate_seconds"):
             Settings(generate_seconds=bad)
     bounded = gen_settings.model_copy(update={"generate_seconds": 0.2})
+    assert bounded.search_seconds("walker") == bounded.search_seconds("snake") == 0.2  # one value bounds every domain
     with TestClient(create_app(bounded, InProcessCompute(delay=0.3))) as client:
         s = client.post("/api/sessions", json={"domain": "toy"}).json()
         r = client.post(f"/api/sessions/{s['id']}/feedback", json=more("amplitude", s["step"], "less",
@@ -129,6 +129,24 @@ def test_a_search_stops_at_its_seconds(gen_settings):
         progress = search_done(client, s["id"])
         assert progress["state"] == "done" and (progress["generation"], progress["generations"]) == (1, 6)
         assert progress["seconds_at_most"] == 0.2  # the page's progress runs against it
+
+
+def test_each_domain_has_its_own_default_bound(gen_settings, monkeypatch):
+    """Unset, a search's bound is its domain's, chosen on val (generation_seconds_val.md): the walker and the
+    manipulator keep SR at 1 s, the snake needs 2 s; a domain not named gets 2 s."""
+    default = Settings()
+    assert default.generate_seconds is None
+    assert [default.search_seconds(d) for d in ("walker", "manipulator", "snake")] == [1.0, 1.0, 2.0]
+    assert default.search_seconds("toy") == GENERATE_SECONDS_OTHERS == 2.0
+    monkeypatch.setitem(GENERATE_SECONDS, "toy", 0.2)  # the catalog asks the settings per domain
+    unset = gen_settings.model_copy(update={"generate_seconds": None})
+    with TestClient(create_app(unset, InProcessCompute(delay=0.3))) as client:
+        s = client.post("/api/sessions", json={"domain": "toy"}).json()
+        r = client.post(f"/api/sessions/{s['id']}/feedback", json=more("amplitude", s["step"], "less",
+                                                                       clip=s["clip"]["rollout_id"]))
+        assert r.status_code == 202, r.text
+        progress = search_done(client, s["id"])
+        assert progress["seconds_at_most"] == 0.2 and progress["generation"] == 1
 
 
 def test_refusals_name_what_is_valid(gen_settings):
