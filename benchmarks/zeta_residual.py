@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
+import itertools
 import json
 import logging
 from pathlib import Path
@@ -40,6 +41,7 @@ from rba.storage import save_text
 
 RESULTS = Path(__file__).resolve().parent / "results"
 STEPS = (0.01, 0.03, 0.1)  # std of the parameter moves, in units of each free parameter's range
+BANDS = (0.0, 0.01, 0.02, 0.03, 0.05, 0.08)  # ζσ distances (ranges scaled to 1) between a serve clip and a target
 
 
 def measure(domain: str, rep: str, precisions: list[str], local: int = 0, seed: int = 0,
@@ -51,7 +53,8 @@ def measure(domain: str, rep: str, precisions: list[str], local: int = 0, seed: 
     ranker = load_model(domain, "ranker", rep).model
     val_zeta = ranker.score_library(val)
     scale = np.maximum(ctx.bounds[1] - ctx.bounds[0], 1e-9)
-    near = [np.max(np.abs(ctx.serve_zeta - z) / scale, axis=1) <= THRESHOLD for z in val_zeta]
+    off = [np.max(np.abs(ctx.serve_zeta - z) / scale, axis=1) for z in val_zeta]  # per target, every serve clip
+    near = [d <= THRESHOLD for d in off]
     fits = [IsotonicRegression(out_of_bounds="clip").fit(ctx.serve_zeta[:, a], ctx.serve.proxies[:, a])
             for a in range(len(ctx.attribute_names))]
     moved = _moved(domain, val, local, seed) if local else []
@@ -60,6 +63,7 @@ def measure(domain: str, rep: str, precisions: list[str], local: int = 0, seed: 
     for p in precisions:
         eps = get_domain(domain).epsilons(ctx.serve.proxies, p)
         row = _row(domain, rep, p, ctx, val, val_zeta, near, fits, eps)
+        row["bands"] = _bands(ctx, val, off, eps)
         if moved:
             row["local"] = _local(ctx, ranker, fits, eps, scale, moved)
         if made:
@@ -87,6 +91,19 @@ def _moved(domain: str, val: SkillLibrary, clips: int, seed: int) -> list[tuple[
             if moved.success:
                 pairs.append((r, moved))
         out.append(([a for a, _ in pairs], [b for _, b in pairs]))
+    return out
+
+
+def _bands(ctx, val, off: list[np.ndarray], eps: np.ndarray) -> list[dict]:
+    """Per band of ζσ distance to a val target: the share of the serve clips in it within ε of the target (over
+    every target and clip): how much nearer than a band's clips a made clip must be to satisfy more often."""
+    out = []
+    for lo, hi in itertools.pairwise(BANDS):
+        hits = [np.all(np.abs(ctx.serve.proxies[(d > lo) & (d <= hi)] - p) <= eps, axis=1)
+                for d, p in zip(off, val.proxies, strict=True)]
+        hits = np.concatenate(hits)
+        out.append({"band": [lo, hi], "clips": len(hits),
+                    "hit_share": float(hits.mean()) if len(hits) else None})
     return out
 
 
@@ -178,6 +195,19 @@ def report(rows: list[dict], command: str) -> str:
             for m in r["local"]:
                 lines.append(f"| {r['domain']} | {m['step']} | {m['clips']} | {fmt(m['zeta_move'])} | "
                              f"{fmt(m['residual_change'])} | {fmt(m['residual_corr'])} |")
+    banded = [r for r in rows if "bands" in r]
+    if banded:
+        heads = " | ".join(f"({b['band'][0]:g}, {b['band'][1]:g}]" for b in banded[0]["bands"])
+        lines += ["", "## Hit share by ζσ distance to the target", "",
+                  "Share of the serve clips whose ζσ is in a band of distance to a val target's ζσ (max over "
+                  "attributes, ranges scaled to 1) that are within ε of the target on every attribute; in brackets "
+                  "the pairs in the band. Where the share stays level beyond the generation threshold "
+                  f"({THRESHOLD}), a clip made nearer satisfies no more often than the library's.", "",
+                  f"| domain | precision | {heads} |", "|---|---|" + "---|" * len(banded[0]["bands"])]
+        for r in banded:
+            cells = " | ".join("–" if b["hit_share"] is None else f"{b['hit_share']:.3f} ({b['clips']})"
+                               for b in r["bands"])
+            lines.append(f"| {r['domain']} | {r['precision']} | {cells} |")
     made = [r for r in rows if "generated" in r]
     if made:
         lines += ["", "## Clips made for a ζσ target against library clips at it", "",

@@ -1,6 +1,7 @@
 """benchmarks/zeta_residual.py: a tighter ε can only lower the share of ζσ-near clips that satisfy the user;
 moved parameters move ζσ; a search made for a val clip's ζσ is scored against that clip's proxies."""
 
+import itertools
 
 from tests.benchmark_scripts import load_benchmark
 
@@ -25,3 +26,7 @@ def test_high_precision_hits_fewer_and_spreads_wider_in_epsilon_units():
     assert made["searches"] == 3 and 0 <= made["reached"] <= 3 and made["library_targets"] <= 3
     assert made["hit_share"] is None or 0.0 <= made["hit_share"] <= normal["generated"]["hit_share"] <= 1.0
     assert "## Clips made for a ζσ target" in table and "| lane_change | high | " in table
+    assert [b["band"] for b in high["bands"]] == [list(b) for b in itertools.pairwise(zeta_residual.BANDS)]
+    assert all(b["clips"] > 0 and 0.0 <= b["hit_share"] <= 1.0 for b in high["bands"])
+    assert all(h["hit_share"] <= n["hit_share"] for h, n in zip(high["bands"], normal["bands"], strict=True))
+    assert "## Hit share by ζσ distance to the target" in table
