@@ -9,8 +9,9 @@ from pydantic import Field, model_validator
 from rba.settings import LibrarySettings
 from rba.store import Store
 
-# a search's time bound (s) per domain, the shortest that kept SR on val (generation_seconds_val.md): the walker's
-# and the manipulator's keep SR (and AF) at 1 s, the snake's need 2 s; a domain not named here gets 2 s
+# a search's time bound (s) per domain, chosen on val (generation_seconds_val.md): the walker and the manipulator keep
+# SR (and AF) at 1 s; the snake keeps 2 s (its val SR spreads 0.45-0.75 between runs: no evidence that less does);
+# a domain not named here gets 2 s
 GENERATE_SECONDS = {"walker": 1.0, "manipulator": 1.0}
 GENERATE_SECONDS_OTHERS = 2.0
 

@@ -133,7 +133,7 @@ def test_a_search_stops_at_its_seconds(gen_settings):
 
 def test_each_domain_has_its_own_default_bound(gen_settings, monkeypatch):
     """Unset, a search's bound is its domain's, chosen on val (generation_seconds_val.md): the walker and the
-    manipulator keep SR at 1 s, the snake needs 2 s; a domain not named gets 2 s."""
+    manipulator keep SR at 1 s, the snake keeps 2 s; a domain not named gets 2 s."""
     default = Settings()
     assert default.generate_seconds is None
     assert [default.search_seconds(d) for d in ("walker", "manipulator", "snake")] == [1.0, 1.0, 2.0]
