@@ -1,0 +1,27 @@
+"""benchmarks/generation_latency.py's options: ``--search-seconds default`` runs the server at its own per-domain
+bounds (server.settings.GENERATE_SECONDS), and the report says which bounds a table was measured at."""
+
+import argparse
+
+import pytest
+
+from server.settings import GENERATE_SECONDS, GENERATE_SECONDS_OTHERS
+from tests.benchmark_scripts import load_benchmark
+
+load_benchmark("api_load")  # the script imports it as a sibling module
+latency = load_benchmark("generation_latency")
+
+
+def test_search_seconds_are_seconds_or_the_servers_default():
+    assert latency.parse_args([]).search_seconds == [None]  # the server's own bounds
+    assert latency.parse_args(["--search-seconds", "default", "2"]).search_seconds == [None, 2.0]
+    for bad in ("0", "-1", "inf", "soon"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            latency.bound_arg(bad)
+
+
+def test_a_table_names_the_bounds_it_was_measured_at():
+    assert latency.bound_text(2.0) == "2 s (`RBA_GENERATE_SECONDS`)"
+    default = latency.bound_text(None)
+    assert all(f"{d} {s:g} s" in default for d, s in GENERATE_SECONDS.items())
+    assert f"others {GENERATE_SECONDS_OTHERS:g} s" in default
