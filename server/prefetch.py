@@ -44,6 +44,7 @@ class Prefetcher:
         self._offered_at: dict[str, float] = {}
         self._sources: deque[Iterator] = deque()
         self._inflight = 0
+        self._held: object | None = None  # a guess worked out while someone began to wait: started first after
         self._stopping = False
         self.submitted = 0
         self.failed = 0
@@ -72,13 +73,13 @@ class Prefetcher:
 
     def idle(self) -> bool:
         with self._cond:
-            return not self._inflight and not self._sources and not any(self._offers.values())
+            return not self._inflight and not self._has_work()
 
     def wait_idle(self, timeout: float) -> bool:
         """True once nothing is queued or in flight (tests and benchmarks use it)."""
         deadline = time.monotonic() + timeout
         with self._cond:
-            while self._inflight or self._sources or any(self._offers.values()):
+            while self._inflight or self._has_work():
                 left = deadline - time.monotonic()
                 if left <= 0:
                     return False
@@ -113,9 +114,13 @@ class Prefetcher:
                 with self._cond:
                     self._cond.wait(HOLD_POLL_SECONDS)
                 continue
-            ref = self._next()
-            if ref is not None:
-                self._start(ref)
+            ref, self._held = self._held or self._next(), None
+            if ref is None:
+                continue
+            if self.hold():  # working the guess out (a tree's thinking) took a while: a search may have begun
+                self._held = ref
+                continue
+            self._start(ref)
 
     def _expire(self) -> None:
         """Drop offers older than ``OFFER_TTL_SECONDS``: that session's next answer went to another replica
@@ -126,7 +131,7 @@ class Prefetcher:
             self._offered_at.pop(session_id, None)
 
     def _has_work(self) -> bool:
-        return bool(self._sources) or any(self._offers.values())
+        return self._held is not None or bool(self._sources) or any(self._offers.values())
 
     def _next(self) -> object | None:
         """The next clip reference to consider: a session's (round-robin), else the first source's."""

@@ -226,6 +226,28 @@ def test_guesses_wait_while_someone_waits_on_the_compute_layer(fake_cache):
         prefetch.stop()
 
 
+def test_a_guess_worked_out_while_someone_began_to_wait_waits_too(fake_cache):
+    """A guess can take a while to work out (a tree's thinking); if a search began meanwhile, the guess is held
+    until nobody waits, not started beside the search's clip."""
+    cache, compute, lib = fake_cache
+    waiting = [False]
+
+    def thinking():  # a person starts waiting while the guess is worked out
+        waiting[0] = True
+        yield "serve-00003"
+
+    prefetch = Prefetcher(cache, lambda rid: (cache.key(lib, rid), lib), window=2, hold=lambda: waiting[0])
+    try:
+        prefetch.extend(thinking())
+        with pytest.raises(TimeoutError):
+            compute.next_rollout(timeout=0.5)
+        assert not prefetch.idle()  # held, not dropped
+        waiting[0] = False
+        assert compute.next_rollout(timeout=5) == "serve-00003"
+    finally:
+        prefetch.stop()
+
+
 def test_urgent_renders_in_flight_are_pending_by_version_a_guess_is_not(fake_cache):
     cache, compute, lib = fake_cache
     cache.request(cache.key(lib, "serve-00002"), lib, urgent=False)
