@@ -94,6 +94,11 @@ def _moved(domain: str, val: SkillLibrary, clips: int, seed: int) -> list[tuple[
     return out
 
 
+def _hit_share(ctx, clips: np.ndarray, target: np.ndarray, eps: np.ndarray) -> float:
+    """The share of the serve clips picked by the mask ``clips`` within ε of ``target``'s proxies everywhere."""
+    return float(np.mean(np.all(np.abs(ctx.serve.proxies[clips] - target) <= eps, axis=1)))
+
+
 def _bands(ctx, val, off: list[np.ndarray], eps: np.ndarray) -> list[dict]:
     """Per band of ζσ distance to a val target: the share of the serve clips in it within ε of the target (over
     every target and clip): how much nearer than a band's clips a made clip must be to satisfy more often."""
@@ -130,7 +135,7 @@ def _generated(ctx, val, near, eps: np.ndarray, made: list[tuple]) -> dict:
         if reached is not None and reached <= THRESHOLD:
             hits.append(bool(np.all(np.abs(proxies - val.proxies[i]) <= eps)))
         if near[i].any():
-            lib.append(float(np.mean(np.all(np.abs(ctx.serve.proxies[near[i]] - val.proxies[i]) <= eps, axis=1))))
+            lib.append(_hit_share(ctx, near[i], val.proxies[i], eps))
     return {"searches": len(made), "reached": len(hits), "hit_share": float(np.mean(hits)) if hits else None,
             "library_targets": len(lib), "library_hit_share": float(np.mean(lib)) if lib else None}
 
@@ -158,7 +163,7 @@ def _row(domain, rep, precision, ctx, val, val_zeta, near, fits, eps) -> dict:
     shares = []
     for m, p in zip(near, val.proxies, strict=True):
         if m.any():
-            shares.append(float(np.mean(np.all(np.abs(ctx.serve.proxies[m] - p) <= eps, axis=1))))
+            shares.append(_hit_share(ctx, m, p, eps))
     share = float(np.mean(shares)) if shares else float("nan")
     row = {"domain": domain, "rep": rep, "precision": precision, "residual_over_epsilon": residual,
            "targets_with_near_clips": len(shares), "targets": len(val), "hit_share": share}

@@ -113,6 +113,16 @@ def test_by_default_a_first_answer_shows_a_serve_clip_at_once(gen_settings):
         assert r.json()["step"] == s["step"] + 1 and r.json()["generation"] is None
 
 
+def first_search(settings: Settings) -> dict:
+    """The progress of the search a toy session's first answer starts, on a compute layer taking 0.3 s a job."""
+    with TestClient(create_app(settings, InProcessCompute(delay=0.3))) as client:
+        s = client.post("/api/sessions", json={"domain": "toy"}).json()
+        r = client.post(f"/api/sessions/{s['id']}/feedback", json=more("amplitude", s["step"], "less",
+                                                                       clip=s["clip"]["rollout_id"]))
+        assert r.status_code == 202, r.text
+        return search_done(client, s["id"])
+
+
 def test_a_search_stops_at_its_seconds(gen_settings):
     """``generate_seconds``: no generation starts that would end after it (the first is cut short once a
     candidate arrived late: rba.generate's own tests)."""
@@ -121,14 +131,9 @@ def test_a_search_stops_at_its_seconds(gen_settings):
             Settings(generate_seconds=bad)
     bounded = gen_settings.model_copy(update={"generate_seconds": 0.2})
     assert bounded.search_seconds("walker") == bounded.search_seconds("snake") == 0.2  # one value bounds every domain
-    with TestClient(create_app(bounded, InProcessCompute(delay=0.3))) as client:
-        s = client.post("/api/sessions", json={"domain": "toy"}).json()
-        r = client.post(f"/api/sessions/{s['id']}/feedback", json=more("amplitude", s["step"], "less",
-                                                                       clip=s["clip"]["rollout_id"]))
-        assert r.status_code == 202, r.text
-        progress = search_done(client, s["id"])
-        assert progress["state"] == "done" and (progress["generation"], progress["generations"]) == (1, 6)
-        assert progress["seconds_at_most"] == 0.2  # the page's progress runs against it
+    progress = first_search(bounded)
+    assert progress["state"] == "done" and (progress["generation"], progress["generations"]) == (1, 6)
+    assert progress["seconds_at_most"] == 0.2  # the page's progress runs against it
 
 
 def test_each_domain_has_its_own_default_bound(gen_settings, monkeypatch):
@@ -140,13 +145,8 @@ def test_each_domain_has_its_own_default_bound(gen_settings, monkeypatch):
     assert default.search_seconds("toy") == GENERATE_SECONDS_OTHERS == 2.0
     monkeypatch.setitem(GENERATE_SECONDS, "toy", 0.2)  # the catalog asks the settings per domain
     unset = gen_settings.model_copy(update={"generate_seconds": None})
-    with TestClient(create_app(unset, InProcessCompute(delay=0.3))) as client:
-        s = client.post("/api/sessions", json={"domain": "toy"}).json()
-        r = client.post(f"/api/sessions/{s['id']}/feedback", json=more("amplitude", s["step"], "less",
-                                                                       clip=s["clip"]["rollout_id"]))
-        assert r.status_code == 202, r.text
-        progress = search_done(client, s["id"])
-        assert progress["seconds_at_most"] == 0.2 and progress["generation"] == 1
+    progress = first_search(unset)
+    assert progress["seconds_at_most"] == 0.2 and progress["generation"] == 1
 
 
 def test_refusals_name_what_is_valid(gen_settings):
