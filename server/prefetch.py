@@ -91,6 +91,7 @@ class Prefetcher:
             self._stopping = True
             self._offers.clear()
             self._sources.clear()
+            self._held = None
             self._cond.notify_all()
         self._thread.join(timeout)
 
