@@ -3,12 +3,12 @@
 Targets are the proxies of rollouts the skill made up to ``--share`` of each proxy's serve range beyond it
 (``rba.evaluate.beyond_targets``: seeded, their own stream, so neither val nor test); the paper's user,
 ``--precision`` ε. Each domain is measured over the library alone and with generation (``rba eval``'s
-default, candidates simulated in this process), the same targets for both. Rows of earlier runs in
-``--out``'s .json are kept for domains this run does not measure (runs of one domain at a time can run in
-parallel and be combined). Writes ``benchmarks/results/beyond_range.md`` and ``.json``.
+default, candidates simulated in this process or on ``--gen-workers`` local workers), the same targets for
+both. Rows of earlier runs in ``--out``'s .json are kept for domains this run does not measure (runs of one
+domain at a time can run in parallel and be combined). Writes ``benchmarks/results/beyond_range.md`` and ``.json``.
 
     python benchmarks/beyond_range.py --domains walker manipulator snake lane_change
-    python benchmarks/beyond_range.py --domains snake --modes gen   # re-measure one row, keep the rest
+    python benchmarks/beyond_range.py --domains snake --modes gen --gen-workers 2   # re-measure one row, keep the rest
     python benchmarks/beyond_range.py --domains snake --modes gen --gen-seconds 2   # searches bounded as the app's
 """
 
@@ -24,10 +24,12 @@ import time
 from pathlib import Path
 
 from rba.cli import seconds_arg
+from rba.compute import make_compute
 from rba.domains import domain_names
 from rba.evaluate import EvalResult, evaluate
-from rba.generate import SearchConfig
+from rba.generate import SearchConfig, Simulate
 from rba.interact import load_context
+from rba.settings import LibrarySettings
 from rba.storage import save_report
 
 log = logging.getLogger("beyond_range")
@@ -36,13 +38,15 @@ DOMAINS = ("walker", "manipulator", "snake", "lane_change")  # the default, and 
 MODES = {"library": False, "gen": True}  # a row's mode -> whether the agent generates
 
 
-def measure(domain: str, mode: str, args: argparse.Namespace) -> dict:
-    """One row: RBA-Global one-hot on ``args.targets`` targets beyond the range, generating or not."""
+def measure(domain: str, mode: str, args: argparse.Namespace, simulate: Simulate | None = None) -> dict:
+    """One row: RBA-Global one-hot on ``args.targets`` targets beyond the range, generating or not; ``simulate``:
+    where a generating row simulates its candidates (``Compute.simulate``; None: this process)."""
     ctx = load_context(domain, "global", "onehot")
     generate = MODES[mode]
+    options = {"config": SearchConfig(seconds=args.gen_seconds), **({"simulate": simulate} if simulate else {})}
     r: EvalResult = evaluate(domain, "global", "onehot", args.targets, args.seed, args.precision, "paper",
                              context=ctx, generate=generate, beyond=args.share,
-                             generate_options={"config": SearchConfig(seconds=args.gen_seconds)} if generate else None)
+                             generate_options=options if generate else None)
     row = {"domain": domain, "mode": mode, "share": args.share, "precision": args.precision, "seed": args.seed,
            "targets": len(r.trials), "success_rate": r.success_rate, "avg_feedback": r.avg_feedback,
            "std_feedback": r.std_feedback, "seconds": round(r.seconds, 1), "generation": r.generation,
@@ -91,8 +95,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--gen-seconds", type=seconds_arg, default=None, help="bound each search in time as the app does "
                     "(rba eval --gen-seconds); default: the simulation budget alone")
+    ap.add_argument("--gen-workers", type=int, default=1, help="local processes simulating a search's candidates "
+                    "(1: this process); an unbounded row does not depend on it")
     ap.add_argument("--out", type=Path, default=RESULTS / "beyond_range", help="writes <out>.json and <out>.md")
     args = ap.parse_args(argv)
+    if args.gen_workers < 1:
+        ap.error(f"--gen-workers must be at least 1, got {args.gen_workers}")
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     setting = {"share": args.share, "precision": args.precision, "seed": args.seed}
     old = args.out.with_suffix(".json")
@@ -101,11 +109,16 @@ def main(argv: list[str] | None = None) -> int:
     report = {**setting, "command": "python benchmarks/beyond_range.py " + " ".join(argv or sys.argv[1:]),
               "machine": f"{os.cpu_count()} cores, {platform.machine()}, Python {platform.python_version()}",
               "rows": kept}
-    for domain in args.domains:
-        for mode in args.modes:
-            row = measure(domain, mode, args)
-            report["rows"] = [r for r in report["rows"] if _key(r) != _key(row)] + [row]
-            save_report(args.out, report, markdown(report))  # after every row: a stopped run keeps what it measured
+    compute = make_compute(LibrarySettings(compute_workers=args.gen_workers)) if args.gen_workers > 1 else None
+    try:
+        for domain in args.domains:
+            for mode in args.modes:
+                row = measure(domain, mode, args, compute.simulate if compute else None)
+                report["rows"] = [r for r in report["rows"] if _key(r) != _key(row)] + [row]
+                save_report(args.out, report, markdown(report))  # after every row: a stopped run keeps what it has
+    finally:
+        if compute is not None:
+            compute.close()
     return 0
 
 

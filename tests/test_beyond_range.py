@@ -34,3 +34,20 @@ def test_measures_both_modes_and_keeps_rows_of_the_same_setting(toy_roots, monke
             beyond_range.main([*base, "--gen-seconds", bad])
         assert exit_.value.code == 2
         assert f"must be a number of seconds > 0, got {bad}" in capsys.readouterr().err
+
+
+def test_gen_workers_simulate_elsewhere_and_give_the_same_unbounded_row(toy_roots, monkeypatch, tmp_path, capsys):
+    monkeypatch.setenv("RBA_DATA_DIR", str(toy_roots[0]))
+    monkeypatch.setenv("RBA_MODELS_DIR", str(toy_roots[1]))
+    base = ["--domains", "toy", "--targets", "3", "--modes", "gen", "--precision", "high"]  # long enough to search
+    rows = []
+    for workers in ("1", "2"):
+        out = tmp_path / workers
+        assert beyond_range.main([*base, "--gen-workers", workers, "--out", str(out)]) == 0
+        (row,) = json.loads(out.with_suffix(".json").read_text())["rows"]
+        timeless = {k: v for k, v in row["generation"].items() if not k.startswith("seconds")}
+        rows.append({"success_rate": row["success_rate"], "avg_feedback": row["avg_feedback"], **timeless})
+    assert rows[0] == rows[1] and rows[0]["simulations"] > 0
+    with pytest.raises(SystemExit) as exit_:
+        beyond_range.main([*base, "--gen-workers", "0"])
+    assert exit_.value.code == 2 and "--gen-workers must be at least 1, got 0" in capsys.readouterr().err

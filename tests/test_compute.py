@@ -19,7 +19,7 @@ import pytest
 
 from rba.clips import ClipCache
 from rba.compute import RenderJob, SimJob, Task, make_compute
-from rba.compute.base import CLIP_PARTS, joined
+from rba.compute.base import CLIP_PARTS, SIM_CHUNK, joined, sim_chunk
 from rba.compute.local import LocalCompute
 from rba.domains import domain_target
 from rba.library import SkillLibrary, build_all, generate
@@ -47,6 +47,7 @@ def ray_cluster():
 def test_ray_runs_on_both_nodes_and_simulates_the_toy_library_identically(ray_cluster, local_compute):
     _, _, ray = ray_cluster
     assert ray.name == "ray" and ray.capacity == 2
+    assert sim_chunk(16, ray.capacity) == 2  # the library below goes in tasks of 2 rollouts on both backends
     on_ray = generate("toy", "serve", 16, seed=3, progress=False, compute=ray)
     assert on_ray.version == generate("toy", "serve", 16, seed=3, progress=False, compute=local_compute).version
     assert on_ray.version == generate("toy", "serve", 16, seed=3, workers=1, progress=False).version
@@ -122,6 +123,12 @@ def _alive(pid: int) -> bool:
         return Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0] != "Z"
     except FileNotFoundError:
         return False
+
+
+def test_a_library_is_simulated_in_chunks_and_a_searchs_candidates_one_per_task():
+    assert sim_chunk(1200, 2) == SIM_CHUNK and sim_chunk(100_000, 32) == SIM_CHUNK
+    assert sim_chunk(16, 2) == 2  # a small library: every worker still gets a few tasks
+    assert sim_chunk(8, 2) == sim_chunk(1, 1) == 1  # a search's generation of candidates
 
 
 def test_simulate_keeps_the_jobs_order(local_compute):

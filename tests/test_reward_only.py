@@ -40,7 +40,7 @@ def test_ceiling_searches_by_zeta_distance_to_the_profiles_target(toy_roots, mon
                              "--out", str(out)]) == 0
     report = json.loads(out.with_suffix(".json").read_text())
     assert report["ceiling_within"] == sum(r["ceiling"]["within"] for r in report["results"])
-    assert all(r["ceiling"]["evaluations"] >= 12 for r in report["results"])
+    assert all(r["ceiling"]["evaluations"] >= 12 and r["ceiling"]["loss_found"] >= 0 for r in report["results"])
     assert f"finds them in **{report['ceiling_within']} of 3**" in out.with_suffix(".md").read_text()
 
     args = reward_only.parse_args(["--domain", "toy", "--profiles", "1"])
@@ -51,3 +51,17 @@ def test_ceiling_searches_by_zeta_distance_to_the_profiles_target(toy_roots, mon
     own = domain.rollout(export.profile.params, export.profile.seed).states
     other = domain.rollout(domain.sample_params(__import__("numpy").random.default_rng(5)), export.profile.seed)
     assert loss(export, own) < 1e-4 < loss(export, other.states)
+    first = report["results"][0]  # the reported distance is the ceiling's own at the parameters it found
+    found = domain.rollout(first["ceiling"]["params"], export.profile.seed).states
+    assert abs(loss(export, found) - first["ceiling"]["loss_found"]) < 1e-6
+
+
+def test_the_ceilings_misses_are_told_apart_by_the_distance_it_was_left_with():
+    def result(within, loss):
+        return {"ceiling": {"within": within, "loss_found": loss}}
+
+    text = reward_only._ceiling_summary([result(True, 0.001), result(False, 0.3), result(False, 0.01)])
+    assert "finds them in **1 of 3** (33%)" in text
+    assert "Of its 2 misses, 1 ended with the ζσ distance above 0.05" in text and "and 1 below it" in text
+    old = reward_only._ceiling_summary([{"ceiling": {"within": False}}])  # a report from before the distance
+    assert "finds them in **0 of 1**" in old and "misses" not in old

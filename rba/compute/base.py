@@ -29,6 +29,15 @@ class SimJob:
 # (a second encoder and the join: with ten users fewer clips were ready in time, ``api_load_cold.md``). Fixed per
 # kind of clip, never by the machine or the urgency: the parts decide the bytes, and a clip's ETag promises them.
 CLIP_PARTS = 2
+SIM_CHUNK = 4  # rollouts per task at most when simulating a library
+
+
+def sim_chunk(jobs: int, workers: int) -> int:
+    """Rollouts per task for ``jobs`` simulations on ``workers``: up to ``SIM_CHUNK`` for a library, where each
+    task's round trip would cost a share of a ~50 ms rollout (on Ray, the scheduler shares the cores); 1 for a
+    search's few candidates, whose simulations differ in length (a chunk of slow ones on one worker would keep
+    the other idle)."""
+    return max(1, min(SIM_CHUNK, jobs // (SIM_CHUNK * workers)))
 
 
 @dataclass(frozen=True)

@@ -18,11 +18,10 @@ from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 
 from rba.compute import tasks
-from rba.compute.base import Compute, RenderJob, SimJob, Task, joined
+from rba.compute.base import Compute, RenderJob, SimJob, Task, joined, sim_chunk
 from rba.domains import Rollout
 
 log = logging.getLogger(__name__)
-SIM_CHUNK = 4  # rollouts per round trip when simulating a library
 MAX_RENDER_THREADS = 4  # rasteriser threads of an urgent worker at most
 RETRIES = 2  # runs after a worker died, as Ray's default task retries
 
@@ -108,10 +107,9 @@ class LocalCompute(Compute):
         return self.workers
 
     def simulate(self, jobs: Iterable[SimJob]) -> Iterator[Rollout]:
-        """In chunks of up to ``SIM_CHUNK`` for a library; one by one for a search's few candidates, whose
-        simulations differ in length (a chunk of slow ones on one worker would keep the other idle)."""
+        """In order, in chunks of ``sim_chunk`` rollouts per round trip."""
         jobs = list(jobs)
-        chunk = max(1, min(SIM_CHUNK, len(jobs) // (SIM_CHUNK * self.workers)))
+        chunk = sim_chunk(len(jobs), self.workers)
         yield from self._urgent.executor.map(tasks.simulate, [j.target for j in jobs], [j.params for j in jobs],
                                              [j.seed for j in jobs], chunksize=chunk)
 

@@ -15,7 +15,7 @@ from collections import deque
 from collections.abc import Iterable, Iterator
 
 from rba.compute import tasks
-from rba.compute.base import Compute, RenderJob, SimJob, Task
+from rba.compute.base import Compute, RenderJob, SimJob, Task, sim_chunk
 from rba.domains import Rollout
 
 log = logging.getLogger(__name__)
@@ -45,7 +45,7 @@ class RayCompute(Compute):
             ray.init(address=None if address == "local" else address, log_to_driver=False,
                      runtime_env={"env_vars": worker_env()}, logging_level=logging.WARNING)
         remote = ray.remote(num_cpus=1, max_retries=MAX_RETRIES)
-        self._simulate = remote(tasks.simulate)
+        self._simulate = remote(tasks.simulate_many)
         self._render = remote(tasks.render_clip)
         self._join = remote(tasks.join_clips)
         self._warm = remote(tasks.warm)
@@ -56,14 +56,19 @@ class RayCompute(Compute):
         return max(int(self._ray.cluster_resources().get("CPU", 1)), 1)
 
     def simulate(self, jobs: Iterable[SimJob]) -> Iterator[Rollout]:
-        """In order, keeping at most ``SIM_WINDOW`` tasks in flight (the object store holds their results)."""
+        """In order, in tasks of ``sim_chunk`` rollouts, keeping at most ``SIM_WINDOW`` rollouts in flight (the
+        object store holds their results)."""
+        jobs = list(jobs)
+        size = sim_chunk(len(jobs), self.capacity)
         pending: deque = deque()
-        for job in jobs:
-            pending.append(self._simulate.remote(job.target, job.params, job.seed))
-            if len(pending) >= SIM_WINDOW:
-                yield self._ray.get(pending.popleft())
+        for i in range(0, len(jobs), size):
+            chunk = jobs[i:i + size]
+            pending.append(self._simulate.remote([j.target for j in chunk], [j.params for j in chunk],
+                                                 [j.seed for j in chunk]))
+            if len(pending) * size >= SIM_WINDOW:
+                yield from self._ray.get(pending.popleft())
         for ref in pending:
-            yield self._ray.get(ref)
+            yield from self._ray.get(ref)
 
     def render(self, job: RenderJob, urgent: bool = True) -> Task:
         """Ray has no task priorities: callers keep guesses few in flight, so a person's clip is next in line."""

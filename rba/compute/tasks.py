@@ -84,6 +84,11 @@ def simulate(target: str, params: dict[str, float], seed: int) -> Rollout:
     return load_domain(target).rollout(params, seed)
 
 
+def simulate_many(targets: list[str], params: list[dict[str, float]], seeds: list[int]) -> list[Rollout]:
+    """Several rollouts in one task (a chunk of a library: ``sim_chunk``), in order."""
+    return [simulate(t, p, s) for t, p, s in zip(targets, params, seeds, strict=True)]
+
+
 def render_clip(target: str, rollout: Rollout, width: int, height: int, rows: tuple[int, int] | None = None) -> bytes:
     """The MP4 of ``rollout`` (or of its replay rows [start, stop): a part, ``RenderJob.parts``), as bytes (H.264,
     see ``rba.video``): the caller stores it where it belongs."""
