@@ -171,23 +171,6 @@ def test_a_search_that_fell_short_is_not_run_again_for_a_target_near_its_own(ctx
     assert len(restored.searches) == 2
 
 
-def test_a_target_pushed_past_the_belief_grid_is_searched_for_at_the_grids_end(ctx, gap_roots):
-    """Pushes steer the library's argmax and may leave the grid; a search aims no farther, so pushing on (as each
-    "more" at the edge of what the skill makes does) is the same failed target, not a new search per answer."""
-    agent = GeneratingGlobalAgent(_gen(ctx, gap_roots, threshold=1e-9, spread=0.0))  # no search ends this close
-    agent.first_query()
-    reach, width = ctx.reach(), ctx.bounds[1] - ctx.bounds[0]
-    np.testing.assert_allclose(reach[:, 0], ctx.grid(0)[[0, -1]])
-    agent.inner.target = reach[1] + 40 * width
-    agent._choose(None, [])
-    assert agent.searches[-1]["target"] == reach[1].tolist()
-    searched = len(agent.searches)
-    agent.inner.target = agent.inner.target + 10 * width  # pushed on: still the grid's end, which failed
-    agent._choose(None, [])
-    assert len(agent.searches) == searched
-    assert agent.inner.target.tolist() == (reach[1] + 50 * width).tolist()  # the agent's own target is its own
-
-
 def test_no_search_while_the_belief_is_wider_than_the_library_clips_miss(ctx, gap_roots):
     wide = GeneratingGlobalAgent(_gen(ctx, gap_roots, threshold=0.0))  # the default spread
     assert not is_generated(wide.first_query()) and wide.searches == []  # the prior: quartiles far apart

@@ -198,16 +198,13 @@ class GeneratingGlobalAgent(Agent):
         """The inner agent's library clip, or a generated one when that is too far from the target."""
         base, self.showing = self.ctx.base, None
         library = base.serve.ids[self.inner.shown]
-        # a push past the belief's grid only steers the library's argmax: the search aims no farther than the grid
-        # (pushes doubling at the edge of what the skill makes once took its target 45 ranges out: a search per answer)
-        target = np.clip(self.inner.target, *base.reach())
-        dist = self.ctx.distance(target)
+        dist = self.ctx.distance(self.inner.target)
         off = np.abs(base.serve_zeta[self.inner.shown] - dist.target) / dist.scale
         near = float(off.max())  # = dist.distances of that clip
         if (not self._off_target(off, dist.scale) or (before is None and self.ctx.first_from_library)
                 or self._failed_near(dist)):
             return library
-        found, zeta = self.ctx.generate(target, self._starts(dist), len(self.searches))
+        found, zeta = self.ctx.generate(self.inner.target, self._starts(dist), len(self.searches))
         moves = before is None or all(h * (zeta[a] - before[a]) > 0 for a, h in asked)
         reached = float(dist.distances(zeta)[0]) if found.rollout is not None else None
         shown = reached is not None and reached < near and moves

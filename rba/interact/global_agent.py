@@ -94,15 +94,9 @@ class GlobalContext:
         dist[exclude] = np.inf
         return np.argpartition(dist, self.shortlist)[: self.shortlist]
 
-    def reach(self) -> np.ndarray:
-        """float64[2, k]: the ends of the belief grids, the farthest from the train range a target can be believed
-        to lie (a push may move ``GlobalAgent.target`` beyond them: it only steers the library's argmax)."""
-        width = self.bounds[1] - self.bounds[0]
-        return np.stack([self.bounds[0] - TAIL * width, self.bounds[1] + TAIL * width])
-
     def grid(self, a: int) -> np.ndarray:
-        lo, hi = self.reach()[:, a]
-        return np.linspace(lo, hi, GRID)
+        lo, hi = self.bounds[:, a]
+        return np.linspace(lo - TAIL * (hi - lo), hi + TAIL * (hi - lo), GRID)
 
     def prior(self, a: int) -> np.ndarray:
         g = self.grid(a)
