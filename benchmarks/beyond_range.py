@@ -24,12 +24,11 @@ import time
 from pathlib import Path
 
 from rba.cli import seconds_arg
-from rba.compute import make_compute
+from rba.compute import simulation_pool
 from rba.domains import domain_names
 from rba.evaluate import EvalResult, evaluate
 from rba.generate import SearchConfig, Simulate
 from rba.interact import load_context
-from rba.settings import LibrarySettings
 from rba.storage import save_report
 
 log = logging.getLogger("beyond_range")
@@ -109,16 +108,12 @@ def main(argv: list[str] | None = None) -> int:
     report = {**setting, "command": "python benchmarks/beyond_range.py " + " ".join(argv or sys.argv[1:]),
               "machine": f"{os.cpu_count()} cores, {platform.machine()}, Python {platform.python_version()}",
               "rows": kept}
-    compute = make_compute(LibrarySettings(compute_workers=args.gen_workers)) if args.gen_workers > 1 else None
-    try:
+    with simulation_pool(args.gen_workers) as simulate:
         for domain in args.domains:
             for mode in args.modes:
-                row = measure(domain, mode, args, compute.simulate if compute else None)
+                row = measure(domain, mode, args, simulate)
                 report["rows"] = [r for r in report["rows"] if _key(r) != _key(row)] + [row]
                 save_report(args.out, report, markdown(report))  # after every row: a stopped run keeps what it has
-    finally:
-        if compute is not None:
-            compute.close()
     return 0
 
 

@@ -36,7 +36,7 @@ import sys
 from pathlib import Path
 
 from rba.artifacts import ModelNotFoundError
-from rba.compute import make_compute
+from rba.compute import simulation_pool
 from rba.domains import domain_names
 from rba.domains.base import EPSILON_FRACTIONS, ROBUST_QUANTILES
 from rba.evaluate import EvalResult, evaluate
@@ -45,7 +45,6 @@ from rba.interact import load_context
 from rba.interact.users import USER_KINDS, UserSpec, parse_user
 from rba.library import LibraryNotFoundError
 from rba.methods import methods
-from rba.settings import LibrarySettings
 from rba.storage import load_json, save_json, save_text
 
 log = logging.getLogger("paper_tables")
@@ -359,20 +358,13 @@ def main(argv: list[str] | None = None) -> None:
         save_json(args.out.with_suffix(".json"), json_rows(rows))
         return text
 
-    compute = None
-    if args.gen_workers > 1 and not args.report_only:
-        compute = make_compute(LibrarySettings(compute_workers=args.gen_workers))
-    measure = dict(targets=args.targets, seed=args.seed, labels=args.methods, users=args.users,
-                   simulate=compute.simulate if compute else None)
-    try:
+    with simulation_pool(1 if args.report_only else args.gen_workers) as simulate:
+        measure = dict(targets=args.targets, seed=args.seed, labels=args.methods, users=args.users, simulate=simulate)
         if args.check:
             text, same = check(run(args.domains, args.precisions, **measure), args.check)
             print(text)
             sys.exit(0 if same else 1)
         rows = [] if args.report_only else run(args.domains, args.precisions, **measure, on_row=write)
-    finally:
-        if compute is not None:
-            compute.close()
     print(write(rows))
 
 

@@ -94,9 +94,14 @@ def _moved(domain: str, val: SkillLibrary, clips: int, seed: int) -> list[tuple[
     return out
 
 
+def _hits(ctx, clips: np.ndarray, target: np.ndarray, eps: np.ndarray) -> np.ndarray:
+    """bool per serve clip picked by the mask ``clips``: within ε of ``target``'s proxies on every attribute."""
+    return np.all(np.abs(ctx.serve.proxies[clips] - target) <= eps, axis=1)
+
+
 def _hit_share(ctx, clips: np.ndarray, target: np.ndarray, eps: np.ndarray) -> float:
     """The share of the serve clips picked by the mask ``clips`` within ε of ``target``'s proxies everywhere."""
-    return float(np.mean(np.all(np.abs(ctx.serve.proxies[clips] - target) <= eps, axis=1)))
+    return float(np.mean(_hits(ctx, clips, target, eps)))
 
 
 def _bands(ctx, val, off: list[np.ndarray], eps: np.ndarray) -> list[dict]:
@@ -104,9 +109,7 @@ def _bands(ctx, val, off: list[np.ndarray], eps: np.ndarray) -> list[dict]:
     every target and clip): how much nearer than a band's clips a made clip must be to satisfy more often."""
     out = []
     for lo, hi in itertools.pairwise(BANDS):
-        hits = [np.all(np.abs(ctx.serve.proxies[(d > lo) & (d <= hi)] - p) <= eps, axis=1)
-                for d, p in zip(off, val.proxies, strict=True)]
-        hits = np.concatenate(hits)
+        hits = np.concatenate([_hits(ctx, (d > lo) & (d <= hi), p, eps) for d, p in zip(off, val.proxies, strict=True)])
         out.append({"band": [lo, hi], "clips": len(hits),
                     "hit_share": float(hits.mean()) if len(hits) else None})
     return out

@@ -14,10 +14,13 @@ so domains registered at run time work in any worker.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+
 from rba.compute.base import Compute, RenderJob, SimJob, Task, for_render
 from rba.settings import LibrarySettings
 
-__all__ = ["Compute", "RenderJob", "SimJob", "Task", "for_render", "make_compute"]
+__all__ = ["Compute", "RenderJob", "SimJob", "Task", "for_render", "make_compute", "simulation_pool"]
 
 
 def make_compute(settings: LibrarySettings | None = None, ray_address: str | None = None) -> Compute:
@@ -33,3 +36,17 @@ def make_compute(settings: LibrarySettings | None = None, ray_address: str | Non
     from rba.compute.local import LocalCompute
 
     return LocalCompute(s.compute_workers, s.compute_nice, s.background_nice)
+
+
+@contextmanager
+def simulation_pool(workers: int) -> Iterator[Callable | None]:
+    """``Compute.simulate`` of ``workers`` local processes for a search's candidates (closed on exit), or None for
+    one worker: the caller simulates in its own process. Benchmarks' ``--gen-workers``; the rows do not depend on it."""
+    if workers < 2:
+        yield None
+        return
+    compute = make_compute(LibrarySettings(compute_workers=workers))
+    try:
+        yield compute.simulate
+    finally:
+        compute.close()
