@@ -9,6 +9,7 @@ import torch
 from rba.artifacts import ModelNotFoundError, load_model
 from rba.evaluate import evaluate
 from rba.interact import AttributeFeedback, load_context, new_agent, restore_agent
+from rba.interact.bisection import quantile
 from rba.interact.global_agent import GlobalAgent
 from rba.library import SkillLibrary
 
@@ -79,6 +80,23 @@ def test_feedback_moves_the_asked_attribute(toy_roots):
     assert nxt != first
     assert ctx.serve_zeta[nxt, 0] > ctx.serve_zeta[first, 0]
     assert ctx.serve.proxies[nxt, 0] > ctx.serve.proxies[first, 0]
+
+
+def test_a_push_past_the_library_leaves_the_target_at_the_beliefs_median(toy_roots):
+    """Asked for more than any clip has, the agent pushes its library query further, but only for that answer:
+    its target (what generation aims at) stays the belief's median, on the belief's grid."""
+    data, models, _ = toy_roots
+    ctx = load_context("toy", "global", "onehot", data, models)
+    agent = GlobalAgent(ctx)
+    agent.first_query()
+    top = int(np.argmax(ctx.serve_zeta[:, 0]))
+    for _ in range(6):  # "more amplitude" about the library's most ample clip: nothing moves that way
+        agent.shown = top
+        agent.update([AttributeFeedback("amplitude", 1)])
+        medians = [quantile(ctx.grid(a), agent.belief(a), 0.5) for a in range(2)]
+        np.testing.assert_allclose(agent.target, medians)
+    assert ctx.grid(0)[0] <= agent.target[0] <= ctx.grid(0)[-1]
+    assert agent.target[0] > ctx.serve_zeta[top, 0]  # the belief did move past the clip
 
 
 def test_agent_rejects_unknown_attribute(toy_roots):

@@ -10,10 +10,12 @@ outvoted by the next right ones instead of trapping the search.
 
 Guard against the paper's failure mode (rθ returns the same behaviour for a nudged
 target): if the argmax is the rollout just shown, or does not move the asked attributes
-the asked way, the target is pushed further in the asked direction (doubling the step)
-until it does. Rollouts that received non-satisfied feedback in the last ``REJECT_MEMORY``
-rounds are not shown again; older ones may be (a user whose target drifts can come back
-to one). A round the user skips is no update at all.
+the asked way, rθ is asked again for a point pushed further in the asked direction
+(doubling the step, within the belief's grid) until it does. The push serves that one
+query only: the target stays the belief's median (generation aims there). Rollouts that
+received non-satisfied feedback in the last ``REJECT_MEMORY`` rounds are not shown again;
+older ones may be (a user whose target drifts can come back to one). A round the user skips
+is no update at all.
 """
 
 from __future__ import annotations
@@ -146,13 +148,13 @@ class GlobalAgent(Agent):
             out[name] = (lo, hi)
         return out
 
-    def _argmax(self) -> int:
+    def _argmax(self, query: np.ndarray) -> int:
         exclude = np.zeros(len(self.ctx.serve), dtype=bool)
         exclude[self.rejected[-REJECT_MEMORY:]] = True
-        return self.ctx.scorer.argmax(self.target, exclude, self.ctx.candidates(self.target, exclude))
+        return self.ctx.scorer.argmax(query, exclude, self.ctx.candidates(query, exclude))
 
     def first_query(self) -> str:
-        self.shown = self._argmax()
+        self.shown = self._argmax(self.target)
         return self.ctx.serve.ids[self.shown]
 
     def update(self, feedback: Feedback) -> str:
@@ -160,22 +162,29 @@ class GlobalAgent(Agent):
             return self.ctx.serve.ids[self.shown]
         z = self.ctx.serve_zeta[self.shown] if self.shown_zeta is None else self.shown_zeta
         asked = [(self.ctx.attribute_names.index(fb.attribute), fb.direction) for fb in feedback]
-        for a, h in asked:
-            self.answers.append((a, float(z[a]), h))
-            self.target[a] = self._median(a)
+        self.answers += [(a, float(z[a]), h) for a, h in asked]
+        self.target = np.array([self._median(a) for a in range(len(self.ctx.attribute_names))])
         self.rejected.append(self.shown)
-        nxt = self._argmax()
+        self.shown = self._pushed_argmax(z, asked)
+        return self.ctx.serve.ids[self.shown]
+
+    def _pushed_argmax(self, z: np.ndarray, asked: list[tuple[int, int]]) -> int:
+        """The library clip for the target or, when that does not move the asked attributes the asked way from
+        ``z``, for a query pushed further that way (the step doubling). The query stays on the belief's grid and
+        is dropped afterwards: the target stays the belief's median, which generation aims at."""
+        query = self.target.copy()
+        nxt = self._argmax(query)
         width = self.ctx.bounds[1] - self.ctx.bounds[0]
         step = {a: max(self._quantile(a, 0.75) - self._quantile(a, 0.25), 0.01 * width[a]) / 2 for a, _ in asked}
         for _ in range(MAX_PUSHES):
             if all(h * (self.ctx.serve_zeta[nxt, a] - z[a]) > 0 for a, h in asked):
                 break
             for a, h in asked:
-                self.target[a] += h * step[a]
+                grid = self.ctx.grid(a)
+                query[a] = float(np.clip(query[a] + h * step[a], grid[0], grid[-1]))
                 step[a] *= 2
-            nxt = self._argmax()
-        self.shown = nxt
-        return self.ctx.serve.ids[nxt]
+            nxt = self._argmax(query)
+        return nxt
 
     def state_dict(self) -> dict:
         return {"method": self.method, "target": self.target.tolist(), "answers": [list(x) for x in self.answers],
