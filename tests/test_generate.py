@@ -25,7 +25,7 @@ from rba.generate import (
     replay,
     search,
 )
-from rba.interact.generating import GeneratingGlobalAgent, GenerationContext, generating_agents
+from rba.interact.generating import RETRY_AFTER, GeneratingGlobalAgent, GenerationContext, generating_agents
 from rba.interact.global_agent import GlobalAgent, GlobalContext
 from rba.interact.users import parse_user
 from tests.conftest import serve_subset_roots
@@ -169,6 +169,12 @@ def test_a_search_that_fell_short_is_not_run_again_for_a_target_near_its_own(ctx
     restored = GeneratingGlobalAgent.from_state(json.loads(json.dumps(agent.state_dict())), agent.ctx)
     restored._choose(None, [])  # the failures are in the state: a restored agent skips too
     assert len(restored.searches) == 2
+    restored.inner.rejected += [0] * (RETRY_AFTER - 1)
+    restored._choose(None, [])
+    assert len(restored.searches) == 2  # RETRY_AFTER - 1 rounds later: still skipped
+    restored.inner.rejected.append(0)
+    restored._choose(None, [])
+    assert len(restored.searches) == 3  # RETRY_AFTER rounds later: searched again (another seed, other starts)
 
 
 def test_no_search_while_the_belief_is_wider_than_the_library_clips_miss(ctx, gap_roots):

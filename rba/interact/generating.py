@@ -8,7 +8,8 @@ a CMA-ES search makes a clip for v_t,
 starting from the nearest library and session clips, and shows it instead if it is nearer and moves the
 asked attributes the asked way. Feedback about a generated clip updates the belief at that clip's ζσ.
 A search whose best clip stayed farther than ``threshold`` from its target is not run again for a target
-within ``threshold`` of that one: the same starts and budget would fail again (the library clip is shown).
+within ``threshold`` of that one for ``RETRY_AFTER`` rounds: the same starts and budget would fail again
+(the library clip is shown); later it may, with the session's new clips as starts and another seed.
 
 State: the agent's JSON keeps, per generated clip, its params, seed and ζσ (a few numbers), not its
 states: the id is content-addressed (``gen-<hash of domain, params, seed>``), so anything that needs the
@@ -50,6 +51,7 @@ THRESHOLD = 0.02
 # target is, a library clip inside that spread asks as well as a made one, at no cost (0: generate by THRESHOLD alone)
 SPREAD = 1.0
 STARTS = 4  # nearest clips whose parameters start (and spread) the search
+RETRY_AFTER = 10  # rounds after which a search that fell short may run again near its own target
 STORE_SIZE = 256  # generated rollouts kept in memory per context; older ones are re-simulated when asked for
 OBJECTIVES = ("zeta", "reward")
 
@@ -183,9 +185,13 @@ class GeneratingGlobalAgent(Agent):
         return [p for _, p in sorted(pool, key=lambda x: x[0])[:STARTS]]
 
     def _failed_near(self, dist: ZetaDistance) -> bool:
-        """Whether an earlier search, for a target within the threshold of this one, ended farther than it."""
+        """Whether a search in the last ``RETRY_AFTER`` rounds, for a target within the threshold of this one,
+        ended farther than it. Later, a search there may run again: its seed and starts (the session's clips
+        nearest the target) have changed, and a belief that stopped moving has no other way to the target."""
+        now = len(self.inner.rejected)
         failed = [s["target"] for s in self.searches
-                  if "target" in s and (s["reached"] is None or s["reached"] > self.ctx.threshold)]
+                  if "target" in s and (s["reached"] is None or s["reached"] > self.ctx.threshold)
+                  and now - s.get("round", 0) < RETRY_AFTER]
         return bool(failed) and float(dist.distances(np.array(failed)).min()) <= self.ctx.threshold
 
     def _off_target(self, off: np.ndarray, scale: np.ndarray) -> bool:
@@ -208,7 +214,7 @@ class GeneratingGlobalAgent(Agent):
         moves = before is None or all(h * (zeta[a] - before[a]) > 0 for a, h in asked)
         reached = float(dist.distances(zeta)[0]) if found.rollout is not None else None
         shown = reached is not None and reached < near and moves
-        self.searches.append({"simulations": found.simulations, "shown": shown,
+        self.searches.append({"simulations": found.simulations, "shown": shown, "round": len(self.inner.rejected),
                               "target": [float(v) for v in dist.target], "reached": reached})
         self.seconds.append(found.seconds)
         if not shown:
