@@ -89,14 +89,20 @@ def test_a_push_past_the_library_leaves_the_target_at_the_beliefs_median(toy_roo
     ctx = load_context("toy", "global", "onehot", data, models)
     agent = GlobalAgent(ctx)
     agent.first_query()
+    queries = []
+    argmax = agent._argmax
+    agent._argmax = lambda query: queries.append(query.copy()) or argmax(query)
     top = int(np.argmax(ctx.serve_zeta[:, 0]))
     for _ in range(6):  # "more amplitude" about the library's most ample clip: nothing moves that way
         agent.shown = top
         agent.update([AttributeFeedback("amplitude", 1)])
         medians = [quantile(ctx.grid(a), agent.belief(a), 0.5) for a in range(2)]
         np.testing.assert_allclose(agent.target, medians)
-    assert ctx.grid(0)[0] <= agent.target[0] <= ctx.grid(0)[-1]
     assert agent.target[0] > ctx.serve_zeta[top, 0]  # the belief did move past the clip
+    pushed = np.array(queries)[:, 0]
+    assert pushed.max() == ctx.grid(0)[-1]  # pushed to the grid's end, never past it
+    restored = GlobalAgent.from_state({**agent.state_dict(), "target": [1e3, 1e3]}, ctx)  # an old state's target
+    np.testing.assert_array_equal(restored.target, agent.target)  # the answers give it
 
 
 def test_agent_rejects_unknown_attribute(toy_roots):

@@ -110,13 +110,12 @@ class GlobalAgent(Agent):
     method = "global"
     feedback_kind = "attribute"
 
-    def __init__(self, ctx: GlobalContext, target=None, answers: list | None = None, shown: int | None = None,
+    def __init__(self, ctx: GlobalContext, answers: list | None = None, shown: int | None = None,
                  rejected: list[int] | None = None, error_rate: float = ERROR_RATE) -> None:
         self.ctx = ctx
         self.error_rate = error_rate
         self.answers: list[tuple[int, float, int]] = [tuple(x) for x in (answers or [])]  # (attribute, z, ±1)
-        self.target = (np.array([self._median(a) for a in range(len(ctx.attribute_names))]) if target is None
-                       else np.array(target, dtype=np.float64))
+        self.target = self._medians()  # a function of the answers: kept up to date by update, never stored
         self.shown = shown
         self.rejected = list(rejected or [])
         # set by rba.interact.generating for one update: the ζσ of the clip shown when it is a generated one
@@ -130,8 +129,8 @@ class GlobalAgent(Agent):
     def _quantile(self, a: int, q: float) -> float:
         return quantile(self.ctx.grid(a), self.belief(a), q)
 
-    def _median(self, a: int) -> float:
-        return self._quantile(a, 0.5)
+    def _medians(self) -> np.ndarray:
+        return np.array([self._quantile(a, 0.5) for a in range(len(self.ctx.attribute_names))])
 
     def widths(self, mass: float = 0.5) -> np.ndarray:
         """The belief's central ``mass`` per attribute, as a width in ζσ (0.5: the interquartile range)."""
@@ -163,7 +162,7 @@ class GlobalAgent(Agent):
         z = self.ctx.serve_zeta[self.shown] if self.shown_zeta is None else self.shown_zeta
         asked = [(self.ctx.attribute_names.index(fb.attribute), fb.direction) for fb in feedback]
         self.answers += [(a, float(z[a]), h) for a, h in asked]
-        self.target = np.array([self._median(a) for a in range(len(self.ctx.attribute_names))])
+        self.target = self._medians()
         self.rejected.append(self.shown)
         self.shown = self._pushed_argmax(z, asked)
         return self.ctx.serve.ids[self.shown]
@@ -176,24 +175,24 @@ class GlobalAgent(Agent):
         nxt = self._argmax(query)
         width = self.ctx.bounds[1] - self.ctx.bounds[0]
         step = {a: max(self._quantile(a, 0.75) - self._quantile(a, 0.25), 0.01 * width[a]) / 2 for a, _ in asked}
+        ends = {a: self.ctx.grid(a)[[0, -1]] for a, _ in asked}
         for _ in range(MAX_PUSHES):
             if all(h * (self.ctx.serve_zeta[nxt, a] - z[a]) > 0 for a, h in asked):
                 break
             for a, h in asked:
-                grid = self.ctx.grid(a)
-                query[a] = float(np.clip(query[a] + h * step[a], grid[0], grid[-1]))
+                query[a] = float(np.clip(query[a] + h * step[a], *ends[a]))
                 step[a] *= 2
             nxt = self._argmax(query)
         return nxt
 
     def state_dict(self) -> dict:
-        return {"method": self.method, "target": self.target.tolist(), "answers": [list(x) for x in self.answers],
-                "shown": self.shown, "rejected": list(self.rejected), "error_rate": self.error_rate}
+        return {"method": self.method, "answers": [list(x) for x in self.answers], "shown": self.shown,
+                "rejected": list(self.rejected), "error_rate": self.error_rate}
 
     @classmethod
     def from_state(cls, state: dict, context: GlobalContext) -> GlobalAgent:
-        return cls(context, state["target"], state["answers"], state["shown"], state["rejected"],
-                   state["error_rate"])
+        """The agent of ``state`` (a ``"target"`` stored by older versions is ignored: the answers give it)."""
+        return cls(context, state["answers"], state["shown"], state["rejected"], state["error_rate"])
 
 
 def train(domain: str, rep: str, preset: str, seed: int = 0, data_root: Path | None = None,
