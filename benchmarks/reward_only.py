@@ -77,7 +77,7 @@ def profiles(args: argparse.Namespace, folder: Path) -> list[Path]:
         rounds = [{"step": i, "feedback": "simulated user (paper)", "rollout_before": a, "rollout_after": b}
                   for i, (a, b) in enumerate(zip(shown, [*shown[1:], shown[-1]], strict=True))]
         src = ExportSource(args.domain, "global", args.rep, version, "builtin", model_files().root, serve,
-                           shown[-1], rounds, clip=b"")
+                           shown[-1], rounds, clip=b"", refit=not args.no_refit)
         path = folder / f"profile-{len(out):02d}.zip"
         write_export(path, src)
         out.append(path)
@@ -213,6 +213,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--ceiling", action="store_true",
                    help="search each profile again by ζσ distance to v* (what rθ was trained to rank by): the bound "
                         "on what any reward learned from the same labels can find")
+    p.add_argument("--no-refit", action="store_true",
+                   help="export rθ's trained weights, not its last layer re-fitted for v* (the export's default)")
     p.add_argument("--out", type=Path, default=None, help="writes <out>.json and <out>.md; default "
                    "benchmarks/results/reward_only_<domain>")
     args = p.parse_args(argv)

@@ -7,6 +7,7 @@ hashes), and how well it did on held-out data. Weights load with ``weights_only=
 from __future__ import annotations
 
 import datetime as dt
+import hashlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -79,3 +80,11 @@ def load_model(domain: str, kind: str, rep: str, root: Path | None = None) -> Ar
     model = BUILDERS[card["kind"]](card)
     model.load_state_dict(load_torch(path))
     return Artifact(model.eval(), card)
+
+
+def weights_sha(model: nn.Module) -> str:
+    """The first 12 hex digits of the sha256 of a model's tensors: the version a card and a session name."""
+    h = hashlib.sha256()
+    for name, t in sorted(model.state_dict().items()):
+        h.update(name.encode() + t.detach().contiguous().numpy().tobytes())
+    return h.hexdigest()[:12]

@@ -7,7 +7,9 @@ tensors only, read with ``weights_only=True``) + ``reward.json`` (its model card
 arrays as ``.npy`` (``allow_pickle=False``). ARCHITECTURE §4 (Export) says what each method exports:
 
 * a reward of kind ``global_reward`` (RBA-Global): rθ(s | v*) with v* the ranker's ζσ score of the
-  chosen rollout, standardised as the model expects (``condition.v_star``; ``condition.zeta`` raw);
+  chosen rollout, standardised as the model expects (``condition.v_star``; ``condition.zeta`` raw), its
+  last layer re-fitted for that v* on the library's ζσ ranking (``refit_for_target``; the card's
+  ``refit`` says from which weights and how) unless the source asks for the trained weights;
 * ``local_reward`` (RBA-Local): rθ(s | α, h, φ(anchor)) of the last round that asked for a change: the
   anchor is the clip that round answered about (``anchor.npy``, its states), the reward the mean over
   that round's changes (α, h). A session satisfied with its first clip asked for none: no reward.
@@ -31,9 +33,10 @@ from typing import Any
 import numpy as np
 import torch
 
-from rba.artifacts import BUILDERS, ModelNotFoundError, load_model
+from rba.artifacts import BUILDERS, ModelNotFoundError, load_model, weights_sha
 from rba.domains import Domain, Rollout, domain_names, get_domain
 from rba.learn.common import Ragged
+from rba.learn.global_reward import refit_for_target
 from rba.library import SkillLibrary
 from rba.methods import get_method
 from rba.storage import write_atomic
@@ -125,6 +128,7 @@ class ExportSource:
     feedback: list[dict[str, Any]]  # rounds in step order: step, feedback, rollout_before, rollout_after
     clip: bytes  # the chosen clip's MP4
     rollout: Rollout | None = None  # the chosen rollout when no library holds it (a generated one), else None
+    refit: bool = True  # a global reward's last layer re-fitted for v* (False: the trained weights, to compare)
 
 
 @dataclass(frozen=True)
@@ -177,6 +181,14 @@ REWARD_NOTES = {
 }
 
 
+def _refit(src: ExportSource, arts: dict[str, Any], zeta: np.ndarray, card: dict) -> tuple[torch.nn.Module, dict]:
+    """rθ with its last layer re-fitted for v* = ``zeta`` on the library's ζσ (the labels it was trained on)."""
+    data = Ragged.from_numpy(src.library.states, src.library.state_offsets)
+    model, info = refit_for_target(arts["global_reward"].model, data, arts["ranker"].model.score(data), zeta)
+    refit = {"from_weights_sha": card["weights_sha"], "library": src.library.split, **info}
+    return model, {**card, "weights_sha": weights_sha(model), "refit": refit}
+
+
 def _versions() -> tuple[dict[str, str | None], str]:
     def version(name: str) -> str | None:
         try:
@@ -210,7 +222,10 @@ def build_export(src: ExportSource) -> tuple[Profile, RewardPart | None]:
         if isinstance(made, str):
             note = made
         else:
-            reward = RewardPart(kind, arts[kind].model.state_dict(), arts[kind].card, *made)
+            model, card = arts[kind].model, arts[kind].card
+            if kind == "global_reward" and src.refit:
+                model, card = _refit(src, arts, zeta, card)
+            reward = RewardPart(kind, model.state_dict(), card, *made)
             note = REWARD_NOTES[kind]
     simulators, rba_version = _versions()
     attrs = src.library.attribute_names

@@ -6,7 +6,6 @@ which `rba build` trains before it simulates, when it is missing.
 
 from __future__ import annotations
 
-import hashlib
 import logging
 import time
 from collections.abc import Callable, Collection, Iterable
@@ -17,7 +16,7 @@ from typing import TypeVar
 import numpy as np
 import torch
 
-from rba.artifacts import ModelNotFoundError, load_model, save_model
+from rba.artifacts import ModelNotFoundError, load_model, save_model, weights_sha
 from rba.domains import Domain, get_domain
 from rba.embed import attribute_embeddings, check_rep
 from rba.labels import (
@@ -128,13 +127,6 @@ class LocalTrainConfig:
     def preset(cls, name: str, seed: int = 0) -> LocalTrainConfig:
         """A preset of ``PRESETS`` (``quick`` and ``tiny`` share a short rθ)."""
         return cls(LocalLabelConfig(seed=seed), replace(get_preset(name, LOCAL_PRESETS).local_reward, seed=seed))
-
-
-def weights_sha(model: torch.nn.Module) -> str:
-    h = hashlib.sha256()
-    for name, t in sorted(model.state_dict().items()):
-        h.update(name.encode() + t.detach().contiguous().numpy().tobytes())
-    return h.hexdigest()[:12]
 
 
 def argmax_match_rate(scorer: LibraryScorer, serve: SkillLibrary, target_zeta: np.ndarray,

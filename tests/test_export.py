@@ -167,10 +167,9 @@ def _local_source(toy_roots, tmp_path, rounds_of):
     """An RBA-Local export source over an untrained local reward saved under ``tmp_path`` (and the model)."""
     import torch
 
-    from rba.artifacts import save_model
+    from rba.artifacts import save_model, weights_sha
     from rba.export import ExportSource
     from rba.learn.local_reward import LocalReward
-    from rba.training import weights_sha
 
     torch.manual_seed(0)
     arch = {"state_dim": 4, "num_attributes": 2, "embed_dim": 2, "hidden": 16, "layers": 2, "lstm_hidden": 8,

@@ -12,6 +12,7 @@ the agent only ever uses the top of rθ's ranking, so that is where its accuracy
 
 from __future__ import annotations
 
+import copy
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -182,3 +183,65 @@ def _triplet_loss(returns: torch.Tensor, dist: torch.Tensor, cfg: GlobalRewardCo
     mask = torch.triu(gap.abs() > cfg.slack, diagonal=1)
     weight = focus_weights(torch.minimum(dist[:, :, None], dist[:, None, :])[mask], cfg.focus)
     return bradley_terry_loss(returns[:, :, None], returns[:, None, :], (gap[mask] > 0).float(), weight, mask)
+
+
+@dataclass
+class RefitConfig:
+    """Options of ``refit_for_target``: rθ's last layer re-fitted to rank the serve library for one v*."""
+
+    nearest: int = 300  # trajectories nearest v* (standardised ζσ) whose pairs are ranked
+    steps: int = 300  # full-batch Adam steps
+    lr: float = 1e-2
+    pull: float = 1e-2  # L2 weight pulling the layer back to the trained one (per unit of squared change)
+    slack: float = 0.05  # ξ_r, as in training
+    focus: float | None = 0.3  # as in training
+
+
+def refit_for_target(model: GlobalReward, data: Ragged, zeta: np.ndarray, zeta_target: np.ndarray,
+                     cfg: RefitConfig | None = None) -> tuple[GlobalReward, dict]:
+    """A copy of rθ whose last layer ranks the trajectories ``data`` (ζσ ``zeta``) for ``zeta_target`` alone.
+
+    Why: an export's reward is only ever asked about one v*, and a search that sees nothing else climbs to
+    rθ's top for it. Training spread rθ's accuracy over every target; near one target its top can hold
+    behaviours farther in ζσ than the chosen one (``benchmarks/results/reward_only_*.md``). With v* fixed,
+    each trajectory's return is linear in the last layer (Σ_t of the penultimate features), so re-fitting it
+    on the same ζσ labels, focused at v*, costs one forward pass and a few hundred small steps.
+    """
+    cfg = cfg or RefitConfig()
+    refit = copy.deepcopy(model).eval()
+    last = refit.f[-1]
+    with torch.no_grad():
+        v = refit.zeta_norm(torch.as_tensor(np.asarray(zeta_target), dtype=torch.float32).reshape(1, -1))
+        dist = torch.cdist(v, refit.zeta_norm(torch.as_tensor(zeta, dtype=torch.float32)))[0]
+        idx = torch.argsort(dist)[:cfg.nearest]
+        states, seg = data.select(idx)
+        h = refit.state_features(states) + v @ refit.f[0].weight[:, refit.state_dim:].T + refit.f[0].bias
+        phi = segment_sum(refit.f[1:-1](h).T, seg, len(idx)).T  # [n, H]: Σ_t penultimate features
+        steps_of = segment_sum(torch.ones(len(seg)), seg, len(idx))  # [n]: each trajectory's length
+    d = dist[idx]
+    gap = d[None, :] - d[:, None]  # gap[i, j] > 0: i is nearer v*
+    mask = torch.triu(gap.abs() > cfg.slack, diagonal=1)
+    weight = focus_weights(torch.minimum(d[:, None], d[None, :])[mask], cfg.focus)
+    label = (gap[mask] > 0).float()
+    w0, b0 = last.weight.detach().clone(), last.bias.detach().clone()
+    w, b = w0.clone().requires_grad_(True), b0.clone().requires_grad_(True)
+    opt = torch.optim.Adam([w, b], lr=cfg.lr)
+
+    def loss_of() -> torch.Tensor:
+        ret = phi @ w[0] + steps_of * b[0]
+        bt = bradley_terry_loss(ret[:, None], ret[None, :], label, weight, mask)
+        return bt + cfg.pull * ((w - w0).pow(2).sum() + (b - b0).pow(2).sum())
+
+    with torch.no_grad():
+        before = float(loss_of())
+    for _ in range(cfg.steps):
+        opt.zero_grad()
+        loss = loss_of()
+        loss.backward()
+        opt.step()
+    with torch.no_grad():
+        after = float(loss_of())
+        last.weight.copy_(w)
+        last.bias.copy_(b)
+    return refit, {"trajectories": len(idx), "pairs": int(mask.sum()), "loss_before": round(before, 5),
+                   "loss_after": round(after, 5), "config": asdict(cfg)}
