@@ -7,6 +7,9 @@ seed, for the largest return Σ_t rθ(s_t | v*) of the simulated rollout: no pro
 searches is the skill prior's, from ``Domain.sample_params``). A profile is reproduced when the best
 parameters' measured attributes are within ε (``Domain.epsilons(serve proxies, "normal")``) of the profile's.
 
+The export re-fits rθ's last layer for v* on the serve library's ζσ ranking (``refit_for_target``);
+``--no-refit`` exports the trained weights instead, to compare.
+
 ``--ceiling`` runs the same search a second time with rθ replaced by what it was trained to rank by: the
 distance of a rollout's standardised ζσ (the ranker's) to v*. That distance is 0 at the profile's own
 parameters (v* is their ζσ), so a miss it reports with its distance still above ``ZETA_REACHED`` is the
@@ -82,6 +85,10 @@ def profiles(args: argparse.Namespace, folder: Path) -> list[Path]:
         write_export(path, src)
         out.append(path)
     return out
+
+
+REWARDS = {False: "rθ with its last layer re-fitted for v* (`rba.export`'s default)",
+           True: "rθ's trained weights (`--no-refit`)"}  # by args.no_refit
 
 
 Loss = Callable[[Export, np.ndarray], float]  # (export, a rollout's states) -> what the search minimises
@@ -196,7 +203,8 @@ def markdown(report: dict) -> str:
             f" rollouts) finds skill parameters within ε of the profile in **{report['within']} of "
             f"{n}** profiles ({report['share']:.0%}).{_ceiling_summary(report['results']) if ceiling else ''}\n\n"
             f"- Setting: {report['args']['domain']}, RBA-Global/{report['args']['rep']}, profiles from simulated "
-            f"sessions on `{report['args']['split']}` targets (paper user, normal precision), ε = {eps}.\n"
+            f"sessions on `{report['args']['split']}` targets (paper user, normal precision), ε = {eps}; the "
+            f"export's reward: {REWARDS[report['args'].get('no_refit', False)]}.\n"
             f"- Command: `{report['command']}` ({report['date']}, {report['machine']}).\n"
             "- A found return above the profile's own with the attributes outside ε is the reward's error, not the "
             "search's.\n\n" + "\n".join(rows) + "\n")

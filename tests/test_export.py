@@ -226,3 +226,49 @@ def test_a_local_session_satisfied_at_once_exports_no_reward(toy_roots, tmp_path
     assert "satisfied with its first clip" in export.profile.reward_note
     with zipfile.ZipFile(tmp_path / "local.zip") as zf:
         assert sorted(zf.namelist()) == ["clip.mp4", "profile.json"]
+
+
+def test_a_global_export_refits_the_rewards_last_layer_for_the_chosen_clip(app_env, exported, toy_roots):
+    """The exported rθ is the trained one with only its last layer re-fitted for v*; it orders the library near v*
+    by ζσ distance better than the trained weights; ``refit=False`` exports the trained weights (to compare)."""
+    import dataclasses
+
+    import numpy as np
+    import torch
+
+    from rba.artifacts import load_model, weights_sha
+    from rba.export import ExportSource, build_export
+    from rba.learn.common import Ragged
+    from rba.learn.global_reward import LibraryScorer
+
+    export, trained = read_export(exported), load_model("toy", "global_reward", "onehot", toy_roots[1])
+    card, refit = export.reward.card, export.reward.card["refit"]
+    assert refit["from_weights_sha"] == trained.card["weights_sha"] and refit["library"] == "serve"
+    assert card["weights_sha"] == weights_sha(export.reward.model) != trained.card["weights_sha"]
+    last = f"f.{len(trained.model.f) - 1}"
+    weights = export.reward.model.state_dict()
+    assert {k for k, v in trained.model.state_dict().items() if not torch.equal(v, weights[k])} == {
+        f"{last}.weight", f"{last}.bias"}
+    assert refit["loss_after"] < refit["loss_before"]
+
+    serve = app_env["serve"]
+    data = Ragged.from_numpy(serve.states, serve.state_offsets)
+    zeta = load_model("toy", "ranker", "onehot", toy_roots[1]).model.score(data)
+    v_star = np.array(export.profile.reward["condition"]["zeta"])
+    with torch.no_grad():
+        standard = trained.model.zeta_norm(torch.as_tensor(np.vstack([zeta, v_star]), dtype=torch.float32)).numpy()
+    dist = np.linalg.norm(standard[:-1] - standard[-1], axis=1)
+    near = np.argsort(dist)[:40]
+
+    def concordance(model) -> float:
+        ret = LibraryScorer(model, data).returns(v_star)[near]
+        i, j = np.triu_indices(len(near), 1)
+        return float(np.mean((ret[i] - ret[j]) * (dist[near][j] - dist[near][i]) > 0))
+
+    assert concordance(export.reward.model) > concordance(trained.model)
+
+    src = ExportSource("toy", "global", "onehot", app_env["version"], "builtin", toy_roots[1], serve,
+                       app_env["chosen"], [], clip=b"clip")
+    _, plain = build_export(dataclasses.replace(src, refit=False))
+    assert "refit" not in plain.card and all(torch.equal(v, trained.model.state_dict()[k])
+                                              for k, v in plain.weights.items())
