@@ -42,7 +42,7 @@ from rba.evaluate import simulate
 from rba.export import Export, ExportSource, read_export, write_export
 from rba.interact import load_context, new_agent
 from rba.learn.common import Ragged
-from rba.learn.global_reward import GlobalReward
+from rba.learn.global_reward import GlobalReward, RefitConfig
 from rba.learn.ranker import AttributeRanker
 from rba.library import HELD_OUT, SkillLibrary
 from rba.storage import save_report
@@ -80,15 +80,12 @@ def profiles(args: argparse.Namespace, folder: Path) -> list[Path]:
         rounds = [{"step": i, "feedback": "simulated user (paper)", "rollout_before": a, "rollout_after": b}
                   for i, (a, b) in enumerate(zip(shown, [*shown[1:], shown[-1]], strict=True))]
         src = ExportSource(args.domain, "global", args.rep, version, "builtin", model_files().root, serve,
-                           shown[-1], rounds, clip=b"", refit=not args.no_refit)
+                           shown[-1], rounds, clip=b"",
+                           refit=None if args.no_refit else RefitConfig(pull=args.refit_pull))
         path = folder / f"profile-{len(out):02d}.zip"
         write_export(path, src)
         out.append(path)
     return out
-
-
-REWARDS = {False: "rθ with its last layer re-fitted for v* (`rba.export`'s default)",
-           True: "rθ's trained weights (`--no-refit`)"}  # by args.no_refit
 
 
 Loss = Callable[[Export, np.ndarray], float]  # (export, a rollout's states) -> what the search minimises
@@ -187,6 +184,12 @@ def _ceiling_summary(results: list[dict]) -> str:
     return text
 
 
+def _reward_kind(args: dict) -> str:
+    if args.get("no_refit"):
+        return "rθ's trained weights (`--no-refit`)"
+    return f"rθ with its last layer re-fitted for v* (`rba.export`'s default; pull {args.get('refit_pull', 0.01)})"
+
+
 def markdown(report: dict) -> str:
     ceiling = "ceiling_within" in report
     head = "| profile | target | found | within ε | return: found / profile's params | rollouts |"
@@ -204,7 +207,7 @@ def markdown(report: dict) -> str:
             f"{n}** profiles ({report['share']:.0%}).{_ceiling_summary(report['results']) if ceiling else ''}\n\n"
             f"- Setting: {report['args']['domain']}, RBA-Global/{report['args']['rep']}, profiles from simulated "
             f"sessions on `{report['args']['split']}` targets (paper user, normal precision), ε = {eps}; the "
-            f"export's reward: {REWARDS[report['args'].get('no_refit', False)]}.\n"
+            f"export's reward: {_reward_kind(report['args'])}.\n"
             f"- Command: `{report['command']}` ({report['date']}, {report['machine']}).\n"
             "- A found return above the profile's own with the attributes outside ε is the reward's error, not the "
             "search's.\n\n" + "\n".join(rows) + "\n")
@@ -223,6 +226,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         "on what any reward learned from the same labels can find")
     p.add_argument("--no-refit", action="store_true",
                    help="export rθ's trained weights, not its last layer re-fitted for v* (the export's default)")
+    p.add_argument("--refit-pull", type=float, default=RefitConfig().pull,
+                   help="the re-fit's pull back to the trained last layer (RefitConfig.pull; tune on --split val)")
     p.add_argument("--out", type=Path, default=None, help="writes <out>.json and <out>.md; default "
                    "benchmarks/results/reward_only_<domain>")
     args = p.parse_args(argv)

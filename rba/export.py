@@ -36,7 +36,7 @@ import torch
 from rba.artifacts import BUILDERS, ModelNotFoundError, load_model, weights_sha
 from rba.domains import Domain, Rollout, domain_names, get_domain
 from rba.learn.common import Ragged
-from rba.learn.global_reward import refit_for_target
+from rba.learn.global_reward import RefitConfig, refit_for_target
 from rba.library import SkillLibrary
 from rba.methods import get_method
 from rba.storage import write_atomic
@@ -128,7 +128,8 @@ class ExportSource:
     feedback: list[dict[str, Any]]  # rounds in step order: step, feedback, rollout_before, rollout_after
     clip: bytes  # the chosen clip's MP4
     rollout: Rollout | None = None  # the chosen rollout when no library holds it (a generated one), else None
-    refit: bool = True  # a global reward's last layer re-fitted for v* (False: the trained weights, to compare)
+    # how a global reward's last layer is re-fitted for v* (None: the trained weights, to compare)
+    refit: RefitConfig | None = field(default_factory=RefitConfig)
 
 
 @dataclass(frozen=True)
@@ -184,7 +185,8 @@ REWARD_NOTES = {
 def _refit(src: ExportSource, arts: dict[str, Any], zeta: np.ndarray, card: dict) -> tuple[torch.nn.Module, dict]:
     """rθ with its last layer re-fitted for v* = ``zeta`` on the library's ζσ (the labels it was trained on)."""
     data = Ragged.from_numpy(src.library.states, src.library.state_offsets)
-    model, info = refit_for_target(arts["global_reward"].model, data, arts["ranker"].model.score(data), zeta)
+    model, info = refit_for_target(arts["global_reward"].model, data, arts["ranker"].model.score(data), zeta,
+                                   src.refit)
     refit = {"from_weights_sha": card["weights_sha"], "library": src.library.split, **info}
     return model, {**card, "weights_sha": weights_sha(model), "refit": refit}
 
@@ -223,7 +225,7 @@ def build_export(src: ExportSource) -> tuple[Profile, RewardPart | None]:
             note = made
         else:
             model, card = arts[kind].model, arts[kind].card
-            if kind == "global_reward" and src.refit:
+            if kind == "global_reward" and src.refit is not None:
                 model, card = _refit(src, arts, zeta, card)
             reward = RewardPart(kind, model.state_dict(), card, *made)
             note = REWARD_NOTES[kind]

@@ -230,7 +230,7 @@ def test_a_local_session_satisfied_at_once_exports_no_reward(toy_roots, tmp_path
 
 def test_a_global_export_refits_the_rewards_last_layer_for_the_chosen_clip(app_env, exported, toy_roots):
     """The exported rθ is the trained one with only its last layer re-fitted for v*; it orders the library near v*
-    by ζσ distance better than the trained weights; ``refit=False`` exports the trained weights (to compare)."""
+    by ζσ distance better than the trained weights; ``refit=None`` exports the trained weights (to compare)."""
     import dataclasses
 
     import numpy as np
@@ -269,6 +269,6 @@ def test_a_global_export_refits_the_rewards_last_layer_for_the_chosen_clip(app_e
 
     src = ExportSource("toy", "global", "onehot", app_env["version"], "builtin", toy_roots[1], serve,
                        app_env["chosen"], [], clip=b"clip")
-    _, plain = build_export(dataclasses.replace(src, refit=False))
+    _, plain = build_export(dataclasses.replace(src, refit=None))
     assert "refit" not in plain.card and all(torch.equal(v, trained.model.state_dict()[k])
                                               for k, v in plain.weights.items())
