@@ -187,7 +187,9 @@ def _ceiling_summary(results: list[dict]) -> str:
 def _reward_kind(args: dict) -> str:
     if args.get("no_refit"):
         return "rθ's trained weights (`--no-refit`)"
-    return f"rθ with its last layer re-fitted for v* (`rba.export`'s default; pull {args.get('refit_pull', 0.01)})"
+    if "refit_pull" not in args:  # a report from before the re-fit
+        return "rθ's trained weights"
+    return f"rθ with its last layer re-fitted for v* (`rba.export`'s default; pull {args['refit_pull']})"
 
 
 def markdown(report: dict) -> str:
@@ -222,8 +224,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--budget", type=int, default=120, help="simulated rollouts per search")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--ceiling", action="store_true",
-                   help="search each profile again by ζσ distance to v* (what rθ was trained to rank by): the bound "
-                        "on what any reward learned from the same labels can find")
+                   help="search each profile again by ζσ distance to v* (what rθ was trained to rank by): what the "
+                        "labels rθ learns from can tell apart, under the same search")
     p.add_argument("--no-refit", action="store_true",
                    help="export rθ's trained weights, not its last layer re-fitted for v* (the export's default)")
     p.add_argument("--refit-pull", type=float, default=RefitConfig().pull,
@@ -231,6 +233,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--out", type=Path, default=None, help="writes <out>.json and <out>.md; default "
                    "benchmarks/results/reward_only_<domain>")
     args = p.parse_args(argv)
+    if args.no_refit and args.refit_pull != RefitConfig().pull:
+        p.error("--refit-pull sets the re-fit that --no-refit turns off; give one of them")
     args.out = args.out or RESULTS / f"reward_only_{args.domain}"
     return args
 

@@ -182,13 +182,18 @@ REWARD_NOTES = {
 }
 
 
-def _refit(src: ExportSource, arts: dict[str, Any], zeta: np.ndarray, card: dict) -> tuple[torch.nn.Module, dict]:
-    """rθ with its last layer re-fitted for v* = ``zeta`` on the library's ζσ (the labels it was trained on)."""
+def _refit(src: ExportSource, arts: dict[str, Any], target_zeta: np.ndarray,
+           card: dict) -> tuple[torch.nn.Module, dict]:
+    """rθ with its last layer re-fitted for v* = ``target_zeta`` on the library's ζσ (the labels it was trained
+    on); the card's ``held_out`` and ``tuning`` stay those of the trained weights, as ``refit`` says."""
+    if not isinstance(src.refit, RefitConfig):
+        raise TypeError(f"ExportSource.refit must be a RefitConfig or None, got {src.refit!r}")
     data = Ragged.from_numpy(src.library.states, src.library.state_offsets)
-    model, info = refit_for_target(arts["global_reward"].model, data, arts["ranker"].model.score(data), zeta,
+    model, info = refit_for_target(arts["global_reward"].model, data, arts["ranker"].model.score(data), target_zeta,
                                    src.refit)
-    refit = {"from_weights_sha": card["weights_sha"], "library": src.library.split, **info}
-    return model, {**card, "weights_sha": weights_sha(model), "refit": refit}
+    info = {"from_weights_sha": card["weights_sha"], "library": src.library.split, **info,
+            "note": "held_out and tuning describe the trained weights (from_weights_sha)"}
+    return model, {**card, "weights_sha": weights_sha(model), "refit": info}
 
 
 def _versions() -> tuple[dict[str, str | None], str]:

@@ -236,10 +236,10 @@ def test_a_global_export_refits_the_rewards_last_layer_for_the_chosen_clip(app_e
     import numpy as np
     import torch
 
-    from rba.artifacts import load_model, weights_sha
+    from rba.artifacts import BUILDERS, load_model, weights_sha
     from rba.export import ExportSource, build_export
     from rba.learn.common import Ragged
-    from rba.learn.global_reward import LibraryScorer
+    from rba.learn.global_reward import LibraryScorer, RefitConfig
 
     export, trained = read_export(exported), load_model("toy", "global_reward", "onehot", toy_roots[1])
     card, refit = export.reward.card, export.reward.card["refit"]
@@ -269,6 +269,12 @@ def test_a_global_export_refits_the_rewards_last_layer_for_the_chosen_clip(app_e
 
     src = ExportSource("toy", "global", "onehot", app_env["version"], "builtin", toy_roots[1], serve,
                        app_env["chosen"], [], clip=b"clip")
+    _, sixty = build_export(dataclasses.replace(src, refit=RefitConfig(nearest=60)))  # the toy library has 300
+    assert sixty.card["refit"]["trajectories"] == 60
+    nearest_60 = BUILDERS["global_reward"](sixty.card)
+    nearest_60.load_state_dict(sixty.weights)
+    assert concordance(nearest_60) > concordance(trained.model)  # fitted on the 60 nearest v*, not any 60
+
     _, plain = build_export(dataclasses.replace(src, refit=None))
     assert "refit" not in plain.card and all(torch.equal(v, trained.model.state_dict()[k])
                                               for k, v in plain.weights.items())

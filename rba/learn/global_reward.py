@@ -193,8 +193,8 @@ class RefitConfig:
     steps: int = 300  # full-batch Adam steps
     lr: float = 1e-2
     pull: float = 1e-2  # L2 weight pulling the layer back to the trained one (per unit of squared change)
-    slack: float = 0.05  # ξ_r, as in training
-    focus: float | None = 0.3  # as in training
+    slack: float = 0.05  # ξ_r (GlobalRewardConfig's default)
+    focus: float | None = 0.3  # GlobalRewardConfig's default
 
 
 def refit_for_target(model: GlobalReward, data: Ragged, zeta: np.ndarray, zeta_target: np.ndarray,
@@ -207,7 +207,9 @@ def refit_for_target(model: GlobalReward, data: Ragged, zeta: np.ndarray, zeta_t
     each trajectory's return is linear in the last layer (Σ_t of the penultimate features), so re-fitting it
     on the same ζσ labels, focused at v*, costs one forward pass and a few hundred small steps.
     """
-    cfg = cfg or RefitConfig()
+    cfg = RefitConfig() if cfg is None else cfg
+    if len(model.f) < 3:
+        raise ValueError("a re-fit needs rθ with at least 2 layers (a last layer over penultimate features)")
     refit = copy.deepcopy(model).eval()
     last = refit.f[-1]
     with torch.no_grad():
@@ -217,10 +219,12 @@ def refit_for_target(model: GlobalReward, data: Ragged, zeta: np.ndarray, zeta_t
         states, seg = data.select(idx)
         h = refit.state_features(states) + v @ refit.f[0].weight[:, refit.state_dim:].T + refit.f[0].bias
         phi = segment_sum(refit.f[1:-1](h).T, seg, len(idx)).T  # [n, H]: Σ_t penultimate features
-        steps_of = segment_sum(torch.ones(len(seg)), seg, len(idx))  # [n]: each trajectory's length
+        steps_of = data.lengths[idx].float()  # [n]: each trajectory's length
     d = dist[idx]
     gap = d[None, :] - d[:, None]  # gap[i, j] > 0: i is nearer v*
     mask = torch.triu(gap.abs() > cfg.slack, diagonal=1)
+    if not mask.any():  # every trajectory as near v* as every other: nothing to rank by
+        return refit, {"trajectories": len(idx), "pairs": 0, "config": asdict(cfg)}
     weight = focus_weights(torch.minimum(d[:, None], d[None, :])[mask], cfg.focus)
     label = (gap[mask] > 0).float()
     w0, b0 = last.weight.detach().clone(), last.bias.detach().clone()
