@@ -185,11 +185,12 @@ def _ceiling_summary(results: list[dict]) -> str:
 
 
 def _reward_kind(args: dict) -> str:
-    if args.get("no_refit"):
-        return "rθ's trained weights (`--no-refit`)"
-    if "refit_pull" not in args:  # a report from before the re-fit
+    if "no_refit" not in args:  # a report from before the re-fit
         return "rθ's trained weights"
-    return f"rθ with its last layer re-fitted for v* (`rba.export`'s default; pull {args['refit_pull']})"
+    if args["no_refit"]:
+        return "rθ's trained weights (`--no-refit`)"
+    pull = args.get("refit_pull", RefitConfig().pull)  # absent before the option: the default
+    return f"rθ with its last layer re-fitted for v* (`rba.export`'s default; pull {pull})"
 
 
 def markdown(report: dict) -> str:
@@ -228,13 +229,16 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         "labels rθ learns from can tell apart, under the same search")
     p.add_argument("--no-refit", action="store_true",
                    help="export rθ's trained weights, not its last layer re-fitted for v* (the export's default)")
-    p.add_argument("--refit-pull", type=float, default=RefitConfig().pull,
-                   help="the re-fit's pull back to the trained last layer (RefitConfig.pull; tune on --split val)")
+    p.add_argument("--refit-pull", type=float, default=None,
+                   help="the re-fit's pull back to the trained last layer (default RefitConfig.pull; tune on --split "
+                        "val)")
     p.add_argument("--out", type=Path, default=None, help="writes <out>.json and <out>.md; default "
                    "benchmarks/results/reward_only_<domain>")
     args = p.parse_args(argv)
-    if args.no_refit and args.refit_pull != RefitConfig().pull:
+    if args.no_refit and args.refit_pull is not None:
         p.error("--refit-pull sets the re-fit that --no-refit turns off; give one of them")
+    if not args.no_refit and args.refit_pull is None:
+        args.refit_pull = RefitConfig().pull
     args.out = args.out or RESULTS / f"reward_only_{args.domain}"
     return args
 

@@ -65,3 +65,18 @@ def test_the_ceilings_misses_are_told_apart_by_the_distance_it_was_left_with():
     assert "Of its 2 misses, 1 ended with the ζσ distance above 0.05" in text and "and 1 below it" in text
     old = reward_only._ceiling_summary([{"ceiling": {"within": False}}])  # a report from before the distance
     assert "finds them in **0 of 1**" in old and "misses" not in old
+
+
+def test_a_report_names_the_reward_its_exports_carried(capsys):
+    """Trained or re-fitted (and with which pull), also for reports from before either option existed."""
+    import pytest
+
+    kind = reward_only._reward_kind
+    assert kind({}) == "rθ's trained weights"  # a report from before the re-fit
+    assert "`--no-refit`" in kind(vars(reward_only.parse_args(["--no-refit"])))
+    assert "re-fitted" in kind({"no_refit": False}) and "pull 0.01" in kind({"no_refit": False})  # before --refit-pull
+    assert "pull 0.03" in kind(vars(reward_only.parse_args(["--refit-pull", "0.03"])))
+    assert reward_only.parse_args(["--refit-pull", "0"]).refit_pull == 0.0  # a zero pull is a pull, not the default
+    with pytest.raises(SystemExit) as exit_:
+        reward_only.parse_args(["--no-refit", "--refit-pull", "0.03"])
+    assert exit_.value.code == 2 and "--no-refit turns off" in capsys.readouterr().err

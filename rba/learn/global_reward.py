@@ -159,7 +159,7 @@ def train_global_reward(data: Ragged, zeta: np.ndarray, cfg: GlobalRewardConfig,
         vt = _targets(v_all[idx[:cfg.batch_targets]], box, cfg, gen)
         states, seg = data.select(idx)
         returns = segment_sum(model.rewards(model.state_features(states), vt), seg, m)  # [B, M]
-        loop.step(step, _triplet_loss(returns, torch.cdist(vt, v_all[idx]), cfg))
+        loop.step(step, _triplet_loss(returns, torch.cdist(vt, v_all[idx]), cfg.slack, cfg.focus))
     model.eval()
     return model, {"trajectories": n, "final_loss": round(loop.loss, 5), "config": asdict(cfg)}
 
@@ -174,14 +174,14 @@ def _targets(near: torch.Tensor, box: tuple[torch.Tensor, torch.Tensor], cfg: Gl
     return vt
 
 
-def _triplet_loss(returns: torch.Tensor, dist: torch.Tensor, cfg: GlobalRewardConfig) -> torch.Tensor:
+def _triplet_loss(returns: torch.Tensor, dist: torch.Tensor, slack: float, focus: float | None) -> torch.Tensor:
     """Bradley-Terry over every (target b, trajectories i < j) whose distances to b differ by more than ξ.
 
     ``returns`` and ``dist`` are [B, M]: each trajectory's return and distance under each target.
     """
     gap = dist[:, None, :] - dist[:, :, None]  # gap[b, i, j] = d_j − d_i > 0: i is closer
-    mask = torch.triu(gap.abs() > cfg.slack, diagonal=1)
-    weight = focus_weights(torch.minimum(dist[:, :, None], dist[:, None, :])[mask], cfg.focus)
+    mask = torch.triu(gap.abs() > slack, diagonal=1)
+    weight = focus_weights(torch.minimum(dist[:, :, None], dist[:, None, :])[mask], focus)
     return bradley_terry_loss(returns[:, :, None], returns[:, None, :], (gap[mask] > 0).float(), weight, mask)
 
 
@@ -205,7 +205,8 @@ def refit_for_target(model: GlobalReward, data: Ragged, zeta: np.ndarray, zeta_t
     rθ's top for it. Training spread rθ's accuracy over every target; near one target its top can hold
     behaviours farther in ζσ than the chosen one (``benchmarks/results/reward_only_*.md``). With v* fixed,
     each trajectory's return is linear in the last layer (Σ_t of the penultimate features), so re-fitting it
-    on the same ζσ labels, focused at v*, costs one forward pass and a few hundred small steps.
+    with training's loss on the same ζσ labels, focused at v*, costs one forward pass and a few hundred small
+    steps.
     """
     cfg = RefitConfig() if cfg is None else cfg
     if len(model.f) < 3:
@@ -214,27 +215,27 @@ def refit_for_target(model: GlobalReward, data: Ragged, zeta: np.ndarray, zeta_t
     last = refit.f[-1]
     with torch.no_grad():
         v = refit.zeta_norm(torch.as_tensor(np.asarray(zeta_target), dtype=torch.float32).reshape(1, -1))
-        dist = torch.cdist(v, refit.zeta_norm(torch.as_tensor(zeta, dtype=torch.float32)))[0]
-        idx = torch.argsort(dist)[:cfg.nearest]
+        dist = torch.cdist(v, refit.zeta_norm(torch.as_tensor(zeta, dtype=torch.float32)))
+        idx = torch.argsort(dist[0])[:cfg.nearest]
         states, seg = data.select(idx)
-        h = refit.state_features(states) + v @ refit.f[0].weight[:, refit.state_dim:].T + refit.f[0].bias
-        phi = segment_sum(refit.f[1:-1](h).T, seg, len(idx)).T  # [n, H]: Σ_t penultimate features
+        # the first layer as in ``rewards``, its terms summed in another order: changing it moves the fitted bits,
+        # and every reported reward-only count is of these
+        first = refit.state_features(states) + v @ refit.f[0].weight[:, refit.state_dim:].T + refit.f[0].bias
+        penultimate = refit.f[1:-1](first)
+        phi = segment_sum(penultimate.T, seg, len(idx)).T  # [n, H]: Σ_t penultimate features
         steps_of = data.lengths[idx].float()  # [n]: each trajectory's length
-    d = dist[idx]
-    gap = d[None, :] - d[:, None]  # gap[i, j] > 0: i is nearer v*
-    mask = torch.triu(gap.abs() > cfg.slack, diagonal=1)
-    if not mask.any():  # every trajectory as near v* as every other: nothing to rank by
-        return refit, {"trajectories": len(idx), "pairs": 0, "config": asdict(cfg)}
-    weight = focus_weights(torch.minimum(d[:, None], d[None, :])[mask], cfg.focus)
-    label = (gap[mask] > 0).float()
+    d = dist[:, idx]  # [1, n]: one target, as training's loss takes them
+    info = {"trajectories": len(idx), "config": asdict(cfg)}
+    if float(d.max() - d.min()) <= cfg.slack:  # no pair farther apart than the slack: nothing to rank by
+        return refit, info
     w0, b0 = last.weight.detach().clone(), last.bias.detach().clone()
     w, b = w0.clone().requires_grad_(True), b0.clone().requires_grad_(True)
     opt = torch.optim.Adam([w, b], lr=cfg.lr)
 
     def loss_of() -> torch.Tensor:
-        ret = phi @ w[0] + steps_of * b[0]
-        bt = bradley_terry_loss(ret[:, None], ret[None, :], label, weight, mask)
-        return bt + cfg.pull * ((w - w0).pow(2).sum() + (b - b0).pow(2).sum())
+        ret = (phi @ w[0] + steps_of * b[0]).unsqueeze(0)
+        pull = (w - w0).pow(2).sum() + (b - b0).pow(2).sum()
+        return _triplet_loss(ret, d, cfg.slack, cfg.focus) + cfg.pull * pull
 
     with torch.no_grad():
         before = float(loss_of())
@@ -247,5 +248,4 @@ def refit_for_target(model: GlobalReward, data: Ragged, zeta: np.ndarray, zeta_t
         after = float(loss_of())
         last.weight.copy_(w)
         last.bias.copy_(b)
-    return refit, {"trajectories": len(idx), "pairs": int(mask.sum()), "loss_before": round(before, 5),
-                   "loss_after": round(after, 5), "config": asdict(cfg)}
+    return refit, {**info, "loss_before": round(before, 5), "loss_after": round(after, 5)}
