@@ -68,21 +68,37 @@ class Search:
 
 def step_context(svc: Services, key: tuple[str, str, str, str], search: Search | None) -> GenerationContext:
     """The generating context of ``key`` (domain, method, rep, model set), simulating on the compute layer for
-    ``search`` (it reports to it); without a search (guesses), a step that would simulate raises ``WouldSearch``."""
+    ``search`` (it reports to it); without a search (guesses), a step that would search raises ``WouldSearch``.
+
+    The serve clip a search falls back to is rendered beside it (as a guess: the search keeps the CPU first);
+    without it, a search that fell short kept the person waiting for a whole serve clip's render after it.
+    """
     gctx = svc.catalog.generation(*key)
+    serve = gctx.base.serve
 
     def simulate(jobs: Iterable[SimJob]) -> Iterator[Rollout]:
         if search is None:
-            raise WouldSearch
+            raise WouldSearch(None)
         search.simulating = True
         search.news.set()
         return svc.compute.simulate(jobs)
 
-    return replace(gctx, simulate=simulate, on_progress=None if search is None else search.progress)
+    def before_search(fallback: str) -> None:
+        if search is None:
+            raise WouldSearch(fallback)
+        svc.clips.request(svc.clips.key(serve, fallback), serve, urgent=False)
+
+    return replace(gctx, simulate=simulate, on_progress=None if search is None else search.progress,
+                   on_search=before_search)
 
 
 class WouldSearch(Exception):
-    """A guessed step would start a search: guesses never spend the compute layer on one."""
+    """A guessed step would start a search: guesses never spend the compute layer on one. ``fallback``: the serve
+    clip that step shows if its search falls short (None: not known), which a guess can render ahead."""
+
+    def __init__(self, fallback: str | None) -> None:
+        super().__init__(fallback)
+        self.fallback = fallback
 
 
 def begin(svc: Services, s: TuningSession) -> Search:

@@ -63,8 +63,9 @@ def next_clips(svc: Services, key: ContextKey, generate: bool, state: dict, last
                stale: Callable[[], bool]) -> list[str]:
     """The serve clip each possible next answer would show, most likely first (computed on copies, memoised).
 
-    A generating session's answers that would start a search are skipped: a guess never spends the compute
-    layer on one (the step renders what it made).
+    A generating session's answer that would start a search gives the serve clip that search falls back to: a
+    guess never spends the compute layer on a search (the step renders what it made), but the fallback is the clip
+    a person waits longest for when the search falls short.
     """
     ctx = svc.catalog.context(*key)
     step_ctx = generation.step_context(svc, key, None) if generate else ctx
@@ -74,8 +75,10 @@ def next_clips(svc: Services, key: ContextKey, generate: bool, state: dict, last
             break
         try:
             rollout_id = svc.transitions.advance(step_ctx, key[1], state, answer)[0]
-        except generation.WouldSearch:
-            continue
+        except generation.WouldSearch as exc:
+            if exc.fallback is None:
+                continue
+            rollout_id = exc.fallback
         if not is_generated(rollout_id):
             nexts.append(rollout_id)
     return list(dict.fromkeys(nexts))

@@ -99,6 +99,8 @@ class GenerationContext:
     spread: float = SPREAD
     objective: str = "zeta"
     on_progress: Progress | None = None  # (generation k, of K) of the running search
+    # told, just before a search starts, the serve clip shown if it falls short (the app renders that one meanwhile)
+    on_search: Callable[[str], None] | None = None
     store: GeneratedStore = field(default_factory=GeneratedStore)
     first_from_library: bool = False  # the first clip is the library's (the app: one first clip for every session)
 
@@ -210,6 +212,8 @@ class GeneratingGlobalAgent(Agent):
         if (not self._off_target(off, dist.scale) or (before is None and self.ctx.first_from_library)
                 or self._failed_near(dist)):
             return library
+        if self.ctx.on_search is not None:
+            self.ctx.on_search(library)
         found, zeta = self.ctx.generate(self.inner.target, self._starts(dist), len(self.searches))
         moves = before is None or all(h * (zeta[a] - before[a]) > 0 for a, h in asked)
         reached = float(dist.distances(zeta)[0]) if found.rollout is not None else None

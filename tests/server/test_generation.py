@@ -12,11 +12,15 @@ import time
 import pytest
 from fastapi.testclient import TestClient
 from pydantic import ValidationError
+from sqlmodel import Session
 
 from rba.export import read_export, replay
 from rba.generate import generated_id, is_generated
+from server.admin_models import BUILTIN_VERSION
 from server.exporting import export_to_file
 from server.main import create_app
+from server.models import TuningSession
+from server.prerender import next_clips
 from server.settings import GENERATE_SECONDS, GENERATE_SECONDS_OTHERS, Settings
 from tests.fakes import FakeCompute, InProcessCompute, InstantCompute
 from tests.server.conftest import more
@@ -206,8 +210,17 @@ def test_a_session_showing_a_generated_clip_continues_after_a_restart(gen_settin
                [h["rollout_before"]["rollout_id"] for h in other["history"]]
 
 
-def test_guesses_never_search(gen_settings):
-    """Prerendering works out a generating session's next clips too, skipping every answer that would search."""
+def fallback_of(client: TestClient, sid: str) -> str:
+    """The serve clip the session's last step showed or, when it showed a made clip, would have fallen back to."""
+    svc = client.app.state.services
+    with Session(svc.engine) as db:
+        state = db.get(TuningSession, sid).agent_state
+    return svc.catalog.context("toy", "global", "onehot", BUILTIN_VERSION).serve.ids[state["shown"]]
+
+
+def test_guesses_never_search_but_render_the_clip_a_search_falls_back_to(gen_settings):
+    """Prerendering works out a generating session's next clips too: an answer that would search never searches
+    as a guess, but the serve clip its search would fall back to is rendered ahead."""
     compute = InProcessCompute()
     with TestClient(create_app(gen_settings.model_copy(update={"prerender": True}), compute)) as client:
         s = client.post("/api/sessions", json={"domain": "toy"}).json()
@@ -215,8 +228,26 @@ def test_guesses_never_search(gen_settings):
         assert svc.wait_idle(SEARCH_SECONDS)
         assert compute.batches == 0 and svc.thinker.failed == 0 and svc.thinker.done >= 1
         assert compute.jobs and not any(is_generated(j.rollout.id) for j in compute.jobs)  # the serve clips only
+        with Session(svc.engine) as db:
+            state = db.get(TuningSession, s["id"]).agent_state
+        key = ("toy", "global", "onehot", BUILTIN_VERSION)
+        guessed = next_clips(svc, key, True, state, None, lambda: False)  # what the thinker queued first
         answer_generating(client, s)  # the real answer still searches
         assert compute.batches >= 1
+        assert fallback_of(client, s["id"]) in guessed
+
+
+def test_a_search_renders_its_fallback_beside_it_as_a_guess(gen_settings):
+    """Without prerendering, the serve clip a search would fall back to is asked for as it starts, not urgently:
+    the search keeps the CPU first, and a search that falls short does not leave the person waiting for a render."""
+    compute = InProcessCompute()
+    with TestClient(create_app(gen_settings, compute)) as client:
+        s = client.post("/api/sessions", json={"domain": "toy"}).json()
+        before = len(compute.jobs)
+        now = answer_generating(client, s)
+        renders = {j.rollout.id: urgent for j, (urgent, _) in zip(compute.jobs[before:], compute.submitted[before:],
+                                                                   strict=True)}
+        assert renders == {fallback_of(client, s["id"]): False, now["clip"]["rollout_id"]: True}
 
 
 class HoldsGeneratedRenders(InstantCompute):
