@@ -70,8 +70,9 @@ def step_context(svc: Services, key: tuple[str, str, str, str], search: Search |
     """The generating context of ``key`` (domain, method, rep, model set), simulating on the compute layer for
     ``search`` (it reports to it); without a search (guesses), a step that would search raises ``WouldSearch``.
 
-    The serve clip a search falls back to is rendered beside it (as a guess: the search keeps the CPU first);
-    without it, a search that fell short kept the person waiting for a whole serve clip's render after it.
+    The serve clip a search falls back to, unless stored, is rendered beside it, as urgently: a search that fell
+    short kept the person waiting for that render after it, and as a guess (niced below the search) it was slower
+    still (``benchmarks/results/generation_latency.md``).
     """
     gctx = svc.catalog.generation(*key)
     serve = gctx.base.serve
@@ -86,7 +87,7 @@ def step_context(svc: Services, key: tuple[str, str, str, str], search: Search |
     def before_search(fallback: str) -> None:
         if search is None:
             raise WouldSearch(fallback)
-        svc.clips.request(svc.clips.key(serve, fallback), serve, urgent=False)
+        svc.clips.request(svc.clips.key(serve, fallback), serve, urgent=True)
 
     return replace(gctx, simulate=simulate, on_progress=None if search is None else search.progress,
                    on_search=before_search)

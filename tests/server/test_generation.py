@@ -237,9 +237,9 @@ def test_guesses_never_search_but_render_the_clip_a_search_falls_back_to(gen_set
         assert fallback_of(client, s["id"]) in guessed
 
 
-def test_a_search_renders_its_fallback_beside_it_as_a_guess(gen_settings):
-    """Without prerendering, the serve clip a search would fall back to is asked for as it starts, not urgently:
-    the search keeps the CPU first, and a search that falls short does not leave the person waiting for a render."""
+def test_a_search_renders_its_fallback_beside_it(gen_settings):
+    """Without prerendering, the serve clip a search would fall back to is asked for, urgently, as it starts: a
+    search that falls short does not leave the person waiting for a render."""
     compute = InProcessCompute()
     with TestClient(create_app(gen_settings, compute)) as client:
         s = client.post("/api/sessions", json={"domain": "toy"}).json()
@@ -247,7 +247,7 @@ def test_a_search_renders_its_fallback_beside_it_as_a_guess(gen_settings):
         now = answer_generating(client, s)
         renders = {j.rollout.id: urgent for j, (urgent, _) in zip(compute.jobs[before:], compute.submitted[before:],
                                                                    strict=True)}
-        assert renders == {fallback_of(client, s["id"]): False, now["clip"]["rollout_id"]: True}
+        assert renders == {fallback_of(client, s["id"]): True, now["clip"]["rollout_id"]: True}
 
 
 class HoldsGeneratedRenders(InstantCompute):
