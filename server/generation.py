@@ -15,6 +15,7 @@ Import direction: above ``server.services``, below ``server.views``, ``server.pr
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from collections.abc import Iterable, Iterator
@@ -30,8 +31,9 @@ from rba.generate import is_generated
 from rba.interact.generating import GenerationContext
 from server.errors import not_found
 from server.models import GeneratedClip, GenerationPublic, TuningSession
-from server.services import Services
+from server.services import ClipRef, Services
 
+log = logging.getLogger(__name__)
 KEPT_ENDED = 1024  # ended searches kept for their pages' last polls; older ones are forgotten
 
 
@@ -75,10 +77,9 @@ def step_context(svc: Services, key: tuple[str, str, str, str], search: Search |
     still (``benchmarks/results/generation_latency.md``).
     """
     gctx = svc.catalog.generation(*key)
-    serve = gctx.base.serve
 
     def simulate(jobs: Iterable[SimJob]) -> Iterator[Rollout]:
-        if search is None:
+        if search is None:  # a guard: the agent calls on_search before any simulation, and that raises first
             raise WouldSearch(None)
         search.simulating = True
         search.news.set()
@@ -87,7 +88,11 @@ def step_context(svc: Services, key: tuple[str, str, str, str], search: Search |
     def before_search(fallback: str) -> None:
         if search is None:
             raise WouldSearch(fallback)
-        svc.clips.request(svc.clips.key(serve, fallback), serve, urgent=True)
+        try:  # a head start on a render: the search must not fail for it (the page asks for the clip again)
+            svc.clips.request(*svc.prefetch.resolve(ClipRef(key[0], fallback)), urgent=True)
+        except Exception:
+            log.warning("session search: the fallback clip %s of %s could not be requested", fallback, key[0],
+                        exc_info=True)
 
     return replace(gctx, simulate=simulate, on_progress=None if search is None else search.progress,
                    on_search=before_search)

@@ -59,8 +59,7 @@ class Settings(LibrarySettings):
         "simulated by then (rba.generate.SearchConfig); default: per domain, chosen on val (walker and "
         "manipulator 1 s, snake 1.5 s, the others 2 s: server.settings.GENERATE_SECONDS); a value here bounds "
         "every domain's searches, a large one leaves the 48-simulation budget alone to bound them. How long people "
-        "then wait: "
-        "benchmarks/results/generation_latency.md")
+        "then wait: benchmarks/results/generation_latency.md")
     warm_start: bool = Field(default=True, description="load models and render first clips after start-up")
     replica: str | None = Field(default=None, max_length=120, description="this server's name among the API "
                                 "replicas on one database; default <hostname>:<port>. A restarted replica fails "

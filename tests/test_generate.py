@@ -356,3 +356,17 @@ def test_evaluate_over_the_first_serve_rollouts_only(gap_roots, monkeypatch, cap
         evaluate("toy", "oracle", targets=1, data_root=data, models_root=models, serve_size=40)
     with pytest.raises(ValueError, match=r"the serve library has \d+ rollouts; asked for the first 100000"):
         evaluate("toy", "global", targets=1, data_root=data, models_root=models, serve_size=100_000)
+
+
+def test_the_app_is_told_the_library_clip_before_each_search_and_only_then(ctx, gap_roots):
+    """``on_search`` names, before a search runs, the serve clip the agent shows if it falls short (the app renders
+    it meanwhile); a step that shows a library clip without searching says nothing."""
+    told = []
+    agent = GeneratingGlobalAgent(_gen(ctx, gap_roots, threshold=1e-9, spread=0.0, on_search=told.append))
+    agent.first_query()  # no search ends this close: the library clip is shown
+    assert len(agent.searches) == 1 and told == [ctx.serve.ids[agent.inner.shown]]
+    agent._choose(None, [])  # a search fell short near this target: the library clip, no search, nothing said
+    assert len(agent.searches) == 1 and len(told) == 1
+    sure = GeneratingGlobalAgent(_gen(ctx, gap_roots, threshold=10.0, on_search=told.append))  # every clip is near
+    sure.first_query()
+    assert sure.searches == [] and len(told) == 1

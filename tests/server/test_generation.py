@@ -16,8 +16,10 @@ from sqlmodel import Session
 
 from rba.export import read_export, replay
 from rba.generate import generated_id, is_generated
+from rba.interact import AttributeFeedback
 from server.admin_models import BUILTIN_VERSION
 from server.exporting import export_to_file
+from server.generation import WouldSearch, step_context
 from server.main import create_app
 from server.models import TuningSession
 from server.prerender import next_clips
@@ -220,7 +222,8 @@ def fallback_of(client: TestClient, sid: str) -> str:
 
 def test_guesses_never_search_but_render_the_clip_a_search_falls_back_to(gen_settings):
     """Prerendering works out a generating session's next clips too: an answer that would search never searches
-    as a guess, but the serve clip its search would fall back to is rendered ahead."""
+    as a guess (``WouldSearch``, nothing memoised), but the serve clip its search would fall back to is among the
+    first guesses, and rendered."""
     compute = InProcessCompute()
     with TestClient(create_app(gen_settings.model_copy(update={"prerender": True}), compute)) as client:
         s = client.post("/api/sessions", json={"domain": "toy"}).json()
@@ -232,22 +235,34 @@ def test_guesses_never_search_but_render_the_clip_a_search_falls_back_to(gen_set
             state = db.get(TuningSession, s["id"]).agent_state
         key = ("toy", "global", "onehot", BUILTIN_VERSION)
         guessed = next_clips(svc, key, True, state, None, lambda: False)  # what the thinker queued first
+        misses = svc.transitions.misses
+        with pytest.raises(WouldSearch) as would:
+            svc.transitions.advance(step_context(svc, key, None), "global", state, [AttributeFeedback("amplitude",
+                                                                                                      -1)])
+        assert svc.transitions.misses == misses  # nothing memoised: the real answer runs the step (and searches)
+        rendered = [j.rollout.id for j in compute.jobs]
         answer_generating(client, s)  # the real answer still searches
         assert compute.batches >= 1
-        assert fallback_of(client, s["id"]) in guessed
+        assert would.value.fallback == fallback_of(client, s["id"])
+        assert would.value.fallback in guessed and would.value.fallback in rendered
 
 
 def test_a_search_renders_its_fallback_beside_it(gen_settings):
-    """Without prerendering, the serve clip a search would fall back to is asked for, urgently, as it starts: a
-    search that falls short does not leave the person waiting for a render."""
+    """Without prerendering, the serve clip a search would fall back to is asked for, urgently, before its first
+    simulation: a search that falls short does not leave the person waiting for a render."""
     compute = InProcessCompute()
+    at_first_simulation = []
+    simulate = compute.simulate
+    compute.simulate = lambda jobs: at_first_simulation.append(len(compute.jobs)) or simulate(jobs)
     with TestClient(create_app(gen_settings, compute)) as client:
         s = client.post("/api/sessions", json={"domain": "toy"}).json()
         before = len(compute.jobs)
         now = answer_generating(client, s)
-        renders = {j.rollout.id: urgent for j, (urgent, _) in zip(compute.jobs[before:], compute.submitted[before:],
-                                                                   strict=True)}
-        assert renders == {fallback_of(client, s["id"]): True, now["clip"]["rollout_id"]: True}
+        assert is_generated(now["clip"]["rollout_id"])
+        made = now["clip"]["rollout_id"]
+        assert [j.rollout.id for j in compute.jobs[before:]] == [fallback_of(client, s["id"]), made]
+        assert [urgent for urgent, _ in compute.submitted[before:]] == [True, True]
+        assert at_first_simulation[0] == before + 1  # asked for before the search simulated anything
 
 
 class HoldsGeneratedRenders(InstantCompute):
