@@ -10,8 +10,8 @@ from rba.settings import LibrarySettings
 from rba.store import Store
 
 # a search's time bound (s) per domain, chosen on val (generation_seconds_val.md): the walker and the manipulator keep
-# SR (and AF) at 1 s; the snake 1.5 s, where its val SR (0.55) stays within the spread of two 2 s runs (0.45-0.75)
-# and its clips are playable within 2 s (generation_latency.md); a domain not named here gets 2 s
+# SR (and AF) at 1 s; the snake 1.5 s, the longest bound whose clips are playable within 2 s (generation_latency.md),
+# with the same val SR as 2 s (0.55); a domain not named here gets 2 s
 GENERATE_SECONDS = {"walker": 1.0, "manipulator": 1.0, "snake": 1.5}
 GENERATE_SECONDS_OTHERS = 2.0
 
