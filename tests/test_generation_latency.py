@@ -25,3 +25,15 @@ def test_a_table_names_the_bounds_it_was_measured_at():
     default = latency.bound_text(None)
     assert all(f"{d} {s:g} s" in default for d, s in GENERATE_SECONDS.items())
     assert f"others {GENERATE_SECONDS_OTHERS:g} s" in default
+
+
+def test_answers_whose_search_fell_short_have_their_own_column():
+    run = latency.DomainRun("snake", [latency.Answer(1.5, True, True, 1.2), latency.Answer(2.5, True, False, 2.4),
+                                      latency.Answer(0.1, False, False)], sessions=1)
+    row = latency.domain_report(run)
+    assert row["searched"]["answers"] == 2 and row["fell_short"] == latency.summary([run.answers[1]])
+    assert row["generated_shown"] == 1 and row["other"]["answers"] == 1
+    report = {"command": "x", "date": "d", "machine": "m", "load": [0.0, 0.0],
+              "bounds": [{"bound_s": 1.5, "domains": [row], "all_searched": row["searched"]}]}
+    assert "| snake | 1 (0) | 2, " in latency.markdown(report)
+    assert f"| 1 | 1, {row['fell_short']['p95_s']} | 1, " in latency.markdown(report)

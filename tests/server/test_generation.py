@@ -223,9 +223,11 @@ def fallback_of(client: TestClient, sid: str) -> str:
 def test_guesses_never_search_but_render_the_clip_a_search_falls_back_to(gen_settings):
     """Prerendering works out a generating session's next clips too: an answer that would search never searches
     as a guess (``WouldSearch``, nothing memoised), but the serve clip its search would fall back to is among the
-    first guesses, and rendered."""
+    first guesses, and rendered (the library and the shared trees are not prerendered here: only the session's
+    next clips are)."""
     compute = InProcessCompute()
-    with TestClient(create_app(gen_settings.model_copy(update={"prerender": True}), compute)) as client:
+    only_next = {"prerender": True, "prerender_library": False, "prerender_tree_min_share": 1.0}
+    with TestClient(create_app(gen_settings.model_copy(update=only_next), compute)) as client:
         s = client.post("/api/sessions", json={"domain": "toy"}).json()
         svc = client.app.state.services
         assert svc.wait_idle(SEARCH_SECONDS)
