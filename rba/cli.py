@@ -63,6 +63,14 @@ def _non_negative(text: str) -> float:
     return value
 
 
+def _noise_share(text: str) -> float:
+    """A share in [0, 1) of ζσ's range: the generating agent's soft step (``rba eval --gen-noise``)."""
+    value = _number(text)
+    if not 0.0 <= value < 1.0:
+        raise argparse.ArgumentTypeError(f"must be a share in [0, 1), got {text}")
+    return value
+
+
 def seconds_arg(text: str) -> float:
     """A search's time bound in seconds (> 0, finite): ``rba eval --gen-seconds`` and the benchmarks' options."""
     value = _number(text)
@@ -178,6 +186,8 @@ def _generation(args) -> tuple[dict, Compute | None]:
         options["threshold"] = args.gen_threshold
     if args.gen_spread is not None:
         options["spread"] = args.gen_spread
+    if args.gen_noise is not None:
+        options["zeta_noise"] = args.gen_noise
     if not args.ray and args.gen_workers == 1:
         return options, None
     from rba.compute import make_compute
@@ -375,6 +385,9 @@ def _eval_command(sub) -> argparse.ArgumentParser:
                    help="generate only where the library clip is also off the target by more than this share of "
                         "the belief's half interquartile range (0: by the threshold alone); default: "
                         "rba.interact.generating.SPREAD (1.0); tune it on --split val")
+    e.add_argument("--gen-noise", type=_noise_share, default=None,
+                   help="the generating agent's soft step for answers, a share of ζσ's train range (0: the hard "
+                        "step); default: the domain's Domain.zeta_noise; tune it on --split val")
     e.add_argument("--gen-workers", type=_positive, default=2,
                    help="local processes simulating candidates (1: this process)")
     _ray_option(e)

@@ -25,6 +25,8 @@ from rba.generate import (
     replay,
     search,
 )
+from rba.interact.base import AttributeFeedback
+from rba.interact.bisection import posterior
 from rba.interact.generating import RETRY_AFTER, GeneratingGlobalAgent, GenerationContext, generating_agents
 from rba.interact.global_agent import GlobalAgent, GlobalContext
 from rba.interact.users import parse_user
@@ -370,3 +372,55 @@ def test_the_app_is_told_the_library_clip_before_each_search_and_only_then(ctx, 
     sure = GeneratingGlobalAgent(_gen(ctx, gap_roots, threshold=10.0, on_search=told.append))  # every clip is near
     sure.first_query()
     assert sure.searches == [] and len(told) == 1
+
+
+def test_the_soft_step_is_the_domains_unless_asked_and_kept_in_the_state(ctx, gap_roots, monkeypatch):
+    monkeypatch.setattr(Toy, "zeta_noise", 0.04)
+    agent = GeneratingGlobalAgent(_gen(ctx, gap_roots))
+    assert agent.ctx.zeta_noise == agent.inner.zeta_noise == 0.04  # the domain's
+    assert GeneratingGlobalAgent(_gen(ctx, gap_roots, zeta_noise=0.0)).inner.zeta_noise == 0.0  # asked
+    agent.first_query()
+    agent.update([AttributeFeedback("amplitude", 1)])
+    state = json.loads(json.dumps(agent.state_dict()))
+    restored = GeneratingGlobalAgent.from_state(state, _gen(ctx, gap_roots, zeta_noise=0.0))
+    assert restored.inner.zeta_noise == 0.04  # a session keeps the belief it started with
+    np.testing.assert_allclose(restored.inner.belief(0), agent.inner.belief(0))
+    del state["zeta_noise"]  # a session from before the soft step
+    assert GeneratingGlobalAgent.from_state(state, _gen(ctx, gap_roots)).inner.zeta_noise == 0.0
+    with pytest.raises(ValueError, match=r"zeta_noise is a share of ζσ's range in \[0, 1\), got 1.5"):
+        _gen(ctx, gap_roots, zeta_noise=1.5)
+
+
+def test_cli_gen_noise_option(gap_roots, monkeypatch, capsys, tmp_path):
+    monkeypatch.setenv("RBA_DATA_DIR", str(gap_roots[0]))
+    monkeypatch.setenv("RBA_MODELS_DIR", str(gap_roots[1]))
+    asked, load = [], GenerationContext.load.__func__
+
+    def recording_load(cls, base, models_root=None, **options):
+        gen = load(cls, base, models_root, **options)
+        asked.append(gen.zeta_noise)
+        return gen
+
+    monkeypatch.setattr(GenerationContext, "load", classmethod(recording_load))
+    for noise in ("0.05", None):
+        extra = ["--gen-noise", noise] if noise else []
+        assert main(["eval", "--domain", "toy", "--targets", "1", "--gen-workers", "1", "--gen-budget", "8",
+                     *extra]) == 0
+    assert asked == [0.05, Toy.zeta_noise]  # asked, then the domain's
+    for bad in ("-0.1", "1", "wide"):
+        with pytest.raises(SystemExit) as exit_:
+            main(["eval", "--domain", "toy", "--gen-noise", bad])
+        assert exit_.value.code == 2
+        assert f"argument --gen-noise: must be a share in [0, 1), got {bad}" in capsys.readouterr().err
+
+
+def test_a_soft_step_keeps_answers_that_contradict_each_other_one_bump():
+    grid, flat = np.linspace(0.0, 1.0, 401), np.zeros(401)
+    answers = [(0.52, 1), (0.48, -1)]  # "more than at 0.52", then "less than at 0.48": ζσ ordered two clips wrongly
+    hard, soft = posterior(grid, flat, answers, 0.1), posterior(grid, flat, answers, 0.1, width=0.05)
+    between = (grid > 0.48) & (grid < 0.52)
+    assert hard[between].max() < hard.max() / 8  # the hard step splits the belief in two, away from both clips
+    assert between[np.argmax(soft)]  # the soft step: one bump, between them
+    off = np.abs(grid[:, None] - np.array([0.48, 0.52])).min(1) > 1e-9
+    sharp = posterior(grid, flat, answers, 0.1, width=1e-12)[off]
+    np.testing.assert_allclose(sharp / sharp.sum(), hard[off] / hard[off].sum())  # the hard step is its limit

@@ -194,6 +194,9 @@ class Domain(ABC):
     frame_rate: float  # frames per second of ``replay`` (and of rendered clips)
     serve_size: int = 1200  # rollouts in ``serve`` by default: denser where high-precision targets need it
     ranker_steps: int | None = None  # ζσ gradient steps of `rba train` where RankerConfig's default underfits
+    # the generating agent's soft step for answers, a share of ζσ's train range (rba.interact.bisection): about how
+    # far ζσ can put a clip from where a person would; 0: the hard step. Chosen on val (generation_noise_val.md)
+    zeta_noise: float = 0.0
     # (kind, rep) of a learned model the states come from (models/<name>/<kind>-<rep>.pt): loaded, never trained
     # here; `rba build` makes it when missing (rba.training.prepare_states)
     state_encoder: tuple[str, str] | None = None

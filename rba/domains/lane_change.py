@@ -237,6 +237,7 @@ class LaneChange(Domain):
     frame_rate = float(SIM_HZ)
     feedback_phrases = FEEDBACK_PHRASES
     serve_size = 3600  # 1,200 leaves 19 % of test targets with no serve clip within the high-precision ε
+    zeta_noise = 0.03  # the generating agent's soft step: val AF lowest with SR held (generation_noise_val.md)
 
     def __init__(self) -> None:
         self._local = threading.local()  # one highway-env per thread (simulation and rendering)

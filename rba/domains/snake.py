@@ -329,6 +329,7 @@ class Snake(Domain):
     param_names = tuple(PARAM_RANGES)
     frame_rate = 1.0 / (FRAME_EVERY * CONTROL_EVERY * TIMESTEP)
     feedback_phrases = FEEDBACK_PHRASES
+    zeta_noise = 0.03  # the generating agent's soft step: val AF lowest with SR held (generation_noise_val.md)
 
     def __init__(self) -> None:
         self._model: mujoco.MjModel | None = None

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from rba.artifacts import load_model
-from rba.domains import Rollout
+from rba.domains import Rollout, get_domain
 from rba.generate import (
     Generation,
     Progress,
@@ -103,10 +103,15 @@ class GenerationContext:
     on_search: Callable[[str], None] | None = None
     store: GeneratedStore = field(default_factory=GeneratedStore)
     first_from_library: bool = False  # the first clip is the library's (the app: one first clip for every session)
+    zeta_noise: float | None = None  # the belief's soft step (None: the domain's ``Domain.zeta_noise``)
 
     def __post_init__(self) -> None:
         if self.objective not in OBJECTIVES:
             raise ValueError(f"unknown objective {self.objective!r}; valid: {', '.join(OBJECTIVES)}")
+        if self.zeta_noise is None:
+            self.zeta_noise = get_domain(self.base.domain).zeta_noise
+        if not 0.0 <= self.zeta_noise < 1.0:
+            raise ValueError(f"zeta_noise is a share of ζσ's range in [0, 1), got {self.zeta_noise}")
 
     @classmethod
     def load(cls, base: GlobalContext, models_root=None, **options) -> GenerationContext:
@@ -143,7 +148,7 @@ class GeneratingGlobalAgent(Agent):
                  generated: dict[str, dict] | None = None, showing: str | None = None,
                  searches: list[dict] | None = None) -> None:
         self.ctx = ctx
-        self.inner = inner or GlobalAgent(ctx.base)
+        self.inner = inner or GlobalAgent(ctx.base, zeta_noise=ctx.zeta_noise)
         self.generated = dict(generated or {})  # id -> {"params", "seed", "zeta"}
         self.showing = showing  # the generated clip shown now (None: the inner agent's library clip)
         self.searches = list(searches or [])  # per search: simulations, whether its clip was shown

@@ -111,9 +111,10 @@ class GlobalAgent(Agent):
     feedback_kind = "attribute"
 
     def __init__(self, ctx: GlobalContext, answers: list | None = None, shown: int | None = None,
-                 rejected: list[int] | None = None, error_rate: float = ERROR_RATE) -> None:
+                 rejected: list[int] | None = None, error_rate: float = ERROR_RATE, zeta_noise: float = 0.0) -> None:
         self.ctx = ctx
         self.error_rate = error_rate
+        self.zeta_noise = zeta_noise  # the answers' soft step, a share of ζσ's train range (0: the hard step)
         self.answers: list[tuple[int, float, int]] = [tuple(x) for x in (answers or [])]  # (attribute, z, ±1)
         self.target = self._medians()  # a function of the answers: kept up to date by update, never stored
         self.shown = shown
@@ -123,8 +124,9 @@ class GlobalAgent(Agent):
 
     def belief(self, a: int) -> np.ndarray:
         """Posterior over ``ctx.grid(a)`` given every answer about attribute ``a`` (normalised)."""
+        width = self.zeta_noise * float(self.ctx.bounds[1, a] - self.ctx.bounds[0, a])
         return posterior(self.ctx.grid(a), self.ctx.prior(a), ((z, h) for attr, z, h in self.answers if attr == a),
-                         self.error_rate)
+                         self.error_rate, width)
 
     def _quantile(self, a: int, q: float) -> float:
         return quantile(self.ctx.grid(a), self.belief(a), q)
@@ -187,12 +189,14 @@ class GlobalAgent(Agent):
 
     def state_dict(self) -> dict:
         return {"method": self.method, "answers": [list(x) for x in self.answers], "shown": self.shown,
-                "rejected": list(self.rejected), "error_rate": self.error_rate}
+                "rejected": list(self.rejected), "error_rate": self.error_rate, "zeta_noise": self.zeta_noise}
 
     @classmethod
     def from_state(cls, state: dict, context: GlobalContext) -> GlobalAgent:
-        """The agent of ``state`` (a ``"target"`` stored by older versions is ignored: the answers give it)."""
-        return cls(context, state["answers"], state["shown"], state["rejected"], state["error_rate"])
+        """The agent of ``state`` (a ``"target"`` stored by older versions is ignored: the answers give it; a state
+        from before ``zeta_noise`` had the hard step)."""
+        return cls(context, state["answers"], state["shown"], state["rejected"], state["error_rate"],
+                   state.get("zeta_noise", 0.0))
 
 
 def train(domain: str, rep: str, preset: str, seed: int = 0, data_root: Path | None = None,
