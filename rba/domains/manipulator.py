@@ -262,7 +262,7 @@ class Manipulator(Domain):
     param_names = tuple(PARAM_RANGES)
     frame_rate = FRAME_RATE
     feedback_phrases = FEEDBACK_PHRASES
-    zeta_noise = 0.06  # the generating agent's soft step: val AF lowest with SR held (generation_noise_val.md)
+    zeta_noise = 0.1  # the generating agent's soft step: val AF lowest with SR held (generation_noise_val.md)
 
     def __init__(self) -> None:
         self._model: mujoco.MjModel | None = None
