@@ -6,9 +6,10 @@ from the target v_t in some attribute (ζσ ranges scaled to 1), and farther tha
 target there (``spread``: early on, a library clip near a wide belief's median asks as well as a made one),
 a CMA-ES search makes a clip for v_t,
 starting from the nearest library and session clips, and shows it instead if it is nearer and moves the
-asked attributes the asked way. Feedback about a generated clip updates the belief at that clip's ζσ, as a soft
-step of the domain's ``zeta_noise`` (``rba.interact.bisection``): made clips land where ζσ puts the target, where it
-orders clips a few high-precision ε apart only by chance, so answers there contradict each other in ζσ.
+asked attributes the asked way. Feedback about a generated clip updates the belief at that clip's ζσ. The belief
+takes every answer as a soft step of the domain's ``zeta_noise`` (``rba.interact.bisection``): made clips land where
+ζσ puts the target, where it orders clips a few high-precision ε apart only by chance, so answers there contradict
+each other in ζσ.
 A search whose best clip stayed farther than ``threshold`` from its target is not run again for a target
 within ``threshold`` of that one for ``RETRY_AFTER`` rounds: the same starts and budget would fail again
 (the library clip is shown); later it may, with the session's new clips as starts and another seed.
