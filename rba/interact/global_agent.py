@@ -115,6 +115,7 @@ class GlobalAgent(Agent):
         self.ctx = ctx
         self.error_rate = error_rate
         self.zeta_noise = zeta_noise  # the answers' soft step, a share of ζσ's train range (0: the hard step)
+        self._beliefs: dict[int, tuple[tuple, np.ndarray]] = {}  # attribute -> (its answers, belief): ``belief``
         self.answers: list[tuple[int, float, int]] = [tuple(x) for x in (answers or [])]  # (attribute, z, ±1)
         self.target = self._medians()  # a function of the answers: kept up to date by update, never stored
         self.shown = shown
@@ -123,10 +124,16 @@ class GlobalAgent(Agent):
         self.shown_zeta: np.ndarray | None = None
 
     def belief(self, a: int) -> np.ndarray:
-        """Posterior over ``ctx.grid(a)`` given every answer about attribute ``a`` (normalised)."""
-        width = self.zeta_noise * float(self.ctx.bounds[1, a] - self.ctx.bounds[0, a])
-        return posterior(self.ctx.grid(a), self.ctx.prior(a), ((z, h) for attr, z, h in self.answers if attr == a),
-                         self.error_rate, width)
+        """Posterior over ``ctx.grid(a)`` given every answer about attribute ``a`` (normalised).
+
+        Kept for the answers it was computed from: an update asks for each quantile of it in turn."""
+        answers = tuple((z, h) for attr, z, h in self.answers if attr == a)
+        kept = self._beliefs.get(a)
+        if kept is None or kept[0] != answers:
+            width = self.zeta_noise * float(self.ctx.bounds[1, a] - self.ctx.bounds[0, a])
+            kept = self._beliefs[a] = (answers, posterior(self.ctx.grid(a), self.ctx.prior(a), answers,
+                                                          self.error_rate, width))
+        return kept[1]
 
     def _quantile(self, a: int, q: float) -> float:
         return quantile(self.ctx.grid(a), self.belief(a), q)
