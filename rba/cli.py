@@ -71,6 +71,17 @@ def _noise_share(text: str) -> float:
     return value
 
 
+def _surface_neighbours(text: str) -> int:
+    """Neighbours of the generating agent's ζσ surface (``rba eval --gen-surface``): 0 (none) or at least 2."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0 or value == 1:
+        raise argparse.ArgumentTypeError(f"must be 0 (no surface) or a whole number of clips ≥ 2, got {text}")
+    return value
+
+
 def seconds_arg(text: str) -> float:
     """A search's time bound in seconds (> 0, finite): ``rba eval --gen-seconds`` and the benchmarks' options."""
     value = _number(text)
@@ -188,6 +199,8 @@ def _generation(args) -> tuple[dict, Compute | None]:
         options["spread"] = args.gen_spread
     if args.gen_noise is not None:
         options["zeta_noise"] = args.gen_noise
+    if args.gen_surface is not None:
+        options["surface"] = args.gen_surface
     if not args.ray and args.gen_workers == 1:
         return options, None
     from rba.compute import make_compute
@@ -388,6 +401,10 @@ def _eval_command(sub) -> argparse.ArgumentParser:
     e.add_argument("--gen-noise", type=_noise_share, default=None,
                    help="the generating agent's soft step for answers, a share of ζσ's train range (0: the hard "
                         "step); default: the domain's Domain.zeta_noise; tune it on --split val")
+    e.add_argument("--gen-surface", type=_surface_neighbours, default=None, metavar="N",
+                   help="read and make clips on a fit of ζσ over the skill's parameters through the N nearest "
+                        "serve clips (0: each clip's own ζσ); default: the domain's Domain.zeta_surface; tune it "
+                        "on --split val")
     e.add_argument("--gen-workers", type=_positive, default=2,
                    help="local processes simulating candidates (1: this process)")
     _ray_option(e)

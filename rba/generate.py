@@ -31,6 +31,7 @@ from rba.domains import ParamSpace, Rollout, domain_target, load_domain
 from rba.learn.common import Ragged
 from rba.learn.global_reward import GlobalReward, LibraryScorer
 from rba.learn.ranker import AttributeRanker
+from rba.surface import ZetaSurface
 
 log = logging.getLogger(__name__)
 
@@ -39,6 +40,10 @@ FAILED = 1e6  # the objective of a rollout the skill failed (fell, stalled): wor
 Simulate = Callable[[list[SimJob]], Iterable[Rollout]]  # Compute.simulate, or in_process
 Objective = Callable[[list[Rollout]], np.ndarray]  # one value per rollout, lower is better
 Progress = Callable[[int, int], None]  # (generations done k, of at most K)
+# surface_search: CMA-ES on ζ̃, where a candidate costs microseconds, not a simulation
+SURFACE_GENERATIONS = 40
+SURFACE_POPSIZE = 12
+SURFACE_PULL = 0.01  # per unit of distance from the start in the unit box, against the ζσ distance (a range is 1)
 
 
 def generated_id(domain: str, params: dict[str, float], seed: int) -> str:
@@ -109,6 +114,14 @@ def _first_step(space: ParamSpace, starts: list[dict[str, float]], config: Searc
     return np.clip(units[0], 0.0, 1.0), float(np.clip(spread, *config.sigma))
 
 
+def _cma(x0: np.ndarray, sigma0: float, popsize: int, seed: int) -> cma.CMAEvolutionStrategy:
+    """CMA-ES in the unit box, drawing from its own seeded generator (numpy's global one is left alone)."""
+    rng = np.random.default_rng(seed)
+    return cma.CMAEvolutionStrategy(x0, sigma0, {
+        "bounds": [0.0, 1.0], "popsize": popsize, "seed": math.nan,  # nan: leave numpy's global seed alone
+        "randn": lambda *shape: rng.standard_normal(shape), "verbose": -9, "verb_log": 0, "verb_disp": 0})
+
+
 def _out_of_time(elapsed: float, generations: int, seconds: float | None) -> bool:
     """Whether another generation, as long as the mean of the ``generations`` run so far, would end after
     ``seconds``."""
@@ -144,10 +157,7 @@ def search(domain: str, starts: list[dict[str, float]], objective: Objective, si
         raise ValueError("a search starts from at least one library clip's parameters")
     space, target = load_domain(domain_target(domain)).param_space(), domain_target(domain)
     x0, sigma0 = _first_step(space, starts, config)
-    rng = np.random.default_rng(config.seed)
-    es = cma.CMAEvolutionStrategy(x0, sigma0, {
-        "bounds": [0.0, 1.0], "popsize": config.popsize, "seed": math.nan,  # nan: leave numpy's global seed alone
-        "randn": lambda *shape: rng.standard_normal(shape), "verbose": -9, "verb_log": 0, "verb_disp": 0})
+    es = _cma(x0, sigma0, config.popsize, config.seed)
     best, best_f, done, clock = None, math.inf, 0, time.perf_counter()
     deadline = clock + (config.seconds if config.seconds is not None else math.inf)
     for k in range(config.generations):
@@ -173,6 +183,35 @@ def search(domain: str, starts: list[dict[str, float]], objective: Objective, si
     log.info("%s: generated %s (objective %.4f) from %d simulations in %.2f s", domain,
              best.id if best else "nothing", best_f, done, seconds)
     return Generation(best, best_f, done, k + 1, seconds)
+
+
+def surface_search(domain: str, starts: list[dict[str, float]], surface: ZetaSurface, distance: ZetaDistance,
+                   simulate: Simulate = in_process, config: SearchConfig = SearchConfig(),
+                   on_progress: Progress | None = None) -> Generation:
+    """The clip at the parameters whose ζ̃ (``surface``) is nearest ``distance``'s target, simulated once.
+
+    CMA-ES runs on the surface, which costs no simulation, from the best start; among parameters that reach
+    the target it keeps those nearest that start (``SURFACE_PULL``), where the surface was fitted on the clips
+    around it. ``objective`` is the surface's distance to the target; a skill that fails there gives no clip.
+    """
+    if not starts:
+        raise ValueError("a search starts from at least one library clip's parameters")
+    space, clock = load_domain(domain_target(domain)).param_space(), time.perf_counter()
+    x0 = np.clip(space.to_unit(starts[0]), 0.0, 1.0)
+    es = _cma(x0, config.sigma[0], SURFACE_POPSIZE, config.seed)
+    best, best_f = x0, math.inf
+    for _ in range(SURFACE_GENERATIONS):
+        units = np.array(es.ask())
+        f = distance.distances(surface(units)) + SURFACE_PULL * np.linalg.norm(units - x0, axis=1)
+        es.tell(list(units), f.tolist())
+        if f.min() < best_f:
+            best, best_f = units[int(np.argmin(f))], float(f.min())
+    made = replay(domain, space.from_unit(best, starts[0]), config.sim_seed, simulate)
+    if on_progress:
+        on_progress(1, 1)
+    seconds = time.perf_counter() - clock
+    log.info("%s: made %s on the ζσ surface (distance %.4f) in %.2f s", domain, made.id, best_f, seconds)
+    return Generation(made if made.success else None, best_f, 1, 1, seconds)
 
 
 def _data(rollouts: list[Rollout]) -> Ragged:

@@ -197,6 +197,10 @@ class Domain(ABC):
     # the generating agent's soft step for answers, a share of ζσ's train range (rba.interact.bisection): about how
     # far ζσ can put a clip from where a person would; 0: the hard step. Chosen on val (generation_noise_val.md)
     zeta_noise: float = 0.0
+    # neighbours of the ζσ surface over the skill's parameters (rba.surface) the generating agent reads clips on and
+    # makes them from: where the proxies move smoothly with the parameters it orders nearby clips better than ζσ of
+    # their states. 0: each clip's own ζσ. Chosen on val (generation_surface_val.md)
+    zeta_surface: int = 0
     # (kind, rep) of a learned model the states come from (models/<name>/<kind>-<rep>.pt): loaded, never trained
     # here; `rba build` makes it when missing (rba.training.prepare_states)
     state_encoder: tuple[str, str] | None = None

@@ -820,6 +820,7 @@ class Walker(Domain):
     param_names = tuple(PARAM_RANGES)
     frame_rate = FRAME_RATE
     feedback_phrases = FEEDBACK_PHRASES
+    zeta_surface = 64  # the generating agent reads clips on ζσ over the parameters (generation_surface_val.md)
     zeta_noise = 0.06  # the generating agent's soft step: val AF lowest with SR held (generation_noise_val.md)
 
     def __init__(self) -> None:

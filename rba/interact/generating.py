@@ -30,7 +30,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from rba.artifacts import load_model
-from rba.domains import Rollout, get_domain
+from rba.domains import Rollout, domain_target, get_domain, load_domain
 from rba.generate import (
     Generation,
     Progress,
@@ -41,11 +41,13 @@ from rba.generate import (
     in_process,
     replay,
     search,
+    surface_search,
 )
 from rba.interact.base import SATISFIED, Agent, Feedback
 from rba.interact.global_agent import GlobalAgent, GlobalContext
 from rba.learn.ranker import AttributeRanker
 from rba.methods import get_method, methods
+from rba.surface import ZetaSurface
 
 # ζσ distance (max over attributes, train range = 1) above which the agent generates: about the high-precision ε
 # (1/42 of a range); so far checked on walker val targets only
@@ -57,6 +59,7 @@ STARTS = 4  # nearest clips whose parameters start (and spread) the search
 RETRY_AFTER = 10  # rounds after which a search that fell short may run again near its own target
 STORE_SIZE = 256  # generated rollouts kept in memory per context; older ones are re-simulated when asked for
 OBJECTIVES = ("zeta", "reward")
+REPEAT = 0.01  # a made clip this near one judged before (unit box, per parameter) is made again by the ζσ search
 
 
 class GeneratedStore:
@@ -107,14 +110,31 @@ class GenerationContext:
     store: GeneratedStore = field(default_factory=GeneratedStore)
     first_from_library: bool = False  # the first clip is the library's (the app: one first clip for every session)
     zeta_noise: float | None = None  # the belief's soft step (None: the domain's ``Domain.zeta_noise``)
+    surface: int | None = None  # neighbours of the ζσ surface clips are read on (None: the domain's; 0: none)
 
     def __post_init__(self) -> None:
         if self.objective not in OBJECTIVES:
             raise ValueError(f"unknown objective {self.objective!r}; valid: {', '.join(OBJECTIVES)}")
+        domain = get_domain(self.base.domain)
         if self.zeta_noise is None:
-            self.zeta_noise = get_domain(self.base.domain).zeta_noise
+            self.zeta_noise = domain.zeta_noise
         if not 0.0 <= self.zeta_noise < 1.0:
             raise ValueError(f"zeta_noise is a share of ζσ's range in [0, 1), got {self.zeta_noise}")
+        if self.surface is None:
+            self.surface = domain.zeta_surface
+        if self.surface == 1 or self.surface < 0:
+            raise ValueError(f"a ζσ surface fits a plane through 2 or more clips (0: none), got {self.surface}")
+        self._space = load_domain(domain_target(self.base.domain)).param_space()
+        self.zeta_surface = self._fit_surface() if self.surface else None
+
+    def _fit_surface(self) -> ZetaSurface:
+        """ζ̃ over the serve library's parameters; the base context then reads the library's clips on it too."""
+        serve = self.base.serve
+        units = np.array([self._space.to_unit(dict(zip(serve.param_names, map(float, p), strict=True)))
+                          for p in serve.params])
+        surface = ZetaSurface(units, self.base.serve_zeta, self.surface)
+        self.base = replace(self.base, serve_zeta=surface(units))
+        return surface
 
     @classmethod
     def load(cls, base: GlobalContext, models_root=None, **options) -> GenerationContext:
@@ -124,17 +144,39 @@ class GenerationContext:
         return ZetaDistance(self.ranker, np.asarray(target, np.float64),
                             np.maximum(self.base.bounds[1] - self.base.bounds[0], 1e-9))
 
-    def generate(self, target: np.ndarray, starts: list[dict[str, float]], seed: int) -> tuple[Generation, np.ndarray]:
-        """The best clip a search finds for ``target`` and its ζσ (the search's own result is in the store)."""
+    def generate(self, target: np.ndarray, starts: list[dict[str, float]], seed: int,
+                 judged: list[dict[str, float]] = ()) -> tuple[Generation, np.ndarray]:
+        """The best clip a search finds for ``target`` and its ζ as the agent reads it (the clip is in the store).
+
+        On the surface, a clip within ``REPEAT`` of one already ``judged`` (the parameters of made clips the user
+        did not accept) is made again by the ζσ search: where the surface errs it makes the same clip again."""
         dist = self.distance(target)
-        objective = dist if self.objective == "zeta" else RewardObjective(self.base.scorer.model, dist.target)
-        good = self.threshold if self.objective == "zeta" else None
-        found = search(self.base.domain, starts, objective, self.simulate,
-                       replace(self.config, seed=self.config.seed + seed, good_enough=good), self.on_progress)
+        config = replace(self.config, seed=self.config.seed + seed)
+        found = None
+        if self.zeta_surface is not None and self.objective == "zeta":
+            found = surface_search(self.base.domain, starts, self.zeta_surface, dist, self.simulate, config,
+                                   self.on_progress)
+            if found.rollout is not None and self._repeats(found.rollout.params, judged):
+                found = None
+        if found is None:
+            objective = dist if self.objective == "zeta" else RewardObjective(self.base.scorer.model, dist.target)
+            good = self.threshold if self.objective == "zeta" else None
+            found = search(self.base.domain, starts, objective, self.simulate, replace(config, good_enough=good),
+                           self.on_progress)
         if found.rollout is None:
             return found, np.full(len(dist.target), np.nan)
         self.store.put(found.rollout)
-        return found, dist.zeta([found.rollout])[0]
+        return found, self.zeta(found.rollout)
+
+    def _repeats(self, params: dict[str, float], judged: list[dict[str, float]]) -> bool:
+        unit = self._space.to_unit(params)
+        return any(np.max(np.abs(self._space.to_unit(p) - unit)) < REPEAT for p in judged)
+
+    def zeta(self, rollout: Rollout) -> np.ndarray:
+        """A made clip's ζ as the belief takes it: ζ̃ at its parameters on the surface, else ζσ of its states."""
+        if self.zeta_surface is not None:
+            return self.zeta_surface(self._space.to_unit(rollout.params))[0]
+        return self.distance(np.zeros(len(self.base.attribute_names))).zeta([rollout])[0]
 
     def rollout(self, rollout_id: str, params: dict[str, float], seed: int) -> Rollout:
         """A generated rollout: from the store, else simulated again from its params and seed."""
@@ -222,7 +264,8 @@ class GeneratingGlobalAgent(Agent):
             return library
         if self.ctx.on_search is not None:
             self.ctx.on_search(library)
-        found, zeta = self.ctx.generate(self.inner.target, self._starts(dist), len(self.searches))
+        found, zeta = self.ctx.generate(self.inner.target, self._starts(dist), len(self.searches),
+                                        [g["params"] for g in self.generated.values()])
         moves = before is None or all(h * (zeta[a] - before[a]) > 0 for a, h in asked)
         reached = float(dist.distances(zeta)[0]) if found.rollout is not None else None
         shown = reached is not None and reached < near and moves

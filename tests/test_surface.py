@@ -1,0 +1,122 @@
+"""ζσ over the skill's parameters (rba.surface) and the generating agent that reads and makes clips on it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rba.cli import main
+from rba.generate import SearchConfig, is_generated, surface_search
+from rba.interact.generating import REPEAT, GeneratingGlobalAgent, GenerationContext
+from rba.interact.global_agent import GlobalContext
+from rba.surface import ZetaSurface
+from tests.test_generate import BUDGET, TARGET, _eps, _gen
+from tests.toy import Toy
+
+
+@pytest.fixture(scope="module")
+def ctx(gap_roots) -> GlobalContext:
+    return GlobalContext.load("toy", "onehot", *gap_roots)
+
+
+def _plane(units: np.ndarray) -> np.ndarray:
+    return np.stack([units @ [1.0, -2.0, 0.5], 3.0 - units[:, 1]], axis=1)
+
+
+def test_the_surface_is_exact_on_a_plane_and_averages_noise_away():
+    rng = np.random.default_rng(0)
+    units, points = rng.random((600, 3)), rng.uniform(0.2, 0.8, (50, 3))
+    np.testing.assert_allclose(ZetaSurface(units, _plane(units), 32)(points), _plane(points), atol=1e-6)
+    noisy = _plane(units) + rng.normal(0.0, 0.1, (600, 2))
+    err = np.abs(ZetaSurface(units, noisy, 64)(points) - _plane(points))
+    assert err.std() < 0.05  # the clips' own noise is 0.1: the fit through 64 of them halves it at least
+    assert ZetaSurface(units, noisy, 64)(points[0]).shape == (1, 2)
+
+
+def test_the_surface_refuses_what_it_cannot_fit():
+    units = np.zeros((10, 3))
+    shapes = r"units \[N, d\] and zeta \[N, k\] of one library, got \(10, 3\) and \(9, 2\)"
+    with pytest.raises(ValueError, match=shapes):
+        ZetaSurface(units, np.zeros((9, 2)), 4)
+    with pytest.raises(ValueError, match="a local plane needs at least 2 neighbours, got 1"):
+        ZetaSurface(units, np.zeros((10, 2)), 1)
+    with pytest.raises(ValueError, match="points have 2 parameters; the surface has 3"):
+        ZetaSurface(units, np.zeros((10, 2)), 4)(np.zeros(2))
+
+
+def test_the_library_is_read_on_the_surface_and_the_base_context_is_left_alone(ctx, gap_roots):
+    before = ctx.serve_zeta.copy()
+    gen = _gen(ctx, gap_roots, surface=16)
+    units = np.array([gen._space.to_unit(dict(zip(ctx.serve.param_names, p, strict=True))) for p in ctx.serve.params])
+    np.testing.assert_allclose(gen.base.serve_zeta, gen.zeta_surface(units))
+    assert not np.allclose(gen.base.serve_zeta, ctx.serve_zeta)  # smoothed: the clips' own noise is gone
+    np.testing.assert_array_equal(ctx.serve_zeta, before)  # a library-only agent keeps ζσ of the states
+    assert _gen(ctx, gap_roots, surface=0).zeta_surface is None
+
+
+def test_a_clip_made_on_the_surface_costs_one_simulation(ctx, gap_roots):
+    gen = _gen(ctx, gap_roots, surface=16)
+    start = dict(zip(ctx.serve.param_names, map(float, ctx.serve.params[0]), strict=True))
+    target = gen.zeta_surface(np.array([0.3, 0.6]))[0]  # a point of the surface: reachable
+    progress = []
+    found = surface_search("toy", [start], gen.zeta_surface, gen.distance(target), config=SearchConfig(),
+                           on_progress=lambda k, n: progress.append((k, n)))
+    assert found.simulations == 1 and found.rollout is not None and is_generated(found.rollout.id)
+    assert found.objective < 0.02 and progress == [(1, 1)]
+    assert np.all(np.abs(gen.zeta(found.rollout) - target) <= 0.02 * (ctx.bounds[1] - ctx.bounds[0]))
+
+
+def test_generation_on_the_surface_reaches_the_target_the_library_lacks(ctx, gap_roots):
+    agent = GeneratingGlobalAgent(_gen(ctx, gap_roots, surface=16))
+    from rba.evaluate import simulate
+
+    trial = simulate(agent, TARGET, _eps(ctx), ctx.serve, seed=0, max_feedback=BUDGET)
+    assert trial.success and any(is_generated(r) for r in trial.shown_ids)
+    assert any(s["simulations"] == 1 for s in agent.searches)  # made on the surface
+    for rid, g in agent.generated.items():  # the belief reads a made clip at ζ̃ of its parameters
+        np.testing.assert_allclose(g["zeta"], agent.ctx.zeta(agent.rollout(rid)))
+
+
+def test_a_clip_the_surface_makes_again_is_made_by_the_zeta_search(ctx, gap_roots):
+    gen = _gen(ctx, gap_roots, surface=16)
+    starts = [dict(zip(ctx.serve.param_names, map(float, ctx.serve.params[i]), strict=True)) for i in range(4)]
+    target = gen.zeta_surface(np.array([0.3, 0.6]))[0]
+    first, _ = gen.generate(target, starts, 0)
+    assert first.simulations == 1
+    near = {k: v + REPEAT / 4 * (Toy().param_space().high[k] - Toy().param_space().low[k])
+            for k, v in first.rollout.params.items()}
+    again, _ = gen.generate(target, starts, 0, judged=[near])
+    assert again.simulations > 1 and again.rollout.id != first.rollout.id  # CMA-ES on ζσ of simulated clips
+
+
+def test_the_surface_is_the_domains_unless_asked(ctx, gap_roots, monkeypatch):
+    monkeypatch.setattr(Toy, "zeta_surface", 8)
+    assert _gen(ctx, gap_roots).zeta_surface.neighbours == 8
+    assert _gen(ctx, gap_roots, surface=0).zeta_surface is None
+    for bad in (1, -3):
+        with pytest.raises(ValueError, match=rf"fits a plane through 2 or more clips \(0: none\), got {bad}"):
+            _gen(ctx, gap_roots, surface=bad)
+
+
+def test_cli_gen_surface_option(gap_roots, monkeypatch, capsys):
+    monkeypatch.setenv("RBA_DATA_DIR", str(gap_roots[0]))
+    monkeypatch.setenv("RBA_MODELS_DIR", str(gap_roots[1]))
+    asked, load = [], GenerationContext.load.__func__
+
+    def recording_load(cls, base, models_root=None, **options):
+        gen = load(cls, base, models_root, **options)
+        asked.append(gen.surface)
+        return gen
+
+    monkeypatch.setattr(GenerationContext, "load", classmethod(recording_load))
+    for surface in ("12", None):
+        extra = ["--gen-surface", surface] if surface else []
+        assert main(["eval", "--domain", "toy", "--targets", "1", "--gen-workers", "1", "--gen-budget", "8",
+                     *extra]) == 0
+    assert asked == [12, Toy.zeta_surface]  # asked, then the domain's
+    for bad in ("1", "-2", "many", "2.5"):
+        with pytest.raises(SystemExit) as exit_:
+            main(["eval", "--domain", "toy", "--gen-surface", bad])
+        assert exit_.value.code == 2
+        assert f"argument --gen-surface: must be 0 (no surface) or a whole number of clips ≥ 2, got {bad}" in \
+            capsys.readouterr().err
