@@ -192,7 +192,7 @@ def surface_search(domain: str, starts: list[dict[str, float]], surface: ZetaSur
 
     CMA-ES runs on the surface, which costs no simulation, from the best start; among parameters that reach
     the target it keeps those nearest that start (``SURFACE_PULL``), where the surface was fitted on the clips
-    around it. ``objective`` is the surface's distance to the target; a skill that fails there gives no clip.
+    around it. The result's ``objective`` is that distance (pull included); a skill that fails there gives no clip.
     """
     if not starts:
         raise ValueError("a search starts from at least one library clip's parameters")
@@ -219,6 +219,11 @@ def _data(rollouts: list[Rollout]) -> Ragged:
     return Ragged.from_numpy(np.concatenate([r.states for r in rollouts]), offsets)
 
 
+def ranker_zeta(ranker: AttributeRanker, rollouts: list[Rollout]) -> np.ndarray:
+    """ζσ of each rollout's states, float[len(rollouts), k]."""
+    return ranker.score(_data(rollouts))
+
+
 @dataclass
 class ZetaDistance:
     """The largest per-attribute ζσ distance to ``target``, each attribute's train range scaled to 1.
@@ -234,7 +239,7 @@ class ZetaDistance:
         return np.max(np.abs(np.atleast_2d(zeta) - self.target) / self.scale, axis=1)
 
     def zeta(self, rollouts: list[Rollout]) -> np.ndarray:
-        return self.ranker.score(_data(rollouts))
+        return ranker_zeta(self.ranker, rollouts)
 
     def __call__(self, rollouts: list[Rollout]) -> np.ndarray:
         return self.distances(self.zeta(rollouts))

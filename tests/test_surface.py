@@ -73,8 +73,8 @@ def test_generation_on_the_surface_reaches_the_target_the_library_lacks(ctx, gap
     trial = simulate(agent, TARGET, _eps(ctx), ctx.serve, seed=0, max_feedback=BUDGET)
     assert trial.success and any(is_generated(r) for r in trial.shown_ids)
     assert any(s["simulations"] == 1 for s in agent.searches)  # made on the surface
-    for rid, g in agent.generated.items():  # the belief reads a made clip at ζ̃ of its parameters
-        np.testing.assert_allclose(g["zeta"], agent.ctx.zeta(agent.rollout(rid)))
+    for g in agent.generated.values():  # the belief reads a made clip at ζ̃ of its parameters
+        np.testing.assert_allclose(g["zeta"], agent.ctx.zeta_surface(agent.ctx._space.to_unit(g["params"]))[0])
 
 
 def test_a_clip_the_surface_makes_again_is_made_by_the_zeta_search(ctx, gap_roots):

@@ -10,6 +10,10 @@ asked attributes the asked way. Feedback about a generated clip updates the beli
 takes every answer as a soft step of the domain's ``zeta_noise`` (``rba.interact.bisection``): made clips land where
 ζσ puts the target, where it orders clips a few high-precision ε apart only by chance, so answers there contradict
 each other in ζσ.
+Where the proxies move smoothly with the skill's parameters (``Domain.zeta_surface``, the walker) the agent reads
+every clip on ζ̃, a fit of the serve library's ζσ over the parameters (``rba.surface``), not on ζσ of the clip's own
+states, and makes a clip by solving ζ̃ for its target (``rba.generate.surface_search``: one simulation); a clip it
+would make again (within ``REPEAT`` of one the user judged) is made by the ζσ search instead.
 A search whose best clip stayed farther than ``threshold`` from its target is not run again for a target
 within ``threshold`` of that one for ``RETRY_AFTER`` rounds: the same starts and budget would fail again
 (the library clip is shown); later it may, with the session's new clips as starts and another seed.
@@ -39,6 +43,7 @@ from rba.generate import (
     Simulate,
     ZetaDistance,
     in_process,
+    ranker_zeta,
     replay,
     search,
     surface_search,
@@ -176,7 +181,7 @@ class GenerationContext:
         """A made clip's ζ as the belief takes it: ζ̃ at its parameters on the surface, else ζσ of its states."""
         if self.zeta_surface is not None:
             return self.zeta_surface(self._space.to_unit(rollout.params))[0]
-        return self.distance(np.zeros(len(self.base.attribute_names))).zeta([rollout])[0]
+        return ranker_zeta(self.ranker, [rollout])[0]
 
     def rollout(self, rollout_id: str, params: dict[str, float], seed: int) -> Rollout:
         """A generated rollout: from the store, else simulated again from its params and seed."""
