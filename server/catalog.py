@@ -14,7 +14,7 @@ from typing import Any
 from rba.domains import Domain, domain_names, get_domain
 from rba.generate import SearchConfig
 from rba.interact import load_context
-from rba.interact.generating import SPREAD, GeneratedStore, GenerationContext, generating_class
+from rba.interact.generating import GeneratedStore, GenerationContext, generating_class
 from rba.library import SkillLibrary
 from rba.locks import KeyedLocks
 from rba.methods import get_method
@@ -34,7 +34,7 @@ class Catalog:
         self.store = Store.from_settings(settings)
         # the generating agents' options from the settings: a domain's search time bound, and the spread
         self._search_seconds = settings.search_seconds
-        self._spread = SPREAD if settings.generate_spread is None else settings.generate_spread
+        self._spread = settings.generate_spread  # None: each domain's Domain.generate_spread
         self._contexts: dict[tuple[str, str, str, str], Any] = {}
         self._libraries: dict[str, SkillLibrary] = {}
         self._generation: dict[tuple[str, str, str, str], GenerationContext] = {}

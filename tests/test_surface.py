@@ -120,3 +120,11 @@ def test_cli_gen_surface_option(gap_roots, monkeypatch, capsys):
         assert exit_.value.code == 2
         assert f"argument --gen-surface: must be 0 (no surface) or a whole number of clips ≥ 2, got {bad}" in \
             capsys.readouterr().err
+
+
+def test_the_spread_is_the_domains_unless_asked(ctx, gap_roots, monkeypatch):
+    monkeypatch.setattr(Toy, "generate_spread", 0.3)
+    assert _gen(ctx, gap_roots).spread == 0.3
+    assert _gen(ctx, gap_roots, spread=0.0).spread == 0.0
+    with pytest.raises(ValueError, match=r"spread is a share of the belief's half interquartile range \(≥ 0\), got -1"):
+        _gen(ctx, gap_roots, spread=-1.0)

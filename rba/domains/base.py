@@ -201,6 +201,11 @@ class Domain(ABC):
     # makes them from: where the proxies move smoothly with the parameters it orders nearby clips better than ζσ of
     # their states. 0: each clip's own ζσ. Chosen on val (generation_surface_val.md)
     zeta_surface: int = 0
+    # the generating agent searches only where the library clip misses its target by more than this share of the
+    # belief's half interquartile range (and the threshold): while it is unsure where the target is, a library clip
+    # there asks as well as a made one, at once (0: by the threshold alone). Chosen on val (generation_spread_val.md;
+    # the walker's with its surface, generation_surface_val.md)
+    generate_spread: float = 1.0
     # (kind, rep) of a learned model the states come from (models/<name>/<kind>-<rep>.pt): loaded, never trained
     # here; `rba build` makes it when missing (rba.training.prepare_states)
     state_encoder: tuple[str, str] | None = None

@@ -821,6 +821,7 @@ class Walker(Domain):
     frame_rate = FRAME_RATE
     feedback_phrases = FEEDBACK_PHRASES
     zeta_surface = 64  # the generating agent reads clips on ζσ over the parameters (generation_surface_val.md)
+    generate_spread = 0.5  # with the surface: val AF lower, searches still rare at normal precision (same report)
     zeta_noise = 0.06  # the generating agent's soft step: val AF lowest with SR held (generation_noise_val.md)
 
     def __init__(self) -> None:

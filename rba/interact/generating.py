@@ -57,9 +57,8 @@ from rba.surface import ZetaSurface
 # ζσ distance (max over attributes, train range = 1) above which the agent generates: about the high-precision ε
 # (1/42 of a range); so far checked on walker val targets only
 THRESHOLD = 0.02
-# ... and by more than this share of the belief's half interquartile range there: while the agent is unsure where the
-# target is, a library clip inside that spread asks as well as a made one, at no cost (0: generate by THRESHOLD alone)
-SPREAD = 1.0
+# ... and by more than ``GenerationContext.spread`` (the domain's ``Domain.generate_spread``) × the belief's half
+# interquartile range there
 STARTS = 4  # nearest clips whose parameters start (and spread) the search
 RETRY_AFTER = 10  # rounds after which a search that fell short may run again near its own target
 STORE_SIZE = 256  # generated rollouts kept in memory per context; older ones are re-simulated when asked for
@@ -107,7 +106,7 @@ class GenerationContext:
     simulate: Simulate = in_process  # Compute.simulate on the local pools or Ray
     config: SearchConfig = field(default_factory=SearchConfig)
     threshold: float = THRESHOLD
-    spread: float = SPREAD
+    spread: float | None = None  # see THRESHOLD (None: the domain's ``Domain.generate_spread``)
     objective: str = "zeta"
     on_progress: Progress | None = None  # (generation k, of K) of the running search
     # told, just before a search starts, the serve clip shown if it falls short (the app renders that one meanwhile)
@@ -123,6 +122,10 @@ class GenerationContext:
         domain = get_domain(self.base.domain)
         if self.zeta_noise is None:
             self.zeta_noise = domain.zeta_noise
+        if self.spread is None:
+            self.spread = domain.generate_spread
+        if not self.spread >= 0.0:
+            raise ValueError(f"spread is a share of the belief's half interquartile range (≥ 0), got {self.spread}")
         if not 0.0 <= self.zeta_noise < 1.0:
             raise ValueError(f"zeta_noise is a share of ζσ's range in [0, 1), got {self.zeta_noise}")
         if self.surface is None:

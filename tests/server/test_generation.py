@@ -109,7 +109,7 @@ def test_a_generated_clip_is_served_listed_and_exported(gen_settings, tmp_path):
 
 def test_by_default_a_first_answer_shows_a_serve_clip_at_once(gen_settings):
     """The default ``generate_spread``: while the belief is wide, a serve clip near its median asks as well."""
-    assert Settings().generate_spread is None  # the agents' own default (rba.interact.generating.SPREAD)
+    assert Settings().generate_spread is None  # the domain's own default (Domain.generate_spread)
     default = gen_settings.model_copy(update={"generate_spread": None})
     with TestClient(create_app(default, InProcessCompute())) as client:
         s = client.post("/api/sessions", json={"domain": "toy"}).json()
