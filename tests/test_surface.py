@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -128,3 +130,12 @@ def test_the_spread_is_the_domains_unless_asked(ctx, gap_roots, monkeypatch):
     assert _gen(ctx, gap_roots, spread=0.0).spread == 0.0
     with pytest.raises(ValueError, match=r"spread is a share of the belief's half interquartile range \(≥ 0\), got -1"):
         _gen(ctx, gap_roots, spread=-1.0)
+
+
+def test_a_copy_of_the_context_keeps_its_surface_and_reads_the_library_once(ctx, gap_roots):
+    """The app copies the context for every step (``dataclasses.replace``): the copy must not fit the surface again
+    on the library it already smoothed."""
+    gen = _gen(ctx, gap_roots, surface=16)
+    copy = dataclasses.replace(gen, on_progress=None)
+    assert copy.zeta_surface is gen.zeta_surface
+    np.testing.assert_array_equal(copy.base.serve_zeta, gen.base.serve_zeta)

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from rba.artifacts import load_model
-from rba.domains import Rollout, domain_target, get_domain, load_domain
+from rba.domains import Rollout, get_domain
 from rba.generate import (
     Generation,
     Progress,
@@ -115,6 +115,9 @@ class GenerationContext:
     first_from_library: bool = False  # the first clip is the library's (the app: one first clip for every session)
     zeta_noise: float | None = None  # the belief's soft step (None: the domain's ``Domain.zeta_noise``)
     surface: int | None = None  # neighbours of the ζσ surface clips are read on (None: the domain's; 0: none)
+    # fitted on construction from ``surface`` (then ``base`` reads the library on it); passed on by
+    # ``dataclasses.replace`` (the app's per-step contexts), so a copy neither fits again nor smooths twice
+    zeta_surface: ZetaSurface | None = None
 
     def __post_init__(self) -> None:
         if self.objective not in OBJECTIVES:
@@ -132,8 +135,11 @@ class GenerationContext:
             self.surface = domain.zeta_surface
         if self.surface == 1 or self.surface < 0:
             raise ValueError(f"a ζσ surface fits a plane through 2 or more clips (0: none), got {self.surface}")
-        self._space = load_domain(domain_target(self.base.domain)).param_space()
-        self.zeta_surface = self._fit_surface() if self.surface else None
+        self._space = domain.param_space()
+        if self.surface and self.zeta_surface is None:
+            self.zeta_surface = self._fit_surface()
+        elif not self.surface:
+            self.zeta_surface = None
 
     def _fit_surface(self) -> ZetaSurface:
         """ζ̃ over the serve library's parameters; the base context then reads the library's clips on it too."""

@@ -26,6 +26,7 @@ from server.prerender import next_clips
 from server.settings import GENERATE_SECONDS, GENERATE_SECONDS_OTHERS, Settings
 from tests.fakes import FakeCompute, InProcessCompute, InstantCompute
 from tests.server.conftest import more
+from tests.toy import Toy
 
 SEARCH_SECONDS = 30
 
@@ -105,6 +106,20 @@ def test_a_generated_clip_is_served_listed_and_exported(gen_settings, tmp_path):
         update={"cache_dir": tmp_path / "cli-clips"}))  # `rba export`: remade and rendered in this process
     assert cli.rollout_id == profile.rollout_id and cli.params == profile.params and cli.seed == profile.seed
     assert read_export(tmp_path / "cli.zip").clip[4:8] == b"ftyp"  # a real MP4 this time
+
+
+def test_a_search_on_the_surface_makes_its_clip_in_one_generation(gen_settings, monkeypatch):
+    """A domain with a ζσ surface (``Domain.zeta_surface``): the app's search solves it and simulates once."""
+    monkeypatch.setattr(Toy, "zeta_surface", 16)
+    with TestClient(create_app(gen_settings, InProcessCompute())) as client:
+        s = client.post("/api/sessions", json={"domain": "toy"}).json()
+        r = client.post(f"/api/sessions/{s['id']}/feedback", json=more("amplitude", s["step"], "less",
+                                                                       clip=s["clip"]["rollout_id"]))
+        assert r.status_code == 202, r.text
+        progress = search_done(client, s["id"])
+        assert progress["state"] == "done" and progress["generation"] == progress["generations"] == 1
+        clip = client.get(f"/api/sessions/{s['id']}").json()["clip"]
+        assert is_generated(clip["rollout_id"]) and clip["generated"] is True and clip["ready"] is True
 
 
 def test_by_default_a_first_answer_shows_a_serve_clip_at_once(gen_settings):
