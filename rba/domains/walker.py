@@ -820,9 +820,9 @@ class Walker(Domain):
     param_names = tuple(PARAM_RANGES)
     frame_rate = FRAME_RATE
     feedback_phrases = FEEDBACK_PHRASES
-    zeta_surface = 64  # the generating agent reads clips on ζσ over the parameters (generation_surface_val.md)
+    zeta_surface = 96  # the generating agent reads clips on ζσ over the parameters (generation_surface_val.md)
     generate_spread = 0.5  # with the surface: val AF lower, searches still rare at normal precision (same report)
-    zeta_noise = 0.06  # the generating agent's soft step: val AF lowest with SR held (generation_noise_val.md)
+    zeta_noise = 0.04  # its soft step, chosen with the surface: val AF lowest with SR held (same report)
 
     def __init__(self) -> None:
         self._physics: WalkerPhysics | None = None
