@@ -391,27 +391,36 @@ def test_the_soft_step_is_the_domains_unless_asked_and_kept_in_the_state(ctx, ga
         _gen(ctx, gap_roots, zeta_noise=1.5)
 
 
-def test_cli_gen_noise_option(gap_roots, monkeypatch, capsys, tmp_path):
+def cli_context_option(gap_roots, monkeypatch, option: str, value: str, attribute: str) -> list:
+    """The generating context's ``attribute`` as ``rba eval`` sets it: with ``option value``, then without."""
     monkeypatch.setenv("RBA_DATA_DIR", str(gap_roots[0]))
     monkeypatch.setenv("RBA_MODELS_DIR", str(gap_roots[1]))
     asked, load = [], GenerationContext.load.__func__
 
     def recording_load(cls, base, models_root=None, **options):
         gen = load(cls, base, models_root, **options)
-        asked.append(gen.zeta_noise)
+        asked.append(getattr(gen, attribute))
         return gen
 
     monkeypatch.setattr(GenerationContext, "load", classmethod(recording_load))
-    for noise in ("0.05", None):
-        extra = ["--gen-noise", noise] if noise else []
+    for extra in ([option, value], []):
         assert main(["eval", "--domain", "toy", "--targets", "1", "--gen-workers", "1", "--gen-budget", "8",
                      *extra]) == 0
-    assert asked == [0.05, Toy.zeta_noise]  # asked, then the domain's
-    for bad in ("-0.1", "1", "wide"):
+    return asked
+
+
+def cli_refuses(capsys, option: str, bads: tuple[str, ...], valid: str) -> None:
+    """``rba eval OPTION BAD`` exits 2 saying what is valid, for each of ``bads``."""
+    for bad in bads:
         with pytest.raises(SystemExit) as exit_:
-            main(["eval", "--domain", "toy", "--gen-noise", bad])
+            main(["eval", "--domain", "toy", option, bad])
         assert exit_.value.code == 2
-        assert f"argument --gen-noise: must be a share in [0, 1), got {bad}" in capsys.readouterr().err
+        assert f"argument {option}: {valid}, got {bad}" in capsys.readouterr().err
+
+
+def test_cli_gen_noise_option(gap_roots, monkeypatch, capsys):
+    assert cli_context_option(gap_roots, monkeypatch, "--gen-noise", "0.05", "zeta_noise") == [0.05, Toy.zeta_noise]
+    cli_refuses(capsys, "--gen-noise", ("-0.1", "1", "wide"), "must be a share in [0, 1)")
 
 
 def test_a_soft_step_keeps_answers_that_contradict_each_other_one_bump():

@@ -7,12 +7,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from rba.cli import main
 from rba.generate import SearchConfig, is_generated, surface_search
-from rba.interact.generating import REPEAT, GeneratingGlobalAgent, GenerationContext
+from rba.interact.generating import REPEAT, GeneratingGlobalAgent
 from rba.interact.global_agent import GlobalContext
 from rba.surface import ZetaSurface
-from tests.test_generate import BUDGET, TARGET, _eps, _gen
+from tests.test_generate import BUDGET, TARGET, _eps, _gen, cli_context_option, cli_refuses
 from tests.toy import Toy
 
 
@@ -101,27 +100,9 @@ def test_the_surface_is_the_domains_unless_asked(ctx, gap_roots, monkeypatch):
 
 
 def test_cli_gen_surface_option(gap_roots, monkeypatch, capsys):
-    monkeypatch.setenv("RBA_DATA_DIR", str(gap_roots[0]))
-    monkeypatch.setenv("RBA_MODELS_DIR", str(gap_roots[1]))
-    asked, load = [], GenerationContext.load.__func__
-
-    def recording_load(cls, base, models_root=None, **options):
-        gen = load(cls, base, models_root, **options)
-        asked.append(gen.surface)
-        return gen
-
-    monkeypatch.setattr(GenerationContext, "load", classmethod(recording_load))
-    for surface in ("12", None):
-        extra = ["--gen-surface", surface] if surface else []
-        assert main(["eval", "--domain", "toy", "--targets", "1", "--gen-workers", "1", "--gen-budget", "8",
-                     *extra]) == 0
-    assert asked == [12, Toy.zeta_surface]  # asked, then the domain's
-    for bad in ("1", "-2", "many", "2.5"):
-        with pytest.raises(SystemExit) as exit_:
-            main(["eval", "--domain", "toy", "--gen-surface", bad])
-        assert exit_.value.code == 2
-        assert f"argument --gen-surface: must be 0 (no surface) or a whole number of clips ≥ 2, got {bad}" in \
-            capsys.readouterr().err
+    assert cli_context_option(gap_roots, monkeypatch, "--gen-surface", "12", "surface") == [12, Toy.zeta_surface]
+    cli_refuses(capsys, "--gen-surface", ("1", "-2", "many", "2.5"), "must be 0 (no surface) or a whole number of "
+                "clips ≥ 2")
 
 
 def test_the_spread_is_the_domains_unless_asked(ctx, gap_roots, monkeypatch):
