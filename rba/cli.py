@@ -397,7 +397,7 @@ def _eval_command(sub) -> argparse.ArgumentParser:
     e.add_argument("--gen-spread", type=_non_negative, default=None,
                    help="generate only where the library clip is also off the target by more than this share of "
                         "the belief's half interquartile range (0: by the threshold alone); default: "
-                        "the domain's Domain.generate_spread (1.0; the walker 0.5); tune it on --split val")
+                        "the domain's Domain.generate_spread; tune it on --split val")
     e.add_argument("--gen-noise", type=_noise_share, default=None,
                    help="the generating agent's soft step for answers, a share of ζσ's train range (0: the hard "
                         "step); default: the domain's Domain.zeta_noise; tune it on --split val")

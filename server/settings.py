@@ -52,8 +52,7 @@ class Settings(LibrarySettings):
                                           "where the serve clip misses the agent's target by more than this share of "
                                           "its belief's half interquartile range (and the threshold): early answers, "
                                           "while the belief is wide, show serve clips at once; 0: search whenever the "
-                                          "threshold is missed; default: the domain's Domain.generate_spread (1.0; "
-                                          "the walker 0.5)")
+                                          "threshold is missed; default: the domain's Domain.generate_spread")
     generate_seconds: float | None = Field(
         default=None, gt=0, allow_inf_nan=False, description="a search stops before a CMA-ES generation that would "
         "end later than this many seconds after the search began, and one running past it ends with the candidates "

@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from rba.generate import SearchConfig, is_generated, surface_search
+from rba.generate import SearchConfig, in_process, is_generated, surface_search
 from rba.interact.generating import REPEAT, GeneratingGlobalAgent
 from rba.interact.global_agent import GlobalContext
 from rba.surface import ZetaSurface
@@ -18,6 +18,15 @@ from tests.toy import Toy
 @pytest.fixture(scope="module")
 def ctx(gap_roots) -> GlobalContext:
     return GlobalContext.load("toy", "onehot", *gap_roots)
+
+
+def _counting(jobs: list):
+    """A simulator that records every job it is given (what a search really cost)."""
+    def simulate(batch):
+        batch = list(batch)
+        jobs.extend(batch)
+        return in_process(batch)
+    return simulate
 
 
 def _plane(units: np.ndarray) -> np.ndarray:
@@ -60,9 +69,10 @@ def test_a_clip_made_on_the_surface_costs_one_simulation(ctx, gap_roots):
     start = dict(zip(ctx.serve.param_names, map(float, ctx.serve.params[0]), strict=True))
     target = gen.zeta_surface(np.array([0.3, 0.6]))[0]  # a point of the surface: reachable
     progress = []
-    found = surface_search("toy", [start], gen.zeta_surface, gen.distance(target), config=SearchConfig(),
-                           on_progress=lambda k, n: progress.append((k, n)))
-    assert found.simulations == 1 and found.rollout is not None and is_generated(found.rollout.id)
+    jobs = []
+    found = surface_search("toy", [start], gen.zeta_surface, gen.distance(target), _counting(jobs),
+                           config=SearchConfig(), on_progress=lambda k, n: progress.append((k, n)))
+    assert len(jobs) == found.simulations == 1 and found.rollout is not None and is_generated(found.rollout.id)
     assert found.objective < 0.02 and progress == [(1, 1)]
     assert np.all(np.abs(gen.zeta(found.rollout) - target) <= 0.02 * (ctx.bounds[1] - ctx.bounds[0]))
 
@@ -82,12 +92,15 @@ def test_a_clip_the_surface_makes_again_is_made_by_the_zeta_search(ctx, gap_root
     gen = _gen(ctx, gap_roots, surface=16)
     starts = [dict(zip(ctx.serve.param_names, map(float, ctx.serve.params[i]), strict=True)) for i in range(4)]
     target = gen.zeta_surface(np.array([0.3, 0.6]))[0]
+    jobs = []
+    gen.simulate = _counting(jobs)
     first, _ = gen.generate(target, starts, 0)
-    assert first.simulations == 1
+    assert len(jobs) == first.simulations == 1
     near = {k: v + REPEAT / 4 * (Toy().param_space().high[k] - Toy().param_space().low[k])
             for k, v in first.rollout.params.items()}
     again, _ = gen.generate(target, starts, 0, judged=[near])
-    assert again.simulations > 1 and again.rollout.id != first.rollout.id  # CMA-ES on ζσ of simulated clips
+    assert again.rollout.id != first.rollout.id  # CMA-ES on ζσ of simulated clips ...
+    assert len(jobs) - 1 == again.simulations > 2  # ... after the surface's clip, which counts too
 
 
 def test_the_surface_is_the_domains_unless_asked(ctx, gap_roots, monkeypatch):

@@ -166,17 +166,20 @@ class GenerationContext:
         did not accept) is made again by the ζσ search: where the surface errs it makes the same clip again."""
         dist = self.distance(target)
         config = replace(self.config, seed=self.config.seed + seed)
-        found = None
+        found = spent = None
         if self.zeta_surface is not None and self.objective == "zeta":
             found = surface_search(self.base.domain, starts, self.zeta_surface, dist, self.simulate, config,
                                    self.on_progress)
             if found.rollout is not None and self._repeats(found.rollout.params, judged):
-                found = None
+                found, spent = None, found
         if found is None:
             objective = dist if self.objective == "zeta" else RewardObjective(self.base.scorer.model, dist.target)
             good = self.threshold if self.objective == "zeta" else None
             found = search(self.base.domain, starts, objective, self.simulate, replace(config, good_enough=good),
                            self.on_progress)
+        if spent is not None:  # the surface's clip, simulated and set aside, is part of what this search cost
+            found = replace(found, simulations=found.simulations + spent.simulations,
+                            seconds=found.seconds + spent.seconds)
         if found.rollout is None:
             return found, np.full(len(dist.target), np.nan)
         self.store.put(found.rollout)
