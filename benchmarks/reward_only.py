@@ -81,7 +81,8 @@ def profiles(args: argparse.Namespace, folder: Path) -> list[Path]:
                   for i, (a, b) in enumerate(zip(shown, [*shown[1:], shown[-1]], strict=True))]
         src = ExportSource(args.domain, "global", args.rep, version, "builtin", model_files().root, serve,
                            shown[-1], rounds, clip=b"",
-                           refit=None if args.no_refit else RefitConfig(pull=args.refit_pull))
+                           refit=None if args.no_refit else RefitConfig(pull=args.refit_pull),
+                           surface=args.refit_surface)
         path = folder / f"profile-{len(out):02d}.zip"
         write_export(path, src)
         out.append(path)
@@ -190,7 +191,9 @@ def _reward_kind(args: dict) -> str:
     if args["no_refit"]:
         return "rθ's trained weights (`--no-refit`)"
     pull = args.get("refit_pull", RefitConfig().pull)  # absent before the option: the default
-    return f"rθ with its last layer re-fitted for v* (`rba.export`'s default; pull {pull})"
+    surface = args.get("refit_surface", 0)  # absent before the option: ζσ
+    read = "ζσ" if not surface else f"ζ̃ through {surface} serve clips"
+    return f"rθ with its last layer re-fitted for v* (`rba.export`'s default; pull {pull}; ζ read as {read})"
 
 
 def markdown(report: dict) -> str:
@@ -232,13 +235,20 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--refit-pull", type=float, default=None,
                    help="the re-fit's pull back to the trained last layer (default RefitConfig.pull; tune on --split "
                         "val)")
+    p.add_argument("--refit-surface", type=int, default=None, metavar="N",
+                   help="the re-fit reads ζ on a ζσ surface through N serve clips (0: ζσ of the states; default: the "
+                        "domain's Domain.zeta_surface; tune on --split val)")
     p.add_argument("--out", type=Path, default=None, help="writes <out>.json and <out>.md; default "
                    "benchmarks/results/reward_only_<domain>")
     args = p.parse_args(argv)
-    if args.no_refit and args.refit_pull is not None:
-        p.error("--refit-pull sets the re-fit that --no-refit turns off; give one of them")
+    if args.no_refit and (args.refit_pull is not None or args.refit_surface is not None):
+        p.error("--refit-pull and --refit-surface set the re-fit that --no-refit turns off; give one of them")
+    if args.refit_surface is not None and (args.refit_surface == 1 or args.refit_surface < 0):
+        p.error(f"--refit-surface: 0 (no surface) or a whole number of clips ≥ 2, got {args.refit_surface}")
     if not args.no_refit and args.refit_pull is None:
         args.refit_pull = RefitConfig().pull
+    if not args.no_refit and args.refit_surface is None:
+        args.refit_surface = get_domain(args.domain).zeta_surface
     args.out = args.out or RESULTS / f"reward_only_{args.domain}"
     return args
 

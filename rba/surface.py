@@ -10,8 +10,13 @@ their proxies do, so near a high-precision target ζσ orders clips only by chan
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from rba.domains.base import ParamSpace
+    from rba.library import SkillLibrary
 
 CHUNK = 256  # points fitted at once: a CHUNK × N distance matrix
 RIDGE = 1e-9  # keeps a plane through clips on a line solvable
@@ -32,6 +37,15 @@ class ZetaSurface:
         if self.neighbours < 2:
             raise ValueError(f"a local plane needs at least 2 neighbours, got {self.neighbours}")
 
+    @classmethod
+    def of_library(cls, library: SkillLibrary, zeta: np.ndarray, space: ParamSpace, neighbours: int) -> ZetaSurface:
+        """The surface through ``library``'s clips (their ζσ ``zeta``, float[N, k]) in ``space``'s unit box."""
+        return cls(library_units(library, space), np.asarray(zeta, np.float64), neighbours)
+
+    def at(self, space: ParamSpace, params: dict[str, float]) -> np.ndarray:
+        """ζ̃ of one clip's parameters: float64[k]."""
+        return self(space.to_unit(params))[0]
+
     def __call__(self, points: np.ndarray) -> np.ndarray:
         """ζ̃ at each of ``points`` (float[M, d] or [d]): float64[M, k]."""
         points = np.atleast_2d(np.asarray(points, np.float64))
@@ -50,3 +64,9 @@ class ZetaSurface:
         a = np.einsum("mki,mkj->mij", xw, x) + RIDGE * np.eye(x.shape[2])
         b = np.einsum("mki,mkz->miz", xw, self.zeta[idx])
         return np.linalg.solve(a, b)[:, 0, :]  # the plane's value at the point itself
+
+
+def library_units(library: SkillLibrary, space: ParamSpace) -> np.ndarray:
+    """The free parameters of every clip of ``library`` in ``space``'s unit box: float64[N, d]."""
+    return np.array([space.to_unit(dict(zip(library.param_names, map(float, p), strict=True)))
+                     for p in library.params])

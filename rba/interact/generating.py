@@ -143,11 +143,8 @@ class GenerationContext:
 
     def _fit_surface(self) -> ZetaSurface:
         """ζ̃ over the serve library's parameters; the base context then reads the library's clips on it too."""
-        serve = self.base.serve
-        units = np.array([self._space.to_unit(dict(zip(serve.param_names, map(float, p), strict=True)))
-                          for p in serve.params])
-        surface = ZetaSurface(units, self.base.serve_zeta, self.surface)
-        self.base = replace(self.base, serve_zeta=surface(units))
+        surface = ZetaSurface.of_library(self.base.serve, self.base.serve_zeta, self._space, self.surface)
+        self.base = replace(self.base, serve_zeta=surface(surface.units))
         return surface
 
     @classmethod
@@ -192,7 +189,7 @@ class GenerationContext:
     def zeta(self, rollout: Rollout) -> np.ndarray:
         """A made clip's ζ as the belief takes it: ζ̃ at its parameters on the surface, else ζσ of its states."""
         if self.zeta_surface is not None:
-            return self.zeta_surface(self._space.to_unit(rollout.params))[0]
+            return self.zeta_surface.at(self._space, rollout.params)
         return ranker_zeta(self.ranker, [rollout])[0]
 
     def rollout(self, rollout_id: str, params: dict[str, float], seed: int) -> Rollout:
