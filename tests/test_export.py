@@ -278,3 +278,39 @@ def test_a_global_export_refits_the_rewards_last_layer_for_the_chosen_clip(app_e
     _, plain = build_export(dataclasses.replace(src, refit=None))
     assert "refit" not in plain.card and all(torch.equal(v, trained.model.state_dict()[k])
                                               for k, v in plain.weights.items())
+
+
+def test_a_domain_with_a_zeta_surface_conditions_and_refits_its_reward_on_it(app_env, toy_roots, monkeypatch):
+    """With ``Domain.zeta_surface`` (or ``ExportSource.surface``) v* is ζ̃ at the chosen clip's parameters and the
+    re-fit ranks the library by ζ̃; the profile keeps ζσ of the chosen clip's states, and 0 reads ζσ throughout."""
+    import dataclasses
+
+    import numpy as np
+
+    from rba.artifacts import load_model
+    from rba.domains import get_domain
+    from rba.export import ExportSource, build_export
+    from rba.learn.common import Ragged
+    from rba.surface import ZetaSurface
+
+    serve, chosen = app_env["serve"], app_env["chosen"]
+    src = ExportSource("toy", "global", "onehot", app_env["version"], "builtin", toy_roots[1], serve, chosen, [],
+                       clip=b"clip")
+    zeta = load_model("toy", "ranker", "onehot", toy_roots[1]).model.score(
+        Ragged.from_numpy(serve.states, serve.state_offsets))
+    space = get_domain("toy").param_space()
+    on_surface = ZetaSurface.of_library(serve, zeta, space, 8).at(space, serve.rollout(serve.index_of(chosen)).params)
+
+    monkeypatch.setattr(type(get_domain("toy")), "zeta_surface", 8)  # the domain's default, as the walker's 96
+    for made in (build_export(src), build_export(dataclasses.replace(src, surface=8))):
+        profile, reward = made
+        assert reward.condition["zeta_from"] == reward.card["refit"]["zeta_from"] == "surface 8"
+        np.testing.assert_allclose(reward.condition["zeta"], on_surface, rtol=1e-6)
+        np.testing.assert_allclose(list(profile.zeta.values()), zeta[serve.index_of(chosen)], rtol=1e-5)
+        assert not np.allclose(reward.condition["zeta"], list(profile.zeta.values()))
+
+    profile, plain = build_export(dataclasses.replace(src, surface=0))
+    assert plain.condition["zeta_from"] == plain.card["refit"]["zeta_from"] == "ranker"
+    np.testing.assert_allclose(plain.condition["zeta"], list(profile.zeta.values()), rtol=1e-6)
+    _, trained = build_export(dataclasses.replace(src, refit=None))  # nothing re-fitted: v* is ζσ, as trained
+    assert trained.condition["zeta_from"] == "ranker" and "refit" not in trained.card

@@ -12,8 +12,9 @@ takes every answer as a soft step of the domain's ``zeta_noise`` (``rba.interact
 each other in ζσ.
 Where the proxies move smoothly with the skill's parameters (``Domain.zeta_surface``, the walker) the agent reads
 every clip on ζ̃, a fit of the serve library's ζσ over the parameters (``rba.surface``), not on ζσ of the clip's own
-states, and makes a clip by solving ζ̃ for its target (``rba.generate.surface_search``: one simulation); a clip it
-would make again (within ``REPEAT`` of one the user judged) is made by the ζσ search instead.
+states, and makes a clip by solving ζ̃ for its target (``rba.generate.surface_search``: one simulation), starting
+from the clip it made last, so its clips stay in one region of the parameters; a clip it would make again (within
+``REPEAT`` of one the user judged) is made by the ζσ search instead.
 A search whose best clip stayed farther than ``threshold`` from its target is not run again for a target
 within ``threshold`` of that one for ``RETRY_AFTER`` rounds: the same starts and budget would fail again
 (the library clip is shown); later it may, with the session's new clips as starts and another seed.
@@ -208,7 +209,7 @@ class GeneratingGlobalAgent(Agent):
                  searches: list[dict] | None = None) -> None:
         self.ctx = ctx
         self.inner = inner or GlobalAgent(ctx.base, zeta_noise=ctx.zeta_noise)
-        self.generated = dict(generated or {})  # id -> {"params", "seed", "zeta"}
+        self.generated = dict(generated or {})  # id -> {"params", "seed", "zeta", "round" it was shown at}
         self.showing = showing  # the generated clip shown now (None: the inner agent's library clip)
         self.searches = list(searches or [])  # per search: simulations, whether its clip was shown
         # wall-clock seconds of this object's searches: kept out of the state, which must be a function of the
@@ -241,14 +242,29 @@ class GeneratingGlobalAgent(Agent):
         return self._choose(before, [(names.index(fb.attribute), fb.direction) for fb in feedback])
 
     def _starts(self, dist: ZetaDistance) -> list[dict[str, float]]:
-        """Parameters of the ``STARTS`` clips nearest the target, library and this session's generated ones."""
+        """Parameters of the ``STARTS`` clips nearest the target, library and this session's generated ones; on the
+        surface, the clip made last first.
+
+        Why: the surface search stays near its first start, so made clips then stay in one region of the
+        parameters, where ζ̃ and the proxies move together (locally affine: 0.1–0.3 high ε off). Started from the
+        nearest clip instead, consecutive clips came from regions whose ζ̃ agree but whose proxies differ by
+        several ε, and the agent alternated between them (``benchmarks/results/generation_surface_val.md``)."""
         base = self.ctx.base
         lib = dist.distances(base.serve_zeta)
         order = np.argsort(lib, kind="stable")[:STARTS]
         pool = [(float(lib[i]), dict(zip(base.serve.param_names, map(float, base.serve.params[i]), strict=True)))
                 for i in order]
         pool += [(float(dist.distances(np.array(g["zeta"]))[0]), g["params"]) for g in self.generated.values()]
-        return [p for _, p in sorted(pool, key=lambda x: x[0])[:STARTS]]
+        nearest = [p for _, p in sorted(pool, key=lambda x: x[0])[:STARTS]]
+        if self.ctx.zeta_surface is None or not self.generated:
+            return nearest
+        last = self._made_last()["params"]
+        return [last, *[p for p in nearest if p is not last][:STARTS - 1]]
+
+    def _made_last(self) -> dict:
+        """The generated clip shown most recently (states from before ``round`` was kept: the last stored)."""
+        made = list(self.generated.values())
+        return max(enumerate(made), key=lambda ig: (ig[1].get("round", -1), ig[0]))[1]
 
     def _failed_near(self, dist: ZetaDistance) -> bool:
         """Whether a search in the last ``RETRY_AFTER`` rounds, for a target within the threshold of this one,
@@ -289,7 +305,8 @@ class GeneratingGlobalAgent(Agent):
         if not shown:
             return library
         r = found.rollout
-        self.generated[r.id] = {"params": dict(r.params), "seed": int(r.seed), "zeta": [float(v) for v in zeta]}
+        self.generated[r.id] = {"params": dict(r.params), "seed": int(r.seed), "zeta": [float(v) for v in zeta],
+                                "round": len(self.inner.rejected)}
         self.showing = r.id
         return r.id
 
