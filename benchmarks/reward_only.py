@@ -7,8 +7,9 @@ seed, for the largest return Σ_t rθ(s_t | v*) of the simulated rollout: no pro
 searches is the skill prior's, from ``Domain.sample_params``). A profile is reproduced when the best
 parameters' measured attributes are within ε (``Domain.epsilons(serve proxies, "normal")``) of the profile's.
 
-The export re-fits rθ's last layer for v* on the serve library's ζσ ranking (``refit_for_target``);
-``--no-refit`` exports the trained weights instead, to compare.
+The export re-fits rθ's last layer for v* on the serve library's ζσ ranking (``refit_for_target``) where the
+domain chooses it (``Domain.export_refit``); ``--no-refit`` exports the trained weights, ``--refit-pull P`` re-fits
+in any domain, to compare.
 
 ``--ceiling`` runs the same search a second time with rθ replaced by what it was trained to rank by: the
 distance of a rollout's standardised ζσ (the ranker's) to v*. That distance is 0 at the profile's own
@@ -81,12 +82,17 @@ def profiles(args: argparse.Namespace, folder: Path) -> list[Path]:
                   for i, (a, b) in enumerate(zip(shown, [*shown[1:], shown[-1]], strict=True))]
         src = ExportSource(args.domain, "global", args.rep, version, "builtin", model_files().root, serve,
                            shown[-1], rounds, clip=b"",
-                           refit=None if args.no_refit else RefitConfig(pull=args.refit_pull),
-                           surface=args.refit_surface)
+                           refit=_refit(args))
         path = folder / f"profile-{len(out):02d}.zip"
         write_export(path, src)
         out.append(path)
     return out
+
+
+def _refit(args: argparse.Namespace) -> RefitConfig | None:
+    """The export's re-fit: none with ``--no-refit``, or where the domain keeps rθ's trained weights and no
+    ``--refit-pull`` asks for one."""
+    return None if args.no_refit or args.refit_pull is None else RefitConfig(pull=args.refit_pull)
 
 
 Loss = Callable[[Export, np.ndarray], float]  # (export, a rollout's states) -> what the search minimises
@@ -190,10 +196,11 @@ def _reward_kind(args: dict) -> str:
         return "rθ's trained weights"
     if args["no_refit"]:
         return "rθ's trained weights (`--no-refit`)"
-    pull = args.get("refit_pull", RefitConfig().pull)  # absent before the option: the default
-    surface = args.get("refit_surface", 0)  # absent before the option: ζσ
-    read = "ζσ" if not surface else f"ζ̃ through {surface} serve clips"
-    return f"rθ with its last layer re-fitted for v* (`rba.export`'s default; pull {pull}; ζ read as {read})"
+    pull = args.get("refit_pull")
+    if pull is None and "refit_pull" in args:  # no pull asked, in a domain that keeps its trained weights
+        return "rθ's trained weights (the domain's choice, `Domain.export_refit`)"
+    pull = RefitConfig().pull if pull is None else pull  # absent before the option: the default
+    return f"rθ with its last layer re-fitted for v* (`rba.export`; pull {pull})"
 
 
 def markdown(report: dict) -> str:
@@ -233,22 +240,15 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--no-refit", action="store_true",
                    help="export rθ's trained weights, not its last layer re-fitted for v* (the export's default)")
     p.add_argument("--refit-pull", type=float, default=None,
-                   help="the re-fit's pull back to the trained last layer (default RefitConfig.pull; tune on --split "
-                        "val)")
-    p.add_argument("--refit-surface", type=int, default=None, metavar="N",
-                   help="the re-fit reads ζ on a ζσ surface through N serve clips (0: ζσ of the states; default: the "
-                        "domain's Domain.zeta_surface; tune on --split val)")
+                   help="re-fit with this pull back to the trained last layer, in any domain (default: the domain's "
+                        "choice, Domain.export_refit, with RefitConfig.pull; tune on --split val)")
     p.add_argument("--out", type=Path, default=None, help="writes <out>.json and <out>.md; default "
                    "benchmarks/results/reward_only_<domain>")
     args = p.parse_args(argv)
-    if args.no_refit and (args.refit_pull is not None or args.refit_surface is not None):
-        p.error("--refit-pull and --refit-surface set the re-fit that --no-refit turns off; give one of them")
-    if args.refit_surface is not None and (args.refit_surface == 1 or args.refit_surface < 0):
-        p.error(f"--refit-surface: 0 (no surface) or a whole number of clips ≥ 2, got {args.refit_surface}")
-    if not args.no_refit and args.refit_pull is None:
-        args.refit_pull = RefitConfig().pull
-    if not args.no_refit and args.refit_surface is None:
-        args.refit_surface = get_domain(args.domain).zeta_surface
+    if args.no_refit and args.refit_pull is not None:
+        p.error("--refit-pull sets the re-fit that --no-refit turns off; give one of them")
+    if not args.no_refit and args.refit_pull is None and get_domain(args.domain).export_refit:
+        args.refit_pull = RefitConfig().pull  # the domain re-fits with the default
     args.out = args.out or RESULTS / f"reward_only_{args.domain}"
     return args
 

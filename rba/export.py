@@ -9,8 +9,8 @@ arrays as ``.npy`` (``allow_pickle=False``). ARCHITECTURE §4 (Export) says what
 * a reward of kind ``global_reward`` (RBA-Global): rθ(s | v*) with v* the ranker's ζσ score of the
   chosen rollout, standardised as the model expects (``condition.v_star``; ``condition.zeta`` raw), its
   last layer re-fitted for that v* on the library's ζσ ranking (``refit_for_target``; the card's
-  ``refit`` says from which weights and how) unless the source asks for the trained weights; on a domain
-  with a ζσ surface (``Domain.zeta_surface``) v* and the ranking are read on it (``condition.zeta_from``);
+  ``refit`` says from which weights and how) where the domain chooses it (``Domain.export_refit``; the walker
+  exports its trained weights) unless the source says otherwise;
 * ``local_reward`` (RBA-Local): rθ(s | α, h, φ(anchor)) of the last round that asked for a change: the
   anchor is the clip that round answered about (``anchor.npy``, its states), the reward the mean over
   that round's changes (α, h). A session satisfied with its first clip asked for none: no reward.
@@ -29,7 +29,7 @@ import zipfile
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import torch
@@ -41,13 +41,13 @@ from rba.learn.global_reward import RefitConfig, refit_for_target
 from rba.library import SkillLibrary
 from rba.methods import get_method
 from rba.storage import write_atomic
-from rba.surface import ZetaSurface
 
 FORMAT = "rba-export"
 FORMAT_VERSION = 1
 PROFILE, CLIP, REWARD_WEIGHTS, REWARD_CARD = "profile.json", "clip.mp4", "reward.pt", "reward.json"
 SIMULATORS = ("mujoco", "dm-control", "highway-env", "gymnasium")  # package versions a replay depends on
 PICKLE_PROTOCOL_MARK = b"\x80"  # every pickle of protocol 2+ starts with the PROTO opcode
+DOMAIN_REFIT = "domain"  # ExportSource.refit: as the domain chooses
 REPLAY_RTOL, REPLAY_ATOL = 1e-6, 1e-9  # a replayed proxy "matches" within these (same packages: bit-exact)
 
 
@@ -130,10 +130,15 @@ class ExportSource:
     feedback: list[dict[str, Any]]  # rounds in step order: step, feedback, rollout_before, rollout_after
     clip: bytes  # the chosen clip's MP4
     rollout: Rollout | None = None  # the chosen rollout when no library holds it (a generated one), else None
-    # how a global reward's last layer is re-fitted for v* (None: the trained weights, to compare)
-    refit: RefitConfig | None = field(default_factory=RefitConfig)
-    # the re-fit reads ζ on a ζσ surface through this many serve clips (None: the domain's ``zeta_surface``; 0: ζσ)
-    surface: int | None = None
+    # how a global reward's last layer is re-fitted for v*: None the trained weights, DOMAIN_REFIT as the domain
+    # chooses (``Domain.export_refit``: RefitConfig() or None)
+    refit: RefitConfig | Literal["domain"] | None = DOMAIN_REFIT
+
+    def refit_config(self) -> RefitConfig | None:
+        """The re-fit this export makes, if any (``refit`` resolved for the domain)."""
+        if self.refit != DOMAIN_REFIT:
+            return self.refit
+        return RefitConfig() if get_domain(self.domain).export_refit else None
 
 
 @dataclass(frozen=True)
@@ -151,41 +156,15 @@ def _states(library: SkillLibrary, rollout_id: str) -> np.ndarray:
     return library.trajectory(library.index_of(rollout_id))
 
 
-@dataclass(frozen=True)
-class ZetaReading:
-    """ζ of the chosen rollout and of the library as a global reward is conditioned and re-fitted on.
-
-    Why a surface: where the proxies move smoothly with the skill's parameters (``Domain.zeta_surface``, the
-    walker), ζ̃ (``rba.surface``) orders nearby clips as their proxies do more often than ζσ of their states; the
-    re-fit's labels and v* then carry less of each clip's own noise (``benchmarks/results/reward_refit_val.md``)."""
-
-    chosen: np.ndarray  # float[k]
-    library: np.ndarray | None  # float[N, k] (None: the trained weights are exported, nothing is re-fitted)
-    source: str  # "ranker" (ζσ of the states) or "surface N" (ζ̃ through N serve clips)
-
-
-def _reading(src: ExportSource, ranker: Any, chosen: Rollout, zeta: np.ndarray) -> ZetaReading:
-    if src.refit is None:
-        return ZetaReading(zeta, None, "ranker")
-    domain = get_domain(src.domain)
-    library = ranker.score(Ragged.from_numpy(src.library.states, src.library.state_offsets))
-    neighbours = domain.zeta_surface if src.surface is None else src.surface
-    if neighbours == 0:
-        return ZetaReading(zeta, library, "ranker")
-    space = domain.param_space()
-    surface = ZetaSurface.of_library(src.library, library, space, neighbours)
-    return ZetaReading(surface.at(space, chosen.params), surface(surface.units), f"surface {neighbours}")
-
-
-def _global_condition(src: ExportSource, reward: Any, zeta: ZetaReading | None) -> tuple[dict, dict] | str:
+def _global_condition(src: ExportSource, reward: Any, zeta: np.ndarray | None) -> tuple[dict, dict] | str:
     if zeta is None:
         return "a global reward needs the ranker's ζσ of the chosen rollout"
     with torch.no_grad():
-        v = reward.model.zeta_norm(torch.as_tensor(zeta.chosen, dtype=torch.float32)).tolist()
-    return {"zeta": [float(z) for z in zeta.chosen], "v_star": v, "zeta_from": zeta.source}, {}
+        v = reward.model.zeta_norm(torch.as_tensor(zeta, dtype=torch.float32)).tolist()
+    return {"zeta": [float(z) for z in zeta], "v_star": v}, {}
 
 
-def _local_condition(src: ExportSource, reward: Any, zeta: ZetaReading | None) -> tuple[dict, dict] | str:
+def _local_condition(src: ExportSource, reward: Any, zeta: np.ndarray | None) -> tuple[dict, dict] | str:
     asked = [r for r in src.feedback if isinstance(r["feedback"], list) and r["feedback"]]
     if not asked:
         return "RBA-Local conditions its reward on an asked change; this session was satisfied with its first clip"
@@ -200,31 +179,32 @@ def _local_condition(src: ExportSource, reward: Any, zeta: ZetaReading | None) -
 
 
 # reward kind -> its condition for the chosen behaviour: (condition JSON, arrays) or why there is none
-CONDITIONS: dict[str, Callable[[ExportSource, Any, ZetaReading | None], tuple[dict, dict] | str]] = {
+CONDITIONS: dict[str, Callable[[ExportSource, Any, np.ndarray | None], tuple[dict, dict] | str]] = {
     "global_reward": _global_condition,
     "local_reward": _local_condition,
 }
 REWARD_NOTES = {
-    "global_reward": "rθ(s | v*) per state; v* = condition.v_star, the chosen rollout's ζ standardised by the "
-                     "model's zeta_norm (condition.zeta; condition.zeta_from: the ranker's ζσ of its states, or "
-                     "ζ̃ at its parameters on a surface through that many serve clips)",
+    "global_reward": "rθ(s | v*) per state; v* = condition.v_star, the ranker's ζσ of the chosen rollout "
+                     "standardised by the model's zeta_norm",
     "local_reward": "rθ(s | α, h, φ(anchor)) per state, the mean over condition.changes; anchor = anchor.npy, "
                     "the states of the clip the last asking round answered about",
 }
 
 
-def _refit(src: ExportSource, arts: dict[str, Any], zeta: ZetaReading, card: dict) -> tuple[torch.nn.Module, dict]:
-    """rθ with its last layer re-fitted for v* = ζ of the chosen rollout on the library's ζ (the labels it was
-    trained on, or their ζ̃); the card's ``held_out`` and ``tuning`` stay those of the trained weights."""
+def _refit(src: ExportSource, arts: dict[str, Any], target_zeta: np.ndarray,
+           card: dict) -> tuple[torch.nn.Module, dict]:
+    """rθ with its last layer re-fitted for v* = ``target_zeta`` on the library's ζσ (the labels it was trained
+    on); the card's ``held_out`` and ``tuning`` stay those of the trained weights, as ``refit`` says."""
     data = Ragged.from_numpy(src.library.states, src.library.state_offsets)
-    model, info = refit_for_target(arts["global_reward"].model, data, zeta.library, zeta.chosen, src.refit)
-    info = {"from_weights_sha": card["weights_sha"], "library": src.library.split, "zeta_from": zeta.source, **info,
+    model, info = refit_for_target(arts["global_reward"].model, data, arts["ranker"].model.score(data), target_zeta,
+                                   src.refit_config())
+    info = {"from_weights_sha": card["weights_sha"], "library": src.library.split, **info,
             "note": "held_out and tuning describe the trained weights (from_weights_sha)"}
     return model, {**card, "weights_sha": weights_sha(model), "refit": info}
 
 
 # reward kind -> how its weights are re-fitted for the chosen behaviour (when ``ExportSource.refit`` is set)
-REFITS: dict[str, Callable[[ExportSource, dict[str, Any], ZetaReading, dict], tuple[torch.nn.Module, dict]]] = {
+REFITS: dict[str, Callable[[ExportSource, dict[str, Any], np.ndarray, dict], tuple[torch.nn.Module, dict]]] = {
     "global_reward": _refit,
 }
 
@@ -252,21 +232,19 @@ def build_export(src: ExportSource) -> tuple[Profile, RewardPart | None]:
                           f"model {src.model_version} used; it cannot be exported")
     chosen = src.rollout or src.library.rollout(src.library.index_of(src.rollout_id))
     states = chosen.states
-    zeta = reading = None
+    zeta = None
     if "ranker" in arts:
         zeta = arts["ranker"].model.score(Ragged.from_numpy(states, np.array([0, len(states)])))[0]
     reward, note = None, f"{method.label} exports no reward model"
     kind = next((k for k in method.model_kinds if k in CONDITIONS), None)
-    if kind in REFITS and zeta is not None:
-        reading = _reading(src, arts["ranker"].model, chosen, zeta)
     if kind is not None:
-        made = CONDITIONS[kind](src, arts[kind], reading)
+        made = CONDITIONS[kind](src, arts[kind], zeta)
         if isinstance(made, str):
             note = made
         else:
             model, card = arts[kind].model, arts[kind].card
-            if kind in REFITS and src.refit is not None:
-                model, card = REFITS[kind](src, arts, reading, card)
+            if kind in REFITS and src.refit_config() is not None:
+                model, card = REFITS[kind](src, arts, zeta, card)
             reward = RewardPart(kind, model.state_dict(), card, *made)
             note = REWARD_NOTES[kind]
     simulators, rba_version = _versions()

@@ -77,6 +77,10 @@ def test_a_report_names_the_reward_its_exports_carried(capsys):
     assert "re-fitted" in kind({"no_refit": False}) and "pull 0.01" in kind({"no_refit": False})  # before --refit-pull
     assert "pull 0.03" in kind(vars(reward_only.parse_args(["--refit-pull", "0.03"])))
     assert reward_only.parse_args(["--refit-pull", "0"]).refit_pull == 0.0  # a zero pull is a pull, not the default
+    walker = reward_only.parse_args(["--domain", "walker"])  # the walker keeps rθ's trained weights (export_refit)
+    assert reward_only._refit(walker) is None and "the domain's choice" in kind(vars(walker))
+    assert reward_only._refit(reward_only.parse_args(["--domain", "walker", "--refit-pull", "0.01"])).pull == 0.01
+    assert reward_only._refit(reward_only.parse_args(["--domain", "toy"])).pull == 0.01  # the toy domain re-fits
     with pytest.raises(SystemExit) as exit_:
         reward_only.parse_args(["--no-refit", "--refit-pull", "0.03"])
     assert exit_.value.code == 2 and "--no-refit turns off" in capsys.readouterr().err

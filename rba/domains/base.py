@@ -206,6 +206,9 @@ class Domain(ABC):
     # there asks as well as a made one, at once (0: by the threshold alone). Chosen on val (generation_spread_val.md;
     # the walker's with its surface, generation_surface_val.md)
     generate_spread: float = 1.0
+    # an export re-fits its global reward's last layer for the chosen v* (``rba.export``; False: the trained weights).
+    # Chosen on val with the reward-only search (reward_refit_val.md)
+    export_refit: bool = True
     # (kind, rep) of a learned model the states come from (models/<name>/<kind>-<rep>.pt): loaded, never trained
     # here; `rba build` makes it when missing (rba.training.prepare_states)
     state_encoder: tuple[str, str] | None = None

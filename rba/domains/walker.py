@@ -821,6 +821,7 @@ class Walker(Domain):
     frame_rate = FRAME_RATE
     feedback_phrases = FEEDBACK_PHRASES
     zeta_surface = 96  # the generating agent reads clips on ζσ over the parameters (generation_surface_val.md)
+    export_refit = False  # reward-only on 60 val profiles: trained weights 60, re-fitted 54 (reward_refit_val.md)
     generate_spread = 0.5  # with the surface: val AF lower, searches still rare at normal precision (same report)
     zeta_noise = 0.04  # its soft step, chosen with the surface: val AF lowest with SR held (same report)
 
