@@ -88,6 +88,27 @@ def test_generation_on_the_surface_reaches_the_target_the_library_lacks(ctx, gap
         np.testing.assert_allclose(g["zeta"], agent.ctx.zeta_surface(agent.ctx._space.to_unit(g["params"]))[0])
 
 
+def test_on_the_surface_the_clip_made_last_starts_the_search(ctx, gap_roots):
+    """Made clips stay in one region of the parameters: the last one shown (by round, then as stored) starts the next
+    search, the nearest clips follow; without a surface the nearest clip starts, as before."""
+    from rba.generate import ZetaDistance
+
+    target = ctx.serve_zeta[5]
+    made = {"gen-a": {"params": {"amplitude": 0.9, "pace": 0.9}, "seed": 0, "zeta": list(target), "round": 4},
+            "gen-b": {"params": {"amplitude": 0.1, "pace": 0.1}, "seed": 0, "zeta": list(target + 9.0), "round": 7},
+            "gen-c": {"params": {"amplitude": 0.5, "pace": 0.2}, "seed": 0, "zeta": list(target + 9.0), "round": 6}}
+    gen = _gen(ctx, gap_roots, surface=16)
+    dist: ZetaDistance = gen.distance(target)
+    starts = GeneratingGlobalAgent(gen, generated=made)._starts(dist)
+    assert starts[0] == made["gen-b"]["params"] and made["gen-a"]["params"] in starts[1:]  # last, then the nearest
+    assert len(starts) == 4 and made["gen-c"]["params"] not in starts  # far from the target, not the last
+    old = {k: {kk: vv for kk, vv in g.items() if kk != "round"} for k, g in made.items()}  # a state from before
+    assert GeneratingGlobalAgent(gen, generated=old)._starts(dist)[0] == made["gen-c"]["params"]  # the last stored
+    plain = _gen(ctx, gap_roots, surface=0)
+    nearest = GeneratingGlobalAgent(plain, generated=made)._starts(plain.distance(target))
+    assert made["gen-a"]["params"] in nearest[:2] and made["gen-b"]["params"] not in nearest  # at 0 from the target
+
+
 def test_a_clip_the_surface_makes_again_is_made_by_the_zeta_search(ctx, gap_roots):
     gen = _gen(ctx, gap_roots, surface=16)
     starts = [dict(zip(ctx.serve.param_names, map(float, ctx.serve.params[i]), strict=True)) for i in range(4)]
