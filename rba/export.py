@@ -191,20 +191,21 @@ REWARD_NOTES = {
 }
 
 
-def _refit(src: ExportSource, arts: dict[str, Any], target_zeta: np.ndarray,
-           card: dict) -> tuple[torch.nn.Module, dict]:
+def _refit(src: ExportSource, arts: dict[str, Any], target_zeta: np.ndarray, card: dict,
+           cfg: RefitConfig) -> tuple[torch.nn.Module, dict]:
     """rθ with its last layer re-fitted for v* = ``target_zeta`` on the library's ζσ (the labels it was trained
     on); the card's ``held_out`` and ``tuning`` stay those of the trained weights, as ``refit`` says."""
     data = Ragged.from_numpy(src.library.states, src.library.state_offsets)
     model, info = refit_for_target(arts["global_reward"].model, data, arts["ranker"].model.score(data), target_zeta,
-                                   src.refit_config())
+                                   cfg)
     info = {"from_weights_sha": card["weights_sha"], "library": src.library.split, **info,
             "note": "held_out and tuning describe the trained weights (from_weights_sha)"}
     return model, {**card, "weights_sha": weights_sha(model), "refit": info}
 
 
 # reward kind -> how its weights are re-fitted for the chosen behaviour (when ``ExportSource.refit`` is set)
-REFITS: dict[str, Callable[[ExportSource, dict[str, Any], np.ndarray, dict], tuple[torch.nn.Module, dict]]] = {
+REFITS: dict[str, Callable[[ExportSource, dict[str, Any], np.ndarray, dict, RefitConfig],
+                           tuple[torch.nn.Module, dict]]] = {
     "global_reward": _refit,
 }
 
@@ -243,8 +244,9 @@ def build_export(src: ExportSource) -> tuple[Profile, RewardPart | None]:
             note = made
         else:
             model, card = arts[kind].model, arts[kind].card
-            if kind in REFITS and src.refit_config() is not None:
-                model, card = REFITS[kind](src, arts, zeta, card)
+            refit = src.refit_config() if kind in REFITS else None
+            if refit is not None:
+                model, card = REFITS[kind](src, arts, zeta, card, refit)
             reward = RewardPart(kind, model.state_dict(), card, *made)
             note = REWARD_NOTES[kind]
     simulators, rba_version = _versions()

@@ -190,9 +190,10 @@ def surface_search(domain: str, starts: list[dict[str, float]], surface: ZetaSur
                    on_progress: Progress | None = None) -> Generation:
     """The clip at the parameters whose ζ̃ (``surface``) is nearest ``distance``'s target, simulated once.
 
-    CMA-ES runs on the surface, which costs no simulation, from the best start; among parameters that reach
-    the target it keeps those nearest that start (``SURFACE_PULL``), where the surface was fitted on the clips
-    around it. The result's ``objective`` is that distance (pull included); a skill that fails there gives no clip.
+    CMA-ES runs on the surface, which costs no simulation, from the first start (the generating agent's: the clip
+    it made last, else the nearest); among parameters that reach the target it keeps those nearest that start
+    (``SURFACE_PULL``), where the surface was fitted on the clips around it. The result's ``objective`` is that
+    distance (pull included); a skill that fails there gives no clip.
     """
     if not starts:
         raise ValueError("a search starts from at least one library clip's parameters")

@@ -40,7 +40,9 @@ class ZetaSurface:
     @classmethod
     def of_library(cls, library: SkillLibrary, zeta: np.ndarray, space: ParamSpace, neighbours: int) -> ZetaSurface:
         """The surface through ``library``'s clips (their ζσ ``zeta``, float[N, k]) in ``space``'s unit box."""
-        return cls(library_units(library, space), np.asarray(zeta, np.float64), neighbours)
+        units = np.array([space.to_unit(dict(zip(library.param_names, map(float, p), strict=True)))
+                          for p in library.params])
+        return cls(units, np.asarray(zeta, np.float64), neighbours)
 
     def at(self, space: ParamSpace, params: dict[str, float]) -> np.ndarray:
         """ζ̃ of one clip's parameters: float64[k]."""
@@ -65,8 +67,3 @@ class ZetaSurface:
         b = np.einsum("mki,mkz->miz", xw, self.zeta[idx])
         return np.linalg.solve(a, b)[:, 0, :]  # the plane's value at the point itself
 
-
-def library_units(library: SkillLibrary, space: ParamSpace) -> np.ndarray:
-    """The free parameters of every clip of ``library`` in ``space``'s unit box: float64[N, d]."""
-    return np.array([space.to_unit(dict(zip(library.param_names, map(float, p), strict=True)))
-                     for p in library.params])
