@@ -9,7 +9,8 @@ never proxies): ``ZetaDistance`` (ζσ distance to the target vector) or ``Rewar
 
 A generated rollout is a first-class ``Rollout`` whose id ``gen-<hash>`` is a hash of (domain, params,
 seed): equal ids re-simulate to equal states (``replay``). Seeds are fixed (CMA-ES draws from its own
-generator, every candidate is simulated with one seed), so a search gives the same rollout every time.
+generator; candidates are simulated with ``SearchConfig.sim_seed``, or with seeds counted from it where the
+domain's skill is noisy), so a search gives the same rollout every time.
 """
 
 from __future__ import annotations
@@ -83,7 +84,10 @@ class SearchConfig:
     popsize: int = 8
     sigma: tuple[float, float] = (0.05, 0.25)  # CMA-ES's first step (share of each range): the starts' spread, clipped
     seed: int = 0  # CMA-ES's own draws
-    sim_seed: int = 0  # every candidate is simulated with this seed: candidates differ in parameters only
+    sim_seed: int = 0  # every candidate is simulated with this seed: candidates differ in parameters only ...
+    # ... unless each candidate gets a seed of its own, sim_seed + its number in the search (None: where the domain's
+    # skill is noisy, ``Domain.noisy_skill``): there a target may lie where only some of the skill's draws reach
+    vary_seed: bool | None = None
     good_enough: float | None = None  # stop early once the best objective is at most this
     seconds: float | None = None  # stop before a generation predicted to end later than this (None: budget only)
 
@@ -155,7 +159,8 @@ def search(domain: str, starts: list[dict[str, float]], objective: Objective, si
     """
     if not starts:
         raise ValueError("a search starts from at least one library clip's parameters")
-    space, target = load_domain(domain_target(domain)).param_space(), domain_target(domain)
+    skill, target = load_domain(domain_target(domain)), domain_target(domain)
+    space, vary = skill.param_space(), skill.noisy_skill if config.vary_seed is None else config.vary_seed
     x0, sigma0 = _first_step(space, starts, config)
     es = _cma(x0, sigma0, config.popsize, config.seed)
     best, best_f, done, clock = None, math.inf, 0, time.perf_counter()
@@ -163,7 +168,9 @@ def search(domain: str, starts: list[dict[str, float]], objective: Objective, si
     for k in range(config.generations):
         units = es.ask()
         params = [space.from_unit(u, starts[0]) for u in units]
-        rollouts = _simulate_until(simulate, [SimJob(target, p, config.sim_seed) for p in params], deadline)
+        seeds = [config.sim_seed + (done + j if vary else 0) for j in range(len(params))]
+        rollouts = _simulate_until(simulate, [SimJob(target, p, s) for p, s in zip(params, seeds, strict=True)],
+                                   deadline)
         f = np.where([r.success for r in rollouts], objective(rollouts), FAILED)
         cut = len(rollouts) < len(units)  # out of time within the generation: CMA-ES is told nothing more
         if not cut:

@@ -139,6 +139,32 @@ def test_fixed_parameters_keep_the_start_clips_value(ctx, gap_roots, monkeypatch
     assert found.rollout.params["pace"] == 1.234 and found.rollout.params["amplitude"] != 0.5
 
 
+
+def _seeds_simulated(dist: ZetaDistance, monkeypatch, noisy: bool | None, vary: bool | None) -> list[int]:
+    """The seeds a 16-candidate toy search simulates, with the toy's skill ``noisy`` (None: as declared) and the
+    config's ``vary_seed``."""
+    if noisy is not None:
+        monkeypatch.setattr(Toy, "noisy_skill", noisy)
+    seeds: list[int] = []
+
+    def counting(jobs):
+        seeds.extend(j.seed for j in jobs)
+        return in_process(jobs)
+
+    config = SearchConfig(budget=16, sim_seed=7, vary_seed=vary)
+    search("toy", [{"amplitude": 0.5, "pace": 1.2}], dist, counting, config)
+    return seeds
+
+
+def test_a_noisy_skills_candidates_each_get_a_seed_of_their_own(ctx, gap_roots, monkeypatch):
+    dist = _gen(ctx, gap_roots).distance(np.zeros(2))
+    assert not get_domain("toy").noisy_skill and get_domain("manipulator").noisy_skill
+    assert _seeds_simulated(dist, monkeypatch, None, None) == [7] * 16  # candidates differ in parameters only
+    assert _seeds_simulated(dist, monkeypatch, True, None) == list(range(7, 23))  # the domain's choice ...
+    assert _seeds_simulated(dist, monkeypatch, True, False) == [7] * 16  # ... unless the search's config says
+    assert _seeds_simulated(dist, monkeypatch, False, True) == list(range(7, 23))
+
+
 def test_state_round_trips_through_json_and_continues_identically(ctx, gap_roots):
     agent = GeneratingGlobalAgent(_gen(ctx, gap_roots, threshold=0.0, spread=0.0))  # generate at every round
     user = parse_user("paper").build(TARGET, _eps(ctx) / 6, ctx.serve, 0)

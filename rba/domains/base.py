@@ -206,6 +206,10 @@ class Domain(ABC):
     # there asks as well as a made one, at once (0: by the threshold alone). Chosen on val (generation_spread_val.md;
     # the walker's with its surface, generation_surface_val.md)
     generate_spread: float = 1.0
+    # the skill's outcome depends on its seed beyond the parameters (the manipulator's tremor is drawn from it): a
+    # search then simulates each candidate with a seed of its own (``rba.generate.search``), so the noise is part of
+    # what it chooses among, as the library's seeds are. Chosen on val (generation_seeds_val.md)
+    noisy_skill: bool = False
     # an export re-fits its global reward's last layer for the chosen v* (``rba.export``; False: the trained weights).
     # Chosen on val with the reward-only search (reward_refit_val.md)
     export_refit: bool = True
