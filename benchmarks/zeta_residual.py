@@ -13,10 +13,14 @@ whether a clip *made* for a ζσ target satisfies as often as a library clip at 
 search the generating agent runs (``rba.generate.search`` from the nearest serve clips, ζσ distance, stopping
 within the threshold) for the clip's own ζσ, and the share of the clips it made within the threshold that are
 within ε of the val clip's proxies, against the serve clips within the threshold for the same targets (a search
-optimises ζσ, so it may find where ζσ errs). A tuning measurement: never on test. Writes
+optimises ζσ, so it may find where ζσ errs). ``--seeds N`` asks how noisy the skill itself is: N val clips
+re-simulated at their own parameters with ``SEEDS`` other seeds, and the proxies' spread across those seeds in ε
+(where it is near ε a search should choose among seeds too: ``Domain.noisy_skill``). A tuning measurement: never
+on test. Writes
 ``benchmarks/results/zeta_residual.md`` and ``.json``.
 
-    python benchmarks/zeta_residual.py --domains walker manipulator snake lane_change --local 40 --generated 40
+    python benchmarks/zeta_residual.py --domains walker manipulator snake lane_change --local 40 --generated 40 \
+        --seeds 10
 """
 
 from __future__ import annotations
@@ -41,13 +45,14 @@ from rba.storage import save_text
 
 RESULTS = Path(__file__).resolve().parent / "results"
 STEPS = (0.01, 0.03, 0.1)  # std of the parameter moves, in units of each free parameter's range
+SEEDS = 6  # other seeds per val clip (--seeds)
 BANDS = (0.0, 0.01, 0.02, 0.03, 0.05, 0.08)  # ζσ distances (ranges scaled to 1) between a serve clip and a target
 
 
 def measure(domain: str, rep: str, precisions: list[str], local: int = 0, seed: int = 0,
-            generated: int = 0) -> list[dict]:
-    """One row per precision, from one load of the models and libraries (and ``local`` clips moved, and
-    ``generated`` searches)."""
+            generated: int = 0, seeds: int = 0) -> list[dict]:
+    """One row per precision, from one load of the models and libraries (and ``local`` clips moved,
+    ``generated`` searches, and ``seeds`` clips re-simulated with other seeds)."""
     ctx = load_context(domain, "global", rep)
     val = SkillLibrary.load(domain, "val")
     ranker = load_model(domain, "ranker", rep).model
@@ -59,6 +64,7 @@ def measure(domain: str, rep: str, precisions: list[str], local: int = 0, seed: 
             for a in range(len(ctx.attribute_names))]
     moved = _moved(domain, val, local, seed) if local else []
     made = _made(domain, ctx, ranker, val_zeta, scale, generated, seed) if generated else []
+    reseeded = _reseeded(domain, val, seeds, seed) if seeds else None
     rows = []
     for p in precisions:
         eps = get_domain(domain).epsilons(ctx.serve.proxies, p)
@@ -68,6 +74,11 @@ def measure(domain: str, rep: str, precisions: list[str], local: int = 0, seed: 
             row["local"] = _local(ctx, ranker, fits, eps, scale, moved)
         if made:
             row["generated"] = _generated(ctx, val, near, eps, made)
+        if reseeded is not None:
+            spread, names = reseeded / eps, ctx.attribute_names
+            row["seeds"] = {"clips": len(spread), "seeds": SEEDS,
+                            "median": dict(zip(names, np.median(spread, 0).round(2).tolist(), strict=True)),
+                            "max": dict(zip(names, spread.max(0).round(2).tolist(), strict=True))}
         rows.append(row)
     return rows
 
@@ -92,6 +103,17 @@ def _moved(domain: str, val: SkillLibrary, clips: int, seed: int) -> list[tuple[
                 pairs.append((r, moved))
         out.append(([a for a, _ in pairs], [b for _, b in pairs]))
     return out
+
+
+def _reseeded(domain: str, val: SkillLibrary, clips: int, seed: int) -> np.ndarray:
+    """float[clips, k]: per picked val clip, the proxies' std over ``SEEDS`` other seeds at its own parameters."""
+    sim = load_domain(domain_target(domain))
+    out = []
+    for i in np.random.default_rng(seed + 2).choice(len(val), min(clips, len(val)), replace=False):
+        r = val.rollout(int(i))
+        again = [sim.rollout(r.params, 10_000 * (seed + 1) + n) for n in range(SEEDS)]
+        out.append(np.std([[a.proxies[k] for k in val.attribute_names] for a in again], axis=0))
+    return np.array(out)
 
 
 def _hits(ctx, clips: np.ndarray, target: np.ndarray, eps: np.ndarray) -> np.ndarray:
@@ -232,6 +254,18 @@ def report(rows: list[dict], command: str) -> str:
             g = r["generated"]
             lines.append(f"| {r['domain']} | {r['precision']} | {g['reached']} / {g['searches']} | "
                          f"{share(g['hit_share'])} | {g['library_targets']} | {share(g['library_hit_share'])} |")
+    seeded = [r for r in rows if "seeds" in r and r["precision"] == "high"]
+    if seeded:
+        lines += ["", "## The skill's own noise: other seeds at a clip's parameters (high-precision ε)", "",
+                  f"Val clips re-simulated at their own parameters with {SEEDS} other seeds: the std of each proxy "
+                  "across the seeds in ε, median and largest over the clips. Where it nears ε a clip's seed decides "
+                  "whether it satisfies, and a search that simulates every candidate with one seed may not reach "
+                  "a target at all (`Domain.noisy_skill`).", "",
+                  "| domain | clips | median std / ε | largest std / ε |", "|---|---|---|---|"]
+        fmt = lambda d: ", ".join(f"{k} {v:.2f}" for k, v in d.items())  # noqa: E731
+        for r in seeded:
+            s = r["seeds"]
+            lines.append(f"| {r['domain']} | {s['clips']} | {fmt(s['median'])} | {fmt(s['max'])} |")
     lines += ["", f"Command: `{command}`; {dt.date.today().isoformat()}."]
     return "\n".join(lines) + "\n"
 
@@ -245,13 +279,15 @@ def main() -> None:
                     help="also move the parameters of N val clips and measure how much residual survives")
     ap.add_argument("--generated", type=int, default=0, metavar="N",
                     help="also search for the ζσ of N val clips and measure how often the made clip satisfies")
+    ap.add_argument("--seeds", type=int, default=0, metavar="N",
+                    help="also re-simulate N val clips with other seeds and measure the proxies' spread")
     args = ap.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     rows = [row for d in args.domains for row in measure(d, args.rep, args.precisions, args.local,
-                                                         generated=args.generated)]
+                                                         generated=args.generated, seeds=args.seeds)]
     command = " ".join(["python benchmarks/zeta_residual.py", "--domains", *args.domains, "--rep", args.rep,
                        "--precisions", *args.precisions, "--local", str(args.local), "--generated",
-                       str(args.generated)])
+                       str(args.generated), "--seeds", str(args.seeds)])
     save_text(RESULTS / "zeta_residual.json", json.dumps(rows, indent=1) + "\n")
     save_text(RESULTS / "zeta_residual.md", report(rows, command))
 

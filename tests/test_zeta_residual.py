@@ -10,7 +10,7 @@ zeta_residual = load_benchmark("zeta_residual")
 
 def test_high_precision_hits_fewer_and_spreads_wider_in_epsilon_units():
     high, normal = zeta_residual.measure("lane_change", "onehot", ["high", "normal"], local=6,
-                                         generated=3)
+                                         generated=3, seeds=2)
     assert set(high["residual_over_epsilon"]) == {"sharpness", "gap"}
     assert 0.0 <= high["hit_share"] <= normal["hit_share"] <= 1.0
     assert all(high["residual_over_epsilon"][a] > normal["residual_over_epsilon"][a] for a in ("sharpness", "gap"))
@@ -30,3 +30,14 @@ def test_high_precision_hits_fewer_and_spreads_wider_in_epsilon_units():
     assert all(b["clips"] > 0 and 0.0 <= b["hit_share"] <= 1.0 for b in high["bands"])
     assert all(h["hit_share"] <= n["hit_share"] for h, n in zip(high["bands"], normal["bands"], strict=True))
     assert "## Hit share by ζσ distance to the target" in table
+    assert high["seeds"]["clips"] == 2 and set(high["seeds"]["max"]) == {"sharpness", "gap"}
+    assert all(v == 0.0 for v in high["seeds"]["max"].values())  # the lane change's skill ignores its seed
+    assert "## The skill's own noise" in table and "| lane_change | 2 | sharpness 0.00" in table
+
+
+def test_the_manipulators_tremor_spreads_its_instability_across_seeds():
+    """What ``Manipulator.noisy_skill`` rests on: at one clip's parameters, other seeds move its instability."""
+    val = zeta_residual.SkillLibrary.load("manipulator", "val")
+    spread = zeta_residual._reseeded("manipulator", val, 2, 0)
+    eps = zeta_residual.get_domain("manipulator").epsilons(val.proxies, "high")
+    assert spread.shape == (2, 2) and (spread[:, 1] / eps[1]).max() > 0.5
