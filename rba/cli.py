@@ -192,7 +192,8 @@ def _generation(args) -> tuple[dict, Compute | None]:
         return {}, None
     from rba.generate import SearchConfig
 
-    options: dict = {"config": SearchConfig(budget=args.gen_budget, seconds=args.gen_seconds)}
+    vary = None if args.gen_seeds is None else args.gen_seeds == "each"
+    options: dict = {"config": SearchConfig(budget=args.gen_budget, seconds=args.gen_seconds, vary_seed=vary)}
     if args.gen_threshold is not None:
         options["threshold"] = args.gen_threshold
     if args.gen_spread is not None:
@@ -405,6 +406,10 @@ def _eval_command(sub) -> argparse.ArgumentParser:
                    help="read and make clips on a fit of ζσ over the skill's parameters through the N nearest "
                         "serve clips (0: each clip's own ζσ); default: the domain's Domain.zeta_surface; tune it "
                         "on --split val")
+    e.add_argument("--gen-seeds", choices=("one", "each"), default=None,
+                   help="simulate a search's candidates with one seed, or each with a seed of its own (the skill's "
+                        "noise is then chosen among too); default: each where the domain's skill is noisy "
+                        "(Domain.noisy_skill), else one; tune it on --split val")
     e.add_argument("--gen-workers", type=_positive, default=2,
                    help="local processes simulating candidates (1: this process)")
     _ray_option(e)

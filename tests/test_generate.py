@@ -165,6 +165,15 @@ def test_a_noisy_skills_candidates_each_get_a_seed_of_their_own(ctx, gap_roots, 
     assert _seeds_simulated(dist, monkeypatch, False, True) == list(range(7, 23))
 
 
+def test_cli_gen_seeds_option(gap_roots, monkeypatch, capsys):
+    assert cli_context_option(gap_roots, monkeypatch, "--gen-seeds", "each", "config") == [
+        SearchConfig(budget=8, vary_seed=True), SearchConfig(budget=8)]  # without: the domain's choice
+    with pytest.raises(SystemExit) as exit_:
+        main(["eval", "--domain", "toy", "--gen-seeds", "all"])
+    assert exit_.value.code == 2
+    assert "argument --gen-seeds: invalid choice: 'all' (choose from 'one', 'each')" in capsys.readouterr().err
+
+
 def test_state_round_trips_through_json_and_continues_identically(ctx, gap_roots):
     agent = GeneratingGlobalAgent(_gen(ctx, gap_roots, threshold=0.0, spread=0.0))  # generate at every round
     user = parse_user("paper").build(TARGET, _eps(ctx) / 6, ctx.serve, 0)
