@@ -16,8 +16,7 @@ within ε of the val clip's proxies, against the serve clips within the threshol
 optimises ζσ, so it may find where ζσ errs). ``--seeds N`` asks how noisy the skill itself is: N val clips
 re-simulated at their own parameters with ``SEEDS`` other seeds, and the proxies' spread across those seeds in ε
 (where it is near ε a search should choose among seeds too: ``Domain.noisy_skill``). A tuning measurement: never
-on test. Writes
-``benchmarks/results/zeta_residual.md`` and ``.json``.
+on test. Writes ``benchmarks/results/zeta_residual.md`` and ``.json``.
 
     python benchmarks/zeta_residual.py --domains walker manipulator snake lane_change --local 40 --generated 40 \
         --seeds 10
@@ -111,8 +110,8 @@ def _reseeded(domain: str, val: SkillLibrary, clips: int, seed: int) -> np.ndarr
     out = []
     for i in np.random.default_rng(seed + 2).choice(len(val), min(clips, len(val)), replace=False):
         r = val.rollout(int(i))
-        again = [sim.rollout(r.params, 10_000 * (seed + 1) + n) for n in range(SEEDS)]
-        out.append(np.std([[a.proxies[k] for k in val.attribute_names] for a in again], axis=0))
+        others = [sim.rollout(r.params, 10_000 * (seed + 1) + n) for n in range(SEEDS)]
+        out.append(np.std([[o.proxies[name] for name in val.attribute_names] for o in others], axis=0))
     return np.array(out)
 
 

@@ -263,8 +263,8 @@ class Manipulator(Domain):
     frame_rate = FRAME_RATE
     feedback_phrases = FEEDBACK_PHRASES
     zeta_noise = 0.1  # the generating agent's soft step: val AF lowest with SR held (generation_noise_val.md)
-    noisy_skill = True  # the tremor is drawn from the seed: 8 seeds at one val clip's parameters spread its
-    # instability over 10 high-precision ε (generation_seeds_val.md)
+    noisy_skill = True  # the tremor is drawn from the seed: other seeds at a val clip's parameters spread its
+    # instability by 2.3 high-precision ε (std, median of 10 clips: zeta_residual.md); generation_seeds_val.md
 
     def __init__(self) -> None:
         self._model: mujoco.MjModel | None = None
