@@ -156,6 +156,18 @@ def _seeds_simulated(dist: ZetaDistance, monkeypatch, noisy: bool | None, vary: 
     return seeds
 
 
+def test_a_clip_made_with_a_seed_of_its_own_replays_from_that_seed(ctx, gap_roots, monkeypatch):
+    monkeypatch.setattr(Toy, "noisy_skill", True)
+    start = dict(zip(ctx.serve.param_names, map(float, ctx.serve.params[0]), strict=True))
+    dist = _gen(ctx, gap_roots).distance(ctx.serve_zeta[0] + 0.1)
+    r = search("toy", [start], dist, config=SearchConfig(budget=16, sim_seed=100)).rollout
+    assert 100 <= r.seed < 116 and r.id == generated_id("toy", r.params, r.seed)
+    again = replay("toy", r.params, r.seed)
+    assert again.id == r.id
+    np.testing.assert_array_equal(again.states, r.states)
+    assert not np.array_equal(replay("toy", r.params, r.seed + 1).states, r.states)  # the seed is part of the clip
+
+
 def test_a_noisy_skills_candidates_each_get_a_seed_of_their_own(ctx, gap_roots, monkeypatch):
     dist = _gen(ctx, gap_roots).distance(np.zeros(2))
     assert not get_domain("toy").noisy_skill and get_domain("manipulator").noisy_skill
