@@ -6,7 +6,8 @@ import threading
 import time
 from concurrent.futures import Future
 
-from rba.compute import Compute, RenderJob, Task
+from rba.compute import Compute, RenderJob, SimJob, Task
+from rba.generate import in_process
 
 
 class FakeCompute(Compute):
@@ -80,3 +81,12 @@ class InProcessCompute(InstantCompute):
         self.batches += 1
         time.sleep(self.delay)
         return list(in_process(jobs))
+
+
+def recording_simulator(jobs: list[SimJob]):
+    """A simulator (``rba.generate.Simulate``) that records every job it is given: what a search really asked for."""
+    def simulate(batch):
+        batch = list(batch)
+        jobs.extend(batch)
+        return in_process(batch)
+    return simulate

@@ -31,6 +31,7 @@ from rba.interact.generating import RETRY_AFTER, GeneratingGlobalAgent, Generati
 from rba.interact.global_agent import GlobalAgent, GlobalContext
 from rba.interact.users import parse_user
 from tests.conftest import serve_subset_roots
+from tests.fakes import recording_simulator
 from tests.toy import Toy
 
 TARGET = np.array([0.7, 2.4])  # amplitude, pace: inside the gap, away from where the first query lands
@@ -145,15 +146,10 @@ def _seeds_simulated(dist: ZetaDistance, monkeypatch, noisy: bool | None, vary: 
     config's ``vary_seed``."""
     if noisy is not None:
         monkeypatch.setattr(Toy, "noisy_skill", noisy)
-    seeds: list[int] = []
-
-    def counting(jobs):
-        seeds.extend(j.seed for j in jobs)
-        return in_process(jobs)
-
+    jobs: list = []
     config = SearchConfig(budget=16, sim_seed=7, vary_seed=vary)
-    search("toy", [{"amplitude": 0.5, "pace": 1.2}], dist, counting, config)
-    return seeds
+    search("toy", [{"amplitude": 0.5, "pace": 1.2}], dist, recording_simulator(jobs), config)
+    return [j.seed for j in jobs]
 
 
 def test_a_clip_made_with_a_seed_of_its_own_replays_from_that_seed(ctx, gap_roots, monkeypatch):

@@ -7,10 +7,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from rba.generate import SearchConfig, in_process, is_generated, surface_search
+from rba.generate import SearchConfig, is_generated, surface_search
 from rba.interact.generating import REPEAT, GeneratingGlobalAgent
 from rba.interact.global_agent import GlobalContext
 from rba.surface import ZetaSurface
+from tests.fakes import recording_simulator
 from tests.test_generate import BUDGET, TARGET, _eps, _gen, cli_context_option, cli_refuses
 from tests.toy import Toy
 
@@ -18,15 +19,6 @@ from tests.toy import Toy
 @pytest.fixture(scope="module")
 def ctx(gap_roots) -> GlobalContext:
     return GlobalContext.load("toy", "onehot", *gap_roots)
-
-
-def _counting(jobs: list):
-    """A simulator that records every job it is given (what a search really cost)."""
-    def simulate(batch):
-        batch = list(batch)
-        jobs.extend(batch)
-        return in_process(batch)
-    return simulate
 
 
 def _plane(units: np.ndarray) -> np.ndarray:
@@ -70,7 +62,7 @@ def test_a_clip_made_on_the_surface_costs_one_simulation(ctx, gap_roots):
     target = gen.zeta_surface(np.array([0.3, 0.6]))[0]  # a point of the surface: reachable
     progress = []
     jobs = []
-    found = surface_search("toy", [start], gen.zeta_surface, gen.distance(target), _counting(jobs),
+    found = surface_search("toy", [start], gen.zeta_surface, gen.distance(target), recording_simulator(jobs),
                            config=SearchConfig(), on_progress=lambda k, n: progress.append((k, n)))
     assert len(jobs) == found.simulations == 1 and found.rollout is not None and is_generated(found.rollout.id)
     assert found.objective < 0.02 and progress == [(1, 1)]
@@ -114,7 +106,7 @@ def test_a_clip_the_surface_makes_again_is_made_by_the_zeta_search(ctx, gap_root
     starts = [dict(zip(ctx.serve.param_names, map(float, ctx.serve.params[i]), strict=True)) for i in range(4)]
     target = gen.zeta_surface(np.array([0.3, 0.6]))[0]
     jobs = []
-    gen.simulate = _counting(jobs)
+    gen.simulate = recording_simulator(jobs)
     first, _ = gen.generate(target, starts, 0)
     assert len(jobs) == first.simulations == 1
     near = {k: v + REPEAT / 4 * (Toy().param_space().high[k] - Toy().param_space().low[k])
