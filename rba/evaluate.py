@@ -262,10 +262,12 @@ def _agents(method: str, context, spec: UserSpec, models_root, generate: bool,
 
 
 def generation_summary(agents: list) -> dict:
-    """Searches run, clips shown, and seconds per search (mean, p95) over every trial's agent."""
+    """Searches run, their clips shown, searches' runners-up shown later (no search), and seconds per search
+    (mean, p95) over every trial's agent."""
     runs = [s for a in agents for s in a.searches]
     seconds = np.array([t for a in agents for t in a.seconds], dtype=float)
-    return {"searches": len(runs), "shown": sum(s["shown"] for s in runs),
+    pooled = sum(bool(g.get("pooled")) for a in agents for g in a.generated.values())
+    return {"searches": len(runs), "shown": sum(s["shown"] for s in runs), "pooled": pooled,
             "simulations": int(sum(s["simulations"] for s in runs)),
             "seconds_mean": round(float(seconds.mean()), 3) if len(runs) else None,
             "seconds_p95": round(float(np.percentile(seconds, 95)), 3) if len(runs) else None}

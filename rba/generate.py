@@ -21,7 +21,7 @@ import logging
 import math
 import time
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cma
 import numpy as np
@@ -102,13 +102,15 @@ class SearchConfig:
 
 @dataclass
 class Generation:
-    """What a search found: the best candidate (None if every one failed) and what it cost."""
+    """What a search found: the best candidate (None if every one failed), what it cost, and the other finished
+    candidates, best first (a generating agent keeps the nearest few: clips it may show later without a search)."""
 
     rollout: Rollout | None
     objective: float
     simulations: int
     generations: int
     seconds: float
+    runners_up: list[Rollout] = field(default_factory=list)
 
 
 def _first_step(space: ParamSpace, starts: list[dict[str, float]], config: SearchConfig) -> tuple[np.ndarray, float]:
@@ -163,7 +165,8 @@ def search(domain: str, starts: list[dict[str, float]], objective: Objective, si
     space, vary = skill.param_space(), skill.noisy_skill if config.vary_seed is None else config.vary_seed
     x0, sigma0 = _first_step(space, starts, config)
     es = _cma(x0, sigma0, config.popsize, config.seed)
-    best, best_f, done, clock = None, math.inf, 0, time.perf_counter()
+    finished: list[tuple[float, int, Rollout]] = []  # (objective, order simulated, rollout) of finished candidates
+    done, clock = 0, time.perf_counter()
     deadline = clock + (config.seconds if config.seconds is not None else math.inf)
     for k in range(config.generations):
         units = es.ask()
@@ -175,11 +178,9 @@ def search(domain: str, starts: list[dict[str, float]], objective: Objective, si
         cut = len(rollouts) < len(units)  # out of time within the generation: CMA-ES is told nothing more
         if not cut:
             es.tell(units, f.tolist())
+        finished += [(float(fj), done + j, r) for j, (fj, r) in enumerate(zip(f, rollouts, strict=True)) if r.success]
         done += len(rollouts)
-        i = int(np.argmin(f))
-        if f[i] < best_f and rollouts[i].success:
-            best, best_f = rollouts[i], float(f[i])
-            best.id = generated_id(domain, best.params, best.seed)
+        best_f = min((x[0] for x in finished), default=math.inf)
         if on_progress:
             on_progress(k + 1, config.generations)
         if config.good_enough is not None and best_f <= config.good_enough:
@@ -187,9 +188,13 @@ def search(domain: str, starts: list[dict[str, float]], objective: Objective, si
         if cut or _out_of_time(time.perf_counter() - clock, k + 1, config.seconds):
             break
     seconds = time.perf_counter() - clock
+    ranked = [r for _, _, r in sorted(finished, key=lambda x: x[:2])]  # ties: the one simulated first
+    for r in ranked:
+        r.id = generated_id(domain, r.params, r.seed)
+    best = ranked[0] if ranked else None
     log.info("%s: generated %s (objective %.4f) from %d simulations in %.2f s", domain,
              best.id if best else "nothing", best_f, done, seconds)
-    return Generation(best, best_f, done, k + 1, seconds)
+    return Generation(best, best_f, done, k + 1, seconds, ranked[1:])
 
 
 def surface_search(domain: str, starts: list[dict[str, float]], surface: ZetaSurface, distance: ZetaDistance,

@@ -27,7 +27,13 @@ from rba.generate import (
 )
 from rba.interact.base import AttributeFeedback
 from rba.interact.bisection import posterior
-from rba.interact.generating import RETRY_AFTER, GeneratingGlobalAgent, GenerationContext, generating_agents
+from rba.interact.generating import (
+    POOL_KEEP,
+    RETRY_AFTER,
+    GeneratingGlobalAgent,
+    GenerationContext,
+    generating_agents,
+)
 from rba.interact.global_agent import GlobalAgent, GlobalContext
 from rba.interact.users import parse_user
 from tests.conftest import serve_subset_roots
@@ -206,8 +212,10 @@ def test_a_search_that_fell_short_is_not_run_again_for_a_target_near_its_own(ctx
     agent.first_query()
     (first,) = agent.searches
     assert first["reached"] > 1e-9 and first["target"] == agent.inner.target.tolist()
-    assert not is_generated(agent._choose(None, []))  # the same target: the library clip, no second search
-    assert len(agent.searches) == 1
+    pooled = set(agent.pool)  # the search's runners-up
+    assert 0 < len(pooled) <= POOL_KEEP
+    # the same target: no second search; the nearest runner-up, nearer than the library's clip, is shown
+    assert agent._choose(None, []) in pooled and len(agent.searches) == 1
     agent.inner.target = agent.inner.target + 0.5  # a target farther than the threshold: searched
     agent._choose(None, [])
     assert len(agent.searches) == 2
@@ -220,6 +228,22 @@ def test_a_search_that_fell_short_is_not_run_again_for_a_target_near_its_own(ctx
     restored.inner.rejected.append(0)
     restored._choose(None, [])
     assert len(restored.searches) == 3  # RETRY_AFTER rounds later: searched again (another seed, other starts)
+
+
+def test_a_searchs_runners_up_are_shown_later_without_a_search(ctx, gap_roots):
+    agent = GeneratingGlobalAgent(_gen(ctx, gap_roots, threshold=1e-3, spread=0.0))
+    made = agent.first_query()
+    assert is_generated(made) and len(agent.searches) == 1 and made not in agent.pool
+    assert 0 < len(agent.pool) <= POOL_KEEP and agent.searches[0]["simulations"] > len(agent.pool)
+    runner_up, kept = next(iter(agent.pool.items()))
+    agent.inner.target = np.array(kept["zeta"])  # a target on a runner-up: shown as it is, no second search
+    assert agent._choose(None, []) == runner_up and len(agent.searches) == 1
+    assert runner_up not in agent.pool and agent.generated[runner_up]["zeta"] == kept["zeta"]
+    assert agent.generated[runner_up]["pooled"] and not agent.generated[made].get("pooled")
+    rollout = agent.rollout(runner_up)  # a made clip like any other: (params, seed) remake it
+    assert (rollout.params, rollout.seed) == (kept["params"], kept["seed"])
+    restored = GeneratingGlobalAgent.from_state(json.loads(json.dumps(agent.state_dict())), agent.ctx)
+    assert restored.pool == agent.pool and restored.state_dict() == agent.state_dict()
 
 
 def test_no_search_while_the_belief_is_wider_than_the_library_clips_miss(ctx, gap_roots):

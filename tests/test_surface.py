@@ -66,7 +66,7 @@ def test_a_clip_made_on_the_surface_costs_one_simulation(ctx, gap_roots):
                            config=SearchConfig(), on_progress=lambda k, n: progress.append((k, n)))
     assert len(jobs) == found.simulations == 1 and found.rollout is not None and is_generated(found.rollout.id)
     assert found.objective < 0.02 and progress == [(1, 1)]
-    assert np.all(np.abs(gen.zeta(found.rollout) - target) <= 0.02 * (ctx.bounds[1] - ctx.bounds[0]))
+    assert np.all(np.abs(gen.zetas([found.rollout])[0] - target) <= 0.02 * (ctx.bounds[1] - ctx.bounds[0]))
 
 
 def test_generation_on_the_surface_reaches_the_target_the_library_lacks(ctx, gap_roots):
@@ -107,11 +107,11 @@ def test_a_clip_the_surface_makes_again_is_made_by_the_zeta_search(ctx, gap_root
     target = gen.zeta_surface(np.array([0.3, 0.6]))[0]
     jobs = []
     gen.simulate = recording_simulator(jobs)
-    first, _ = gen.generate(target, starts, 0)
+    first, _, _ = gen.generate(target, starts, 0)
     assert len(jobs) == first.simulations == 1
     near = {k: v + REPEAT / 4 * (Toy().param_space().high[k] - Toy().param_space().low[k])
             for k, v in first.rollout.params.items()}
-    again, _ = gen.generate(target, starts, 0, judged=[near])
+    again, _, _ = gen.generate(target, starts, 0, judged=[near])
     assert again.rollout.id != first.rollout.id  # CMA-ES on ζσ of simulated clips ...
     assert len(jobs) - 1 == again.simulations > 2  # ... after the surface's clip, which counts too
 

@@ -64,7 +64,10 @@ STARTS = 4  # nearest clips whose parameters start (and spread) the search
 RETRY_AFTER = 10  # rounds after which a search that fell short may run again near its own target
 STORE_SIZE = 256  # generated rollouts kept in memory per context; older ones are re-simulated when asked for
 OBJECTIVES = ("zeta", "reward")
+Made = tuple[Rollout, np.ndarray]  # a made clip and its ζ as the agent reads it
 REPEAT = 0.01  # a made clip this near one judged before (unit box, per parameter) is made again by the ζσ search
+POOL_KEEP = 8  # a search's runners-up the session keeps (nearest the search's target first) ...
+POOL_SIZE = 64  # ... up to this many in all, the oldest dropped first
 
 
 class GeneratedStore:
@@ -157,8 +160,9 @@ class GenerationContext:
                             np.maximum(self.base.bounds[1] - self.base.bounds[0], 1e-9))
 
     def generate(self, target: np.ndarray, starts: list[dict[str, float]], seed: int,
-                 judged: list[dict[str, float]] = ()) -> tuple[Generation, np.ndarray]:
-        """The best clip a search finds for ``target`` and its ζ as the agent reads it (the clip is in the store).
+                 judged: list[dict[str, float]] = ()) -> tuple[Generation, np.ndarray, list[Made]]:
+        """The best clip a search finds for ``target``, its ζ as the agent reads it, and the search's first
+        ``POOL_KEEP`` runners-up with theirs (every one of them is in the store).
 
         On the surface, a clip within ``REPEAT`` of one already ``judged`` (the parameters of made clips the user
         did not accept) is made again by the ζσ search: where the surface errs it makes the same clip again."""
@@ -179,19 +183,22 @@ class GenerationContext:
             found = replace(found, simulations=found.simulations + spent.simulations,
                             seconds=found.seconds + spent.seconds)
         if found.rollout is None:
-            return found, np.full(len(dist.target), np.nan)
-        self.store.put(found.rollout)
-        return found, self.zeta(found.rollout)
+            return found, np.full(len(dist.target), np.nan), []
+        others = found.runners_up[:POOL_KEEP]
+        for r in [found.rollout, *others]:
+            self.store.put(r)
+        zetas = self.zetas([found.rollout, *others])
+        return found, zetas[0], list(zip(others, zetas[1:], strict=True))
 
     def _repeats(self, params: dict[str, float], judged: list[dict[str, float]]) -> bool:
         unit = self._space.to_unit(params)
         return any(np.max(np.abs(self._space.to_unit(p) - unit)) < REPEAT for p in judged)
 
-    def zeta(self, rollout: Rollout) -> np.ndarray:
-        """A made clip's ζ as the belief takes it: ζ̃ at its parameters on the surface, else ζσ of its states."""
+    def zetas(self, rollouts: list[Rollout]) -> np.ndarray:
+        """Made clips' ζ as the belief takes it: ζ̃ at their parameters on the surface, else ζσ of their states."""
         if self.zeta_surface is not None:
-            return self.zeta_surface.at(self._space, rollout.params)
-        return ranker_zeta(self.ranker, [rollout])[0]
+            return np.array([self.zeta_surface.at(self._space, r.params) for r in rollouts])
+        return ranker_zeta(self.ranker, rollouts)
 
     def rollout(self, rollout_id: str, params: dict[str, float], seed: int) -> Rollout:
         """A generated rollout: from the store, else simulated again from its params and seed."""
@@ -206,10 +213,12 @@ class GeneratingGlobalAgent(Agent):
 
     def __init__(self, ctx: GenerationContext, inner: GlobalAgent | None = None,
                  generated: dict[str, dict] | None = None, showing: str | None = None,
-                 searches: list[dict] | None = None) -> None:
+                 searches: list[dict] | None = None, pool: dict[str, dict] | None = None) -> None:
         self.ctx = ctx
         self.inner = inner or GlobalAgent(ctx.base, zeta_noise=ctx.zeta_noise)
-        self.generated = dict(generated or {})  # id -> {"params", "seed", "zeta", "round" it was shown at}
+        # id -> {"params", "seed", "zeta", "round" it was shown at, "pooled" if a runner-up shown without a search}
+        self.generated = dict(generated or {})
+        self.pool = dict(pool or {})  # id -> {"params", "seed", "zeta"}: searches' runners-up, not shown yet
         self.showing = showing  # the generated clip shown now (None: the inner agent's library clip)
         self.searches = list(searches or [])  # per search: simulations, whether its clip was shown
         # wall-clock seconds of this object's searches: kept out of the state, which must be a function of the
@@ -283,32 +292,63 @@ class GeneratingGlobalAgent(Agent):
         return bool(np.any(off > np.maximum(self.ctx.threshold, unsure)))
 
     def _choose(self, before: np.ndarray | None, asked: list[tuple[int, int]]) -> str:
-        """The inner agent's library clip, or a generated one when that is too far from the target."""
+        """The inner agent's library clip, or a made one when that is too far from the target: a pooled runner-up
+        that is near enough (no search), else a search's best, else (the search fell short, or one near this
+        target did a few rounds ago) the nearest pooled clip if it is nearer than the library's."""
         base, self.showing = self.ctx.base, None
         library = base.serve.ids[self.inner.shown]
         dist = self.ctx.distance(self.inner.target)
         off = np.abs(base.serve_zeta[self.inner.shown] - dist.target) / dist.scale
         near = float(off.max())  # = dist.distances of that clip
-        if (not self._off_target(off, dist.scale) or (before is None and self.ctx.first_from_library)
-                or self._failed_near(dist)):
+        if not self._off_target(off, dist.scale) or (before is None and self.ctx.first_from_library):
             return library
+        pooled, pooled_at = self._pooled(dist, before, asked)
+        if pooled is not None and pooled_at <= self.ctx.threshold:
+            return self._show(pooled, {**self.pool.pop(pooled), "pooled": True})
+        if not self._failed_near(dist):
+            made = self._search(dist, near, before, asked, library)
+            if made is not None:
+                return made
+            pooled, pooled_at = self._pooled(dist, before, asked)
+        if pooled is not None and pooled_at < near:
+            return self._show(pooled, {**self.pool.pop(pooled), "pooled": True})
+        return library
+
+    def _search(self, dist: ZetaDistance, near: float, before: np.ndarray | None, asked: list[tuple[int, int]],
+                library: str) -> str | None:
+        """Search for the target; show its best clip if it is nearer than the library's and moves the asked
+        attributes the asked way (else None). Its runners-up (and a best not shown) join the pool."""
         if self.ctx.on_search is not None:
             self.ctx.on_search(library)
-        found, zeta = self.ctx.generate(self.inner.target, self._starts(dist), len(self.searches),
-                                        [g["params"] for g in self.generated.values()])
+        found, zeta, others = self.ctx.generate(self.inner.target, self._starts(dist), len(self.searches),
+                                                [g["params"] for g in self.generated.values()])
         moves = before is None or all(h * (zeta[a] - before[a]) > 0 for a, h in asked)
         reached = float(dist.distances(zeta)[0]) if found.rollout is not None else None
         shown = reached is not None and reached < near and moves
         self.searches.append({"simulations": found.simulations, "shown": shown, "round": len(self.inner.rejected),
                               "target": [float(v) for v in dist.target], "reached": reached})
         self.seconds.append(found.seconds)
-        if not shown:
-            return library
-        r = found.rollout
-        self.generated[r.id] = {"params": dict(r.params), "seed": int(r.seed), "zeta": [float(v) for v in zeta],
-                                "round": len(self.inner.rejected)}
-        self.showing = r.id
-        return r.id
+        kept = others if shown or found.rollout is None else [(found.rollout, zeta), *others]
+        for r, z in kept:
+            self.pool[r.id] = _made(r, z)
+        while len(self.pool) > POOL_SIZE:
+            self.pool.pop(next(iter(self.pool)))
+        return self._show(found.rollout.id, _made(found.rollout, zeta)) if shown else None
+
+    def _pooled(self, dist: ZetaDistance, before: np.ndarray | None, asked: list[tuple[int, int]]
+                ) -> tuple[str | None, float]:
+        """The pooled clip nearest the target that moves the asked attributes the asked way, and its distance."""
+        ids = [i for i, g in self.pool.items()
+               if before is None or all(h * (g["zeta"][a] - before[a]) > 0 for a, h in asked)]
+        if not ids:
+            return None, np.inf
+        d = dist.distances(np.array([self.pool[i]["zeta"] for i in ids]))
+        return ids[int(np.argmin(d))], float(d.min())
+
+    def _show(self, rollout_id: str, made: dict) -> str:
+        self.generated[rollout_id] = {**made, "round": len(self.inner.rejected)}
+        self.showing = rollout_id
+        return rollout_id
 
     def rollout(self, rollout_id: str) -> Rollout:
         """A clip this agent generated (its true proxies are the simulation's: what the evaluation's user sees)."""
@@ -320,14 +360,19 @@ class GeneratingGlobalAgent(Agent):
 
     def state_dict(self) -> dict:
         return {**self.inner.state_dict(), "generation": {
-            "generated": self.generated, "showing": self.showing, "searches": self.searches}}
+            "generated": self.generated, "showing": self.showing, "searches": self.searches, "pool": self.pool}}
 
     @classmethod
     def from_state(cls, state: dict, context: GenerationContext) -> GeneratingGlobalAgent:
         inner = {k: v for k, v in state.items() if k != "generation"}
         gen = state.get("generation", {})
         return cls(context, GlobalAgent.from_state(inner, context.base), gen.get("generated"), gen.get("showing"),
-                   gen.get("searches"))
+                   gen.get("searches"), gen.get("pool"))
+
+
+def _made(rollout: Rollout, zeta: np.ndarray) -> dict:
+    """What the agent's state keeps of a made clip: (params, seed) remake it; ζ as the agent read it."""
+    return {"params": dict(rollout.params), "seed": int(rollout.seed), "zeta": [float(v) for v in zeta]}
 
 
 GENERATING = {GlobalAgent: GeneratingGlobalAgent}  # an agent class -> its generating form
