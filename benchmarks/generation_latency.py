@@ -149,18 +149,20 @@ def markdown(report: dict) -> str:
         lines += [f"## Searches bounded at {bound_text(bound['bound_s'])}", "",
                   "| domain | sessions (satisfied) | answers that searched: n, p50 / p95 / max (s) | their search "
                   "alone, p95 (s) | showed a generated clip | showed the library's (search fell short): n, p95 (s) "
-                  "| other answers: n, p50 / p95 (s) | errors |",
-                  "|---|---:|---:|---:|---:|---:|---:|---:|"]
+                  "| showed a made clip without a search (pooled): n, p95 (s) | other answers: n, p50 / p95 (s) "
+                  "| errors |",
+                  "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
         for d in bound["domains"]:
-            s, o, f = d["searched"], d["other"], d["fell_short"]
+            s, o, f, pl = d["searched"], d["other"], d["fell_short"], d["pooled"]
             lines.append(f"| {d['domain']} | {d['sessions']} ({d['satisfied']}) | {s['answers']}, {s['p50_s']} / "
                          f"{s['p95_s']} / {s['max_s']} | {d['search_p95_s']} | {d['generated_shown']} | "
-                         f"{f['answers']}, {f['p95_s']} | {o['answers']}, {o['p50_s']} / {o['p95_s']} | "
-                         f"{len(d['errors'])} |")
-        a = bound["all_searched"]
+                         f"{f['answers']}, {f['p95_s']} | {pl['answers']}, {pl['p95_s']} | {o['answers']}, "
+                         f"{o['p50_s']} / {o['p95_s']} | {len(d['errors'])} |")
+        a, m = bound["all_searched"], bound["all_made"]
         met = a["p95_s"] is not None and a["p95_s"] <= GOAL_P95_S
         lines += ["", f"All domains, answers that searched: n = {a['answers']}, p95 **{a['p95_s']} s** "
-                  f"(goal ≤ {GOAL_P95_S:g} s: {'met' if met else 'not met'}).", ""]
+                  f"(goal ≤ {GOAL_P95_S:g} s: {'met' if met else 'not met'}); answers that showed a made clip "
+                  f"(searched or pooled): n = {m['answers']}, p95 {m['p95_s']} s.", ""]
     return "\n".join(lines)
 
 
@@ -208,15 +210,18 @@ def run_bound(bound: float | None, args: argparse.Namespace) -> dict:
         finally:
             server.stop()
     return {"bound_s": bound, "domains": [domain_report(r) for r in runs],
-            "all_searched": summary([a for r in runs for a in r.answers if a.searched])}
+            "all_searched": summary([a for r in runs for a in r.answers if a.searched]),
+            "all_made": summary([a for r in runs for a in r.answers if a.generated])}
 
 
 def domain_report(r: DomainRun) -> dict:
     """One domain's row: answers that searched (those that showed the library's clip, the search having fallen
-    short, apart), the others, and every answer."""
+    short, apart), those that showed a made clip without a search (a pooled runner-up), the others, and every
+    answer."""
     return {"domain": r.domain, "sessions": r.sessions, "satisfied": r.satisfied, "errors": r.errors,
             "searched": summary([a for a in r.answers if a.searched]),
-            "other": summary([a for a in r.answers if not a.searched]),
+            "other": summary([a for a in r.answers if not a.searched and not a.generated]),
+            "pooled": summary([a for a in r.answers if not a.searched and a.generated]),
             "fell_short": summary([a for a in r.answers if a.searched and not a.generated]),
             "search_p95_s": pct([a.search_seconds for a in r.answers if a.searched], 95),
             "generated_shown": sum(a.searched and a.generated for a in r.answers),

@@ -84,6 +84,9 @@ def test_a_generated_id_replays_to_identical_states(ctx, gap_roots):
     found = search("toy", [start], dist, config=SearchConfig(budget=16, popsize=8), on_progress=
                    lambda k, n: progress.append((k, n)))
     assert progress == [(1, 2), (2, 2)] and found.simulations == 16
+    ranked = [found.rollout, *found.runners_up]  # every finished candidate, best first, each with its own id
+    assert len(ranked) == 16 and len({x.id for x in ranked}) == 16 and all(is_generated(x.id) for x in ranked)
+    assert np.all(np.diff(dist(ranked)) >= 0) and dist([found.rollout])[0] == found.objective
     r = found.rollout
     assert r.id == generated_id("toy", r.params, r.seed) and is_generated(r.id)
     again = replay("toy", json.loads(json.dumps(r.params)), r.seed)
@@ -276,7 +279,9 @@ def test_evaluate_with_and_without_generation(gap_roots):
                   generate_options={"config": SearchConfig(budget=16)})
     assert off.generate is False and off.generation is None
     assert on.generate and set(on.generation) >= {"searches", "simulations", "seconds_mean", "seconds_p95"}
-    assert on.generation["shown"] == sum(is_generated(r) for t in on.trials for r in t.shown_ids)
+    # every made clip shown: a search's best, or a runner-up shown later without a search
+    assert on.generation["shown"] + on.generation["pooled"] == sum(is_generated(r) for t in on.trials
+                                                                   for r in t.shown_ids)
     assert on.success_rate >= off.success_rate
     assert [t.target for t in on.trials] == [t.target for t in off.trials]
 

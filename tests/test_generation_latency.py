@@ -27,13 +27,18 @@ def test_a_table_names_the_bounds_it_was_measured_at():
     assert f"others {GENERATE_SECONDS_OTHERS:g} s" in default
 
 
-def test_answers_whose_search_fell_short_have_their_own_column():
+def test_answers_whose_search_fell_short_and_pooled_clips_have_their_own_columns():
     run = latency.DomainRun("snake", [latency.Answer(1.5, True, True, 1.2), latency.Answer(2.5, True, False, 2.4),
-                                      latency.Answer(0.1, False, False)], sessions=1)
+                                      latency.Answer(0.1, False, False), latency.Answer(0.7, False, True)],
+                            sessions=1)
     row = latency.domain_report(run)
     assert row["searched"]["answers"] == 2 and row["fell_short"] == latency.summary([run.answers[1]])
     assert row["generated_shown"] == 1 and row["other"]["answers"] == 1
+    assert row["pooled"] == latency.summary([run.answers[3]])  # a made clip shown without a search
+    made = latency.summary([run.answers[0], run.answers[3]])
     report = {"command": "x", "date": "d", "machine": "m", "load": [0.0, 0.0],
-              "bounds": [{"bound_s": 1.5, "domains": [row], "all_searched": row["searched"]}]}
-    assert "| snake | 1 (0) | 2, " in latency.markdown(report)
-    assert f"| 1 | 1, {row['fell_short']['p95_s']} | 1, " in latency.markdown(report)
+              "bounds": [{"bound_s": 1.5, "domains": [row], "all_searched": row["searched"], "all_made": made}]}
+    text = latency.markdown(report)
+    assert "| snake | 1 (0) | 2, " in text
+    assert f"| 1 | 1, {row['fell_short']['p95_s']} | 1, {row['pooled']['p95_s']} | 1, " in text
+    assert f"showed a made clip (searched or pooled): n = 2, p95 {made['p95_s']} s" in text
