@@ -69,10 +69,10 @@ STARTS = 4  # nearest clips whose parameters start (and spread) the search
 RETRY_AFTER = 10  # rounds after which a search that fell short may run again near its own target
 STORE_SIZE = 256  # generated rollouts kept in memory per context; older ones are re-simulated when asked for
 OBJECTIVES = ("zeta", "reward")
-Made = tuple[Rollout, np.ndarray]  # a made clip and its ζ as the agent reads it
 REPEAT = 0.01  # a made clip this near one judged before (unit box, per parameter) is made again by the ζσ search
-POOL_KEEP = 8  # a search's runners-up the session keeps (nearest the search's target first) ...
+POOL_KEEP = 8  # a search's runners-up the session keeps (the best by the search's objective) ...
 POOL_SIZE = 64  # ... up to this many in all, the oldest dropped first
+Made = tuple[Rollout, np.ndarray]  # a made clip and its ζ as the agent reads it
 
 
 class GeneratedStore:
@@ -309,15 +309,13 @@ class GeneratingGlobalAgent(Agent):
             return library
         pooled, pooled_at = self._pooled(dist, before, asked)
         if pooled is not None and pooled_at <= self.ctx.threshold:
-            return self._show(pooled, {**self.pool.pop(pooled), "pooled": True})
+            return self._show_pooled(pooled)
         if not self._failed_near(dist):
             made = self._search(dist, near, before, asked, library)
             if made is not None:
                 return made
             pooled, pooled_at = self._pooled(dist, before, asked)
-        if pooled is not None and pooled_at < near:
-            return self._show(pooled, {**self.pool.pop(pooled), "pooled": True})
-        return library
+        return self._show_pooled(pooled) if pooled is not None and pooled_at < near else library
 
     def _search(self, dist: ZetaDistance, near: float, before: np.ndarray | None, asked: list[tuple[int, int]],
                 library: str) -> str | None:
@@ -327,9 +325,8 @@ class GeneratingGlobalAgent(Agent):
             self.ctx.on_search(library)
         found, zeta, others = self.ctx.generate(self.inner.target, self._starts(dist), len(self.searches),
                                                 [g["params"] for g in self.generated.values()])
-        moves = before is None or all(h * (zeta[a] - before[a]) > 0 for a, h in asked)
         reached = float(dist.distances(zeta)[0]) if found.rollout is not None else None
-        shown = reached is not None and reached < near and moves
+        shown = reached is not None and reached < near and _moves(zeta, before, asked)
         self.searches.append({"simulations": found.simulations, "shown": shown, "round": len(self.inner.rejected),
                               "target": [float(v) for v in dist.target], "reached": reached})
         self.seconds.append(found.seconds)
@@ -343,12 +340,14 @@ class GeneratingGlobalAgent(Agent):
     def _pooled(self, dist: ZetaDistance, before: np.ndarray | None, asked: list[tuple[int, int]]
                 ) -> tuple[str | None, float]:
         """The pooled clip nearest the target that moves the asked attributes the asked way, and its distance."""
-        ids = [i for i, g in self.pool.items()
-               if before is None or all(h * (g["zeta"][a] - before[a]) > 0 for a, h in asked)]
+        ids = [i for i, g in self.pool.items() if _moves(g["zeta"], before, asked)]
         if not ids:
             return None, np.inf
         d = dist.distances(np.array([self.pool[i]["zeta"] for i in ids]))
         return ids[int(np.argmin(d))], float(d.min())
+
+    def _show_pooled(self, rollout_id: str) -> str:
+        return self._show(rollout_id, {**self.pool.pop(rollout_id), "pooled": True})
 
     def _show(self, rollout_id: str, made: dict) -> str:
         self.generated[rollout_id] = {**made, "round": len(self.inner.rejected)}
@@ -373,6 +372,12 @@ class GeneratingGlobalAgent(Agent):
         gen = state.get("generation", {})
         return cls(context, GlobalAgent.from_state(inner, context.base), gen.get("generated"), gen.get("showing"),
                    gen.get("searches"), gen.get("pool"))
+
+
+def _moves(zeta: np.ndarray | list[float], before: np.ndarray | None, asked: list[tuple[int, int]]) -> bool:
+    """Whether a clip at ``zeta`` moves each asked attribute the asked way from the clip answered about
+    (``before``; None: the first clip, which answers nothing)."""
+    return before is None or all(h * (zeta[a] - before[a]) > 0 for a, h in asked)
 
 
 def _made(rollout: Rollout, zeta: np.ndarray) -> dict:
