@@ -103,7 +103,7 @@ class SearchConfig:
 @dataclass
 class Generation:
     """What a search found: the best candidate (None if every one failed), what it cost, and the other finished
-    candidates, best first (a generating agent keeps the nearest few: clips it may show later without a search)."""
+    candidates, best first (a generating agent keeps the first few: clips it may show later without a search)."""
 
     rollout: Rollout | None
     objective: float

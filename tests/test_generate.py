@@ -25,6 +25,7 @@ from rba.generate import (
     replay,
     search,
 )
+from rba.interact import generating
 from rba.interact.base import AttributeFeedback
 from rba.interact.bisection import posterior
 from rba.interact.generating import (
@@ -247,6 +248,19 @@ def test_a_searchs_runners_up_are_shown_later_without_a_search(ctx, gap_roots):
     assert (rollout.params, rollout.seed) == (kept["params"], kept["seed"])
     restored = GeneratingGlobalAgent.from_state(json.loads(json.dumps(agent.state_dict())), agent.ctx)
     assert restored.pool == agent.pool and restored.state_dict() == agent.state_dict()
+
+
+def test_the_pool_drops_the_oldest_search_s_clips_first(ctx, gap_roots, monkeypatch):
+    monkeypatch.setattr(generating, "POOL_SIZE", POOL_KEEP + 2)
+    agent = GeneratingGlobalAgent(_gen(ctx, gap_roots, threshold=1e-9, spread=0.0))  # every search falls short
+    agent.first_query()
+    first = list(agent.pool)
+    agent.inner.target = agent.inner.target + 0.5  # far from the first search's target: searched again
+    agent._choose(None, [])
+    assert len(agent.searches) == 2 and len(agent.pool) == POOL_KEEP + 2
+    newest = [i for i in agent.pool if i not in first]
+    assert len(newest) >= POOL_KEEP and list(agent.pool)[-len(newest):] == newest  # the new search's, all kept
+    assert [i for i in agent.pool if i in first] == first[len(first) - (POOL_KEEP + 2 - len(newest)):]
 
 
 def test_no_search_while_the_belief_is_wider_than_the_library_clips_miss(ctx, gap_roots):

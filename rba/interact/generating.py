@@ -18,11 +18,12 @@ from the clip it made last, so its clips stay in one region of the parameters; a
 A search whose best clip stayed farther than ``threshold`` from its target is not run again for a target
 within ``threshold`` of that one for ``RETRY_AFTER`` rounds: the same starts and budget would fail again;
 later it may, with the session's new clips as starts and another seed.
-A search simulates dozens of candidates and shows one; the session keeps the nearest ``POOL_KEEP`` others (the
-*pool*: params, seed and ζ each). A pooled clip within ``threshold`` of a later target is shown without a search,
-and in the rounds a search fell short or may not run again, the pooled clip nearest the target is shown when it
-is nearer than the library's: there the library's clips are far (a target no serve clip is near is why the
-agent searched), and each clip a user judges near the target is another draw at it.
+A search simulates dozens of candidates and shows one; the session keeps the best ``POOL_KEEP`` others by the
+search's objective (the ζσ search's: the nearest the target), the *pool* (params, seed and ζ each). A pooled clip
+within ``threshold`` of a later target is shown without a search, and in the rounds a search fell short or may not
+run again, the pooled clip nearest the target is shown when it is nearer than the library's: there the library's
+clips are far (a target no serve clip is near is why the agent searched), and each clip a user judges near the
+target is another draw at it.
 
 State: the agent's JSON keeps, per generated clip, its params, seed and ζσ (a few numbers), not its
 states: the id is content-addressed (``gen-<hash of domain, params, seed>``), so anything that needs the
