@@ -23,14 +23,13 @@ from collections import OrderedDict, deque
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future
 
-from rba.clips import ClipCache, ClipKey
-from rba.library import SkillLibrary
+from rba.clips import ClipCache, ClipKey, Source
 
 log = logging.getLogger(__name__)
 
 HOLD_POLL_SECONDS = 0.05  # how often a held queue looks again whether anyone still waits
 OFFER_TTL_SECONDS = 120.0  # a person answers within seconds; an older offer is for a session that moved on elsewhere
-Resolve = Callable[[object], tuple[ClipKey, SkillLibrary]]  # a clip reference -> its key and library
+Resolve = Callable[[object], tuple[ClipKey, Source]]  # a clip reference -> its key and what it renders from
 
 
 class Prefetcher:
@@ -161,8 +160,8 @@ class Prefetcher:
 
     def _start(self, ref: object) -> None:
         try:
-            key, library = self.resolve(ref)
-        except Exception:  # e.g. a library rebuilt under us: skip the guess
+            key, source = self.resolve(ref)
+        except Exception:  # e.g. a library rebuilt under us, a made clip forgotten: skip the guess
             log.debug("cannot prerender %r", ref, exc_info=True)
             return
         if self.clips.cached(key) or self.clips.pending(key):
@@ -170,7 +169,7 @@ class Prefetcher:
         with self._cond:
             self._inflight += 1
             self.submitted += 1
-        self.clips.request(key, library, urgent=False).add_done_callback(self._finished)
+        self.clips.request(key, source, urgent=False).add_done_callback(self._finished)
 
     def _finished(self, done: Future) -> None:
         with self._cond:

@@ -61,11 +61,13 @@ def answer_order(attributes: tuple[str, ...], last: Feedback | None) -> list[lis
 
 def next_clips(svc: Services, key: ContextKey, generate: bool, state: dict, last: Feedback | None,
                stale: Callable[[], bool]) -> list[str]:
-    """The serve clip each possible next answer would show, most likely first (computed on copies, memoised).
+    """The clip each possible next answer would show, most likely first (computed on copies, memoised).
 
     A generating session's answer that would start a search gives the serve clip that search falls back to: a
     guess never spends the compute layer on a search (the step renders what it made), but the fallback is the clip
-    a person waits longest for when the search falls short.
+    a person waits longest for when the search falls short. An answer that shows a made clip without a search (a
+    runner-up of an earlier search, ``rba.interact.generating``'s pool) gives that clip: it was simulated with its
+    search, and rendered ahead it plays at once (``ClipRef`` resolves it while the domain's store keeps it).
     """
     ctx = svc.catalog.context(*key)
     step_ctx = generation.step_context(svc, key, None) if generate else ctx
@@ -79,8 +81,7 @@ def next_clips(svc: Services, key: ContextKey, generate: bool, state: dict, last
             if exc.fallback is None:
                 continue
             rollout_id = exc.fallback
-        if not is_generated(rollout_id):
-            nexts.append(rollout_id)
+        nexts.append(rollout_id)
     return list(dict.fromkeys(nexts))
 
 

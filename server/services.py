@@ -24,9 +24,9 @@ from typing import NamedTuple
 
 from sqlalchemy.engine import Engine
 
-from rba.clips import GENERATED, ClipCache, ClipKey
+from rba.clips import GENERATED, ClipCache, ClipKey, Source
 from rba.compute import Compute, make_compute
-from rba.library import SkillLibrary
+from rba.generate import is_generated
 from rba.locks import KeyedLocks
 from rba.store import Store
 from server.background import Background
@@ -44,16 +44,24 @@ SEARCHERS = 4
 
 
 class ClipRef(NamedTuple):
-    """A serve clip by name: what the prerender tiers queue (resolved to a key when its turn comes)."""
+    """A clip by name: what the prerender tiers queue (resolved to a key when its turn comes). A serve clip, or
+    a made one (``gen-<hash>``) still in the domain's generated store: a runner-up a session's next answer may
+    show without a search."""
 
     domain: str
     rollout_id: str
 
 
 def _resolver(catalog: Catalog, clips: ClipCache):  # -> server.prefetch.Resolve
-    def resolve(ref: ClipRef) -> tuple[ClipKey, SkillLibrary]:
-        library = catalog.library(ref.domain)
-        return clips.key(library, ref.rollout_id), library
+    def resolve(ref: ClipRef) -> tuple[ClipKey, Source]:
+        if not is_generated(ref.rollout_id):
+            library = catalog.library(ref.domain)
+            return clips.key(library, ref.rollout_id), library
+        # a guess never simulates: a made clip the store has forgotten is rendered once it is shown
+        rollout = catalog.generated_store(ref.domain).get(ref.rollout_id)
+        if rollout is None:
+            raise LookupError(f"generated rollout {ref.rollout_id} of {ref.domain} is no longer in memory")
+        return clips.generated_key(ref.domain, ref.rollout_id), rollout
 
     return resolve
 

@@ -7,6 +7,7 @@ from the first clip search. ``InProcessCompute`` simulates in the test's process
 
 from __future__ import annotations
 
+import copy
 import time
 
 import pytest
@@ -17,12 +18,14 @@ from sqlmodel import Session
 from rba.export import read_export, replay
 from rba.generate import generated_id, is_generated
 from rba.interact import AttributeFeedback
+from rba.interact.generating import GeneratingGlobalAgent
 from server.admin_models import BUILTIN_VERSION
 from server.exporting import export_to_file
 from server.generation import WouldSearch, step_context
 from server.main import create_app
 from server.models import TuningSession
-from server.prerender import next_clips
+from server.prerender import next_clips, resume_prerender
+from server.services import ClipRef
 from server.settings import GENERATE_SECONDS, GENERATE_SECONDS_OTHERS, Settings
 from tests.fakes import FakeCompute, InProcessCompute, InstantCompute
 from tests.server.conftest import more
@@ -309,3 +312,57 @@ def test_a_generating_answer_guesses_the_next_clips_only_once_its_clip_is_render
         renders.submitted[rendering.index(made)][1].set_result(InstantCompute.CLIP)
         assert svc.thinker.wait_idle(SEARCH_SECONDS) and svc.thinker.done == thought + 1 and not svc.someone_waits()
         assert client.get(now["clip"]["url"]).content == InstantCompute.CLIP
+
+
+
+def test_a_runner_up_the_next_answer_would_show_is_rendered_ahead(gen_settings):
+    """A made clip an answer would show without a search (a pooled runner-up) is among that session's guesses and
+    rendered ahead, so the answer that shows it asks for no render. The session's pool is set so that one of its
+    clips sits at the target "more pace" leads to: the toy's searches reach their targets, so a runner-up is near a
+    later target only by chance."""
+    compute = InProcessCompute()
+    only_next = {"prerender": True, "prerender_library": False, "prerender_tree_min_share": 1.0}
+    answer = [AttributeFeedback("pace", 1)]
+    with TestClient(create_app(gen_settings.model_copy(update=only_next), compute)) as client:
+        svc = client.app.state.services
+        s = answer_generating(client, client.post("/api/sessions", json={"domain": "toy"}).json())
+        assert svc.wait_idle(SEARCH_SECONDS)
+        key = ("toy", "global", "onehot", BUILTIN_VERSION)
+        with Session(svc.engine) as db:
+            row = db.get(TuningSession, s["id"])
+            pooled = next(iter(row.agent_state["generation"]["pool"]))
+            row.agent_state = at_next_target(svc, key, row.agent_state, pooled, answer)
+            db.add(row)
+            db.commit()
+            state = row.agent_state
+        assert pooled in next_clips(svc, key, True, state, None, lambda: False)  # a guess that searches nothing
+
+        svc.prerendering.pop(s["id"])  # the session's guesses again, from the state set above
+        resume_prerender(svc, load(svc, s["id"]))
+        assert svc.wait_idle(SEARCH_SECONDS)
+        assert [urgent for j, (urgent, _) in zip(compute.jobs, compute.submitted, strict=True)
+                if j.rollout.id == pooled] == [False]  # rendered once, as a guess
+        renders = len(compute.jobs)
+        r = client.post(f"/api/sessions/{s['id']}/feedback", json=more("pace", s["step"], clip=s["clip"]["rollout_id"]))
+        assert r.status_code == 200, r.text  # no search: the clip was made by the first one
+        clip = r.json()["clip"]
+        assert clip["rollout_id"] == pooled and clip["generated"] is True and clip["ready"] is True
+        assert pooled not in [j.rollout.id for j in compute.jobs[renders:]]  # its render was there already
+        with pytest.raises(LookupError, match="no longer in memory"):  # a guess never simulates a forgotten clip
+            svc.prefetch.resolve(ClipRef("toy", generated_id("toy", {"amplitude": 0.5}, 0)))
+
+
+def at_next_target(svc, key, state: dict, pooled: str, answer) -> dict:
+    """``state`` with the pooled clip ``pooled`` read at the target ``answer`` leads to (so that answer shows it)."""
+    gctx = step_context(svc, key, None)
+    probe = GeneratingGlobalAgent.from_state(copy.deepcopy(state), gctx)
+    with pytest.raises(WouldSearch):  # as the state stands, that answer searches
+        probe.update(answer)
+    state = copy.deepcopy(state)
+    state["generation"]["pool"][pooled]["zeta"] = [float(v) for v in probe.inner.target]
+    return state
+
+
+def load(svc, session_id: str) -> TuningSession:
+    with Session(svc.engine, expire_on_commit=False) as db:
+        return db.get(TuningSession, session_id)
