@@ -315,11 +315,11 @@ def test_a_generating_answer_guesses_the_next_clips_only_once_its_clip_is_render
 
 
 
-def test_a_runner_up_the_next_answer_would_show_is_rendered_ahead(gen_settings):
+def test_a_runner_up_the_next_answer_would_show_is_rendered_ahead(gen_settings, tmp_path):
     """A made clip an answer would show without a search (a pooled runner-up) is among that session's guesses and
-    rendered ahead, so the answer that shows it asks for no render. The session's pool is set so that one of its
-    clips sits at the target "more pace" leads to: the toy's searches reach their targets, so a runner-up is near a
-    later target only by chance."""
+    rendered ahead, so the answer that shows it asks for no render; chosen, it is exported and replays. The session's
+    pool is set so that one of its clips sits at the target "more pace" leads to: the toy's searches reach their
+    targets, so a runner-up is near a later target only by chance."""
     compute = InProcessCompute()
     only_next = {"prerender": True, "prerender_library": False, "prerender_tree_min_share": 1.0}
     answer = [AttributeFeedback("pace", 1)]
@@ -350,6 +350,14 @@ def test_a_runner_up_the_next_answer_would_show_is_rendered_ahead(gen_settings):
         assert pooled not in [j.rollout.id for j in compute.jobs[renders:]]  # its render was there already
         with pytest.raises(LookupError, match="no longer in memory"):  # a guess never simulates a forgotten clip
             svc.prefetch.resolve(ClipRef("toy", generated_id("toy", {"amplitude": 0.5}, 0)))
+
+        r = client.post(f"/api/sessions/{s['id']}/feedback", json={"step": s["step"] + 1, "satisfied": True})
+        assert r.status_code == 200 and r.json()["status"] == "satisfied", r.text
+        r = client.get(f"/api/sessions/{s['id']}/export")  # a pooled clip leaves the app as any made clip does
+        assert r.status_code == 200, r.text
+    (tmp_path / "pooled.zip").write_bytes(r.content)
+    assert read_export(tmp_path / "pooled.zip").profile.rollout_id == pooled
+    assert replay(tmp_path / "pooled.zip").matches
 
 
 def at_next_target(svc, key, state: dict, pooled: str, answer) -> dict:
