@@ -53,6 +53,7 @@ log = logging.getLogger("reward_only")
 RESULTS = Path(__file__).resolve().parent / "results"
 PRIOR_SAMPLES = 2000  # draws of sample_params that bound the searched box
 ZETA_REACHED = 0.05  # the ceiling's distance to v* (standardised ζσ) below which it found ζσ's optimum
+DRAWN_SIGMA = 0.1  # CMA-ES's first step from the best prior draw (``--draws``; 0.3 from the box's centre)
 
 
 def prior_box(domain: Domain, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -61,6 +62,19 @@ def prior_box(domain: Domain, seed: int) -> tuple[np.ndarray, np.ndarray]:
     draws = np.array([[p[k] for k in domain.param_names] for p in (domain.sample_params(rng)
                                                                    for _ in range(PRIOR_SAMPLES))])
     return draws.min(0), draws.max(0)
+
+
+def unit_params(domain: Domain, box: tuple[np.ndarray, np.ndarray], x: np.ndarray) -> dict[str, float]:
+    """The parameters at ``x`` of the box scaled to [0, 1] (clipped to it)."""
+    lo, hi = box
+    return dict(zip(domain.param_names, (lo + np.clip(x, 0, 1) * (hi - lo)).tolist(), strict=True))
+
+
+def prior_draws(domain: Domain, box: tuple[np.ndarray, np.ndarray], n: int, seed: int) -> list[np.ndarray]:
+    """``n`` draws of the skill prior as points of the box scaled to [0, 1] (clipped to it)."""
+    rng, (lo, hi) = np.random.default_rng(seed), box
+    return [np.clip((np.array([q[k] for k in domain.param_names]) - lo) / (hi - lo), 0, 1)
+            for q in (domain.sample_params(rng) for _ in range(n))]
 
 
 def profiles(args: argparse.Namespace, folder: Path) -> list[Path]:
@@ -117,31 +131,39 @@ class ZetaLoss:
 
 
 def search(path: Path, domain: Domain, box: tuple[np.ndarray, np.ndarray], budget: int, seed: int,
-           loss_of: Loss = reward_loss) -> dict:
+           loss_of: Loss = reward_loss, draws: int = 0) -> dict:
     """CMA-ES over the box (scaled to [0, 1]) minimising ``loss_of`` (by default: maximising the export's return);
-    the best params' attributes."""
+    the best params' attributes. With ``draws``, that many of the budget's rollouts are draws of the skill prior
+    (``Domain.sample_params``), and CMA-ES starts from the best of them with a narrower step (``DRAWN_SIGMA``)."""
     export = read_export(path)
-    p, lo, hi = export.profile, *box
+    p = export.profile
 
     def params_of(x: np.ndarray) -> dict[str, float]:
-        return dict(zip(domain.param_names, (lo + np.clip(x, 0, 1) * (hi - lo)).tolist(), strict=True))
+        return unit_params(domain, box, x)
 
     def loss(x: np.ndarray) -> float:
         return loss_of(export, domain.rollout(params_of(np.asarray(x)), p.seed).states)
 
-    es = cma.CMAEvolutionStrategy(np.full(len(lo), 0.5), 0.3,
-                                  {"bounds": [0, 1], "maxfevals": budget, "seed": seed + 1, "verbose": -9})
     start = time.perf_counter()
+    x0, sigma0, f0 = np.full(len(box[0]), 0.5), 0.3, np.inf
+    if draws:
+        xs = prior_draws(domain, box, draws, seed + 1)
+        fs = [loss(x) for x in xs]
+        x0, sigma0, f0 = xs[int(np.argmin(fs))], DRAWN_SIGMA, float(min(fs))
+    es = cma.CMAEvolutionStrategy(x0, sigma0, {"bounds": [0, 1], "maxfevals": budget - draws, "seed": seed + 1,
+                                               "verbose": -9})
     while not es.stop():
         xs = es.ask()
         es.tell(xs, [loss(x) for x in xs])
-    best = params_of(es.result.xbest)
+    xbest, fbest = (es.result.xbest, float(es.result.fbest)) if es.result.fbest <= f0 else (x0, f0)
+    best = params_of(xbest)
     measured = domain.rollout(best, p.seed).proxies
     return {"profile": path.name, "rollout_id": p.rollout_id, "target": p.proxies, "found": measured,
-            "params": best, "evaluations": int(es.result.evaluations), "seconds": round(time.perf_counter() - start, 1),
+            "params": best, "evaluations": draws + int(es.result.evaluations),
+            "seconds": round(time.perf_counter() - start, 1),
             "return_found": export.reward.total(domain.rollout(best, p.seed).states),
             "return_profile": export.reward.total(domain.rollout(p.params, p.seed).states),
-            "loss_found": float(es.result.fbest)}
+            "loss_found": fbest}
 
 
 def _search_once(path: Path, domain: Domain, box: tuple[np.ndarray, np.ndarray], args: argparse.Namespace,
@@ -156,9 +178,9 @@ def _search_once(path: Path, domain: Domain, box: tuple[np.ndarray, np.ndarray],
     if rollout_id in searched:
         first = searched[rollout_id]
         return {**first, "profile": path.name, "same_as": first["profile"], "seconds": 0.0}
-    r = search(path, domain, box, args.budget, args.seed)
+    r = search(path, domain, box, args.budget, args.seed, draws=args.draws)
     if ceiling is not None:
-        c = search(path, domain, box, args.budget, args.seed, ceiling)
+        c = search(path, domain, box, args.budget, args.seed, ceiling, args.draws)
         r["ceiling"] = {k: c[k] for k in ("found", "params", "evaluations", "seconds", "loss_found")}
     searched[rollout_id] = r
     return r
@@ -214,9 +236,10 @@ def markdown(report: dict) -> str:
                f"{r['evaluations']} |")
         rows.append(row + (_ceiling_cells(r["ceiling"]) if ceiling else ""))
     eps = ", ".join(f"{k} {v:.3f}" for k, v in report["epsilon"].items())
-    budget, n = report["args"]["budget"], len(report["results"])
+    budget, n, draws = report["args"]["budget"], len(report["results"]), report["args"].get("draws", 0)
+    drawn = f", the first {draws} of them draws of the skill prior, CMA-ES from the best" if draws else ""
     return (f"# Reward-only search\n\nA search that sees only an export's rθ(s | v*) (CMA-ES, {budget}"
-            f" rollouts) finds skill parameters within ε of the profile in **{report['within']} of "
+            f" rollouts{drawn}) finds skill parameters within ε of the profile in **{report['within']} of "
             f"{n}** profiles ({report['share']:.0%}).{_ceiling_summary(report['results']) if ceiling else ''}\n\n"
             f"- Setting: {report['args']['domain']}, RBA-Global/{report['args']['rep']}, profiles from simulated "
             f"sessions on `{report['args']['split']}` targets (paper user, normal precision), ε = {eps}; the "
@@ -234,6 +257,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--split", choices=HELD_OUT, default="test", help="where the sessions' targets come from")
     p.add_argument("--budget", type=int, default=120, help="simulated rollouts per search")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--draws", type=int, default=0,
+                   help="rollouts of the budget spent on draws of the skill prior first; CMA-ES then starts from "
+                        "the best of them (0: from the box's centre); tune on --split val")
     p.add_argument("--ceiling", action="store_true",
                    help="search each profile again by ζσ distance to v* (what rθ was trained to rank by): what the "
                         "labels rθ learns from can tell apart, under the same search")
@@ -245,6 +271,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--out", type=Path, default=None, help="writes <out>.json and <out>.md; default "
                    "benchmarks/results/reward_only_<domain>")
     args = p.parse_args(argv)
+    if not 0 <= args.draws < args.budget:
+        p.error(f"--draws is a part of --budget ({args.budget}): 0 to {args.budget - 1}, got {args.draws}")
     if args.no_refit and args.refit_pull is not None:
         p.error("--refit-pull sets the re-fit that --no-refit turns off; give one of them")
     if not args.no_refit and args.refit_pull is None and get_domain(args.domain).export_refit:

@@ -84,3 +84,34 @@ def test_a_report_names_the_reward_its_exports_carried(capsys):
     with pytest.raises(SystemExit) as exit_:
         reward_only.parse_args(["--no-refit", "--refit-pull", "0.03"])
     assert exit_.value.code == 2 and "--no-refit turns off" in capsys.readouterr().err
+
+
+def test_draws_of_the_skill_prior_start_the_search_from_their_best(toy_roots, monkeypatch, tmp_path, capsys):
+    """``--draws``: the first rollouts of the budget are prior draws; what the search returns is no worse than the
+    best of them, and the budget still bounds it. More draws than the budget is refused."""
+    import pytest
+
+    from rba.domains import get_domain
+    from rba.export import read_export
+
+    monkeypatch.setenv("RBA_DATA_DIR", str(toy_roots[0]))
+    monkeypatch.setenv("RBA_MODELS_DIR", str(toy_roots[1]))
+    args = reward_only.parse_args(["--domain", "toy", "--profiles", "1", "--budget", "16", "--draws", "8"])
+    (path,) = reward_only.profiles(args, tmp_path)
+    domain, box, seed = get_domain("toy"), reward_only.prior_box(get_domain("toy"), 0), export_seed(path)
+    r = reward_only.search(path, domain, box, 16, 0, draws=8)
+    drawn = [reward_only.reward_loss(read_export(path), domain.rollout(reward_only.unit_params(domain, box, x),
+                                                                       seed).states)
+             for x in reward_only.prior_draws(domain, box, 8, 1)]  # the search's draws: its seed + 1
+    assert r["loss_found"] <= min(drawn) and 8 < r["evaluations"] <= 16 + 8  # CMA-ES's last generation may overrun
+    assert abs(reward_only.reward_loss(read_export(path), domain.rollout(r["params"], seed).states)
+               - r["loss_found"]) < 1e-6  # the reported loss is that of the parameters returned
+    with pytest.raises(SystemExit) as exit_:
+        reward_only.parse_args(["--budget", "16", "--draws", "16"])
+    assert exit_.value.code == 2 and "--draws is a part of --budget (16): 0 to 15" in capsys.readouterr().err
+
+
+def export_seed(path) -> int:
+    from rba.export import read_export
+
+    return read_export(path).profile.seed
