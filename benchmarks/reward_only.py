@@ -54,6 +54,7 @@ RESULTS = Path(__file__).resolve().parent / "results"
 PRIOR_SAMPLES = 2000  # draws of sample_params that bound the searched box
 ZETA_REACHED = 0.05  # the ceiling's distance to v* (standardised ζσ) below which it found ζσ's optimum
 DRAWN_SIGMA = 0.1  # CMA-ES's first step from the best prior draw (``--draws``; 0.3 from the box's centre)
+DRAWN_SHARE = 3  # by default a third of the budget is prior draws (val: snake 12 → 15 of 20, the others held)
 
 
 def prior_box(domain: Domain, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -255,11 +256,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--rep", default="onehot")
     p.add_argument("--profiles", type=int, default=20)
     p.add_argument("--split", choices=HELD_OUT, default="test", help="where the sessions' targets come from")
-    p.add_argument("--budget", type=int, default=120, help="simulated rollouts per search")
+    p.add_argument("--budget", type=int, default=240, help="simulated rollouts per search")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--draws", type=int, default=0,
+    p.add_argument("--draws", type=int, default=None,
                    help="rollouts of the budget spent on draws of the skill prior first; CMA-ES then starts from "
-                        "the best of them (0: from the box's centre); tune on --split val")
+                        "the best of them (0: from the box's centre); default: a third of the budget (chosen on "
+                        "val, reward_only_draws_val.md); tune on --split val")
     p.add_argument("--ceiling", action="store_true",
                    help="search each profile again by ζσ distance to v* (what rθ was trained to rank by): what the "
                         "labels rθ learns from can tell apart, under the same search")
@@ -271,6 +273,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--out", type=Path, default=None, help="writes <out>.json and <out>.md; default "
                    "benchmarks/results/reward_only_<domain>")
     args = p.parse_args(argv)
+    args.draws = args.budget // DRAWN_SHARE if args.draws is None else args.draws
     if not 0 <= args.draws < args.budget:
         p.error(f"--draws is a part of --budget ({args.budget}): 0 to {args.budget - 1}, got {args.draws}")
     if args.no_refit and args.refit_pull is not None:
