@@ -139,11 +139,8 @@ def search(path: Path, domain: Domain, box: tuple[np.ndarray, np.ndarray], budge
     export = read_export(path)
     p = export.profile
 
-    def params_of(x: np.ndarray) -> dict[str, float]:
-        return unit_params(domain, box, x)
-
     def loss(x: np.ndarray) -> float:
-        return loss_of(export, domain.rollout(params_of(np.asarray(x)), p.seed).states)
+        return loss_of(export, domain.rollout(unit_params(domain, box, np.asarray(x)), p.seed).states)
 
     start = time.perf_counter()
     x0, sigma0, f0 = np.full(len(box[0]), 0.5), 0.3, np.inf
@@ -157,7 +154,7 @@ def search(path: Path, domain: Domain, box: tuple[np.ndarray, np.ndarray], budge
         xs = es.ask()
         es.tell(xs, [loss(x) for x in xs])
     xbest, fbest = (es.result.xbest, float(es.result.fbest)) if es.result.fbest <= f0 else (x0, f0)
-    best = params_of(xbest)
+    best = unit_params(domain, box, xbest)
     measured = domain.rollout(best, p.seed).proxies
     return {"profile": path.name, "rollout_id": p.rollout_id, "target": p.proxies, "found": measured,
             "params": best, "evaluations": draws + int(es.result.evaluations),
