@@ -29,7 +29,7 @@ from rba.domains import domain_names
 from rba.evaluate import EvalResult, evaluate
 from rba.generate import SearchConfig, Simulate
 from rba.interact import load_context
-from rba.storage import save_report
+from rba.storage import report_path, save_report
 
 log = logging.getLogger("beyond_range")
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -102,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--gen-workers must be at least 1, got {args.gen_workers}")
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     setting = {"share": args.share, "precision": args.precision, "seed": args.seed}
-    old = args.out.with_suffix(".json")
+    old = report_path(args.out, ".json")
     kept = [r for r in (json.loads(old.read_text())["rows"] if old.exists() else [])
             if all(r[k] == v for k, v in setting.items())]
     report = {**setting, "command": "python benchmarks/beyond_range.py " + " ".join(argv or sys.argv[1:]),

@@ -40,7 +40,7 @@ from rba.labels import GlobalLabelConfig, annotator_labels, proxy_labels
 from rba.learn.common import Ragged
 from rba.learn.ranker import RankerConfig, ranking_metrics, train_ranker
 from rba.library import SkillLibrary
-from rba.storage import load_json, save_report
+from rba.storage import load_json, report_path, save_report
 
 RESULTS = Path(__file__).resolve().parent / "results"
 log = logging.getLogger("label_noise")
@@ -162,9 +162,9 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     if args.replot:  # e.g. after an interrupted run: its JSON holds every finished run
-        report = load_json(args.out.with_suffix(".json"))
+        report = load_json(report_path(args.out, ".json"))
         report["trained"] = trained_rows(args.trained, report["args"]["domains"]) if args.trained else []
-        plot(report, args.out.with_suffix(".png"))
+        plot(report, report_path(args.out, ".png"))
         save_report(args.out, report, markdown(report))
         return 0
     report = {"command": "python benchmarks/label_noise.py " + " ".join(argv if argv is not None else sys.argv[1:]),
@@ -179,7 +179,7 @@ def main(argv: list[str] | None = None) -> int:
             report["runs"].append(run_one(d, cfg, args.steps, args.seed))
             save_report(args.out, report, markdown(report))  # partial results survive an interruption
     report["trained"] = trained_rows(args.trained, args.domains) if args.trained else []
-    plot(report, args.out.with_suffix(".png"))
+    plot(report, report_path(args.out, ".png"))
     save_report(args.out, report, markdown(report))
     log.info("wrote %s.{json,md,png}", args.out)
     return 0

@@ -47,11 +47,18 @@ def save_text(path: Path, text: str) -> None:
     write_atomic(Path(path), lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
 
 
+def report_path(out: Path, suffix: str) -> Path:
+    """``<out><suffix>``: a benchmark's ``--out`` names its reports without their suffix, and a dot in that name
+    (``--out runs/pull0.001``) is part of it (``with_suffix`` would replace ``.001``: two runs, one file); an ``out``
+    that already ends in ``.json`` or ``.md`` has that suffix replaced."""
+    return out.with_suffix(suffix) if out.suffix in (".json", ".md") else out.with_name(out.name + suffix)
+
+
 def save_report(out: Path, report: dict, markdown: str) -> None:
     """A benchmark's report: ``<out>.json`` (the numbers) and ``<out>.md`` (for people), each atomically."""
     out.parent.mkdir(parents=True, exist_ok=True)
-    save_text(out.with_suffix(".json"), json.dumps(report, indent=2) + "\n")
-    save_text(out.with_suffix(".md"), markdown)
+    save_text(report_path(out, ".json"), json.dumps(report, indent=2) + "\n")
+    save_text(report_path(out, ".md"), markdown)
 
 
 def save_json(path: Path, obj: Any) -> None:

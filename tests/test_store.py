@@ -167,3 +167,17 @@ def test_a_new_renderer_version_gives_every_clip_a_new_name(monkeypatch):
     before = KEY.digest
     monkeypatch.setattr(clips, "RENDERER_VERSION", clips.RENDERER_VERSION + 1)
     assert KEY.digest != before  # a cache filled by the old renderer is never served as the new one's
+
+
+def test_a_dot_in_a_reports_name_is_part_of_it(tmp_path):
+    """Two runs written to ``--out runs/pull0.001`` and ``--out runs/pull0.003`` keep two reports (``with_suffix``
+    made both ``runs/pull0.json``); a name given with its ``.json`` or ``.md`` suffix still names that report."""
+    from rba.storage import load_json, report_path, save_report
+
+    for pull in ("0.001", "0.003"):
+        save_report(tmp_path / f"pull{pull}", {"pull": pull}, f"# pull {pull}\n")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["pull0.001.json", "pull0.001.md", "pull0.003.json",
+                                                          "pull0.003.md"]
+    assert load_json(tmp_path / "pull0.001.json") == {"pull": "0.001"}
+    assert report_path(tmp_path / "paper_tables.md", ".json") == tmp_path / "paper_tables.json"
+    assert report_path(tmp_path / "r", ".png") == tmp_path / "r.png"
