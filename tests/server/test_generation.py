@@ -314,7 +314,6 @@ def test_a_generating_answer_guesses_the_next_clips_only_once_its_clip_is_render
         assert client.get(now["clip"]["url"]).content == InstantCompute.CLIP
 
 
-
 def test_a_runner_up_the_next_answer_would_show_is_rendered_ahead(gen_settings, tmp_path):
     """A made clip an answer would show without a search (a pooled runner-up) is among that session's guesses and
     rendered ahead, so the answer that shows it asks for no render; chosen, it is exported and replays. The session's
