@@ -98,20 +98,19 @@ def test_draws_of_the_skill_prior_start_the_search_from_their_best(toy_roots, mo
     monkeypatch.setenv("RBA_MODELS_DIR", str(toy_roots[1]))
     args = reward_only.parse_args(["--domain", "toy", "--profiles", "1", "--budget", "16", "--draws", "8"])
     (path,) = reward_only.profiles(args, tmp_path)
-    domain, box, seed = get_domain("toy"), reward_only.prior_box(get_domain("toy"), 0), export_seed(path)
+    domain, export = get_domain("toy"), read_export(path)
+    box = reward_only.prior_box(domain, 0)
+
+    def loss(x) -> float:
+        return reward_only.reward_loss(export, domain.rollout(reward_only.unit_params(domain, box, x),
+                                                              export.profile.seed).states)
+
     r = reward_only.search(path, domain, box, 16, 0, draws=8)
-    drawn = [reward_only.reward_loss(read_export(path), domain.rollout(reward_only.unit_params(domain, box, x),
-                                                                       seed).states)
-             for x in reward_only.prior_draws(domain, box, 8, 1)]  # the search's draws: its seed + 1
+    drawn = [loss(x) for x in reward_only.prior_draws(domain, box, 8, 1)]  # the search's draws: its seed + 1
     assert r["loss_found"] <= min(drawn) and 8 < r["evaluations"] <= 16 + 8  # CMA-ES's last generation may overrun
-    assert abs(reward_only.reward_loss(read_export(path), domain.rollout(r["params"], seed).states)
-               - r["loss_found"]) < 1e-6  # the reported loss is that of the parameters returned
+    found = domain.rollout(r["params"], export.profile.seed).states  # the reported loss is the returned params'
+    assert abs(reward_only.reward_loss(export, found) - r["loss_found"]) < 1e-6
     with pytest.raises(SystemExit) as exit_:
         reward_only.parse_args(["--budget", "16", "--draws", "16"])
     assert exit_.value.code == 2 and "--draws is a part of --budget (16): 0 to 15" in capsys.readouterr().err
 
-
-def export_seed(path) -> int:
-    from rba.export import read_export
-
-    return read_export(path).profile.seed

@@ -26,6 +26,7 @@ from server.main import create_app
 from server.models import TuningSession
 from server.prerender import next_clips, resume_prerender
 from server.services import ClipRef
+from server.sessions import load_session
 from server.settings import GENERATE_SECONDS, GENERATE_SECONDS_OTHERS, Settings
 from tests.fakes import FakeCompute, InProcessCompute, InstantCompute
 from tests.server.conftest import more
@@ -337,7 +338,8 @@ def test_a_runner_up_the_next_answer_would_show_is_rendered_ahead(gen_settings, 
         assert pooled in next_clips(svc, key, True, state, None, lambda: False)  # a guess that searches nothing
 
         svc.prerendering.pop(s["id"])  # the session's guesses again, from the state set above
-        resume_prerender(svc, load(svc, s["id"]))
+        with Session(svc.engine) as db:
+            resume_prerender(svc, load_session(db, s["id"]))
         assert svc.wait_idle(SEARCH_SECONDS)
         assert [urgent for j, (urgent, _) in zip(compute.jobs, compute.submitted, strict=True)
                 if j.rollout.id == pooled] == [False]  # rendered once, as a guess
@@ -369,7 +371,3 @@ def at_next_target(svc, key, state: dict, pooled: str, answer) -> dict:
     state["generation"]["pool"][pooled]["zeta"] = [float(v) for v in probe.inner.target]
     return state
 
-
-def load(svc, session_id: str) -> TuningSession:
-    with Session(svc.engine, expire_on_commit=False) as db:
-        return db.get(TuningSession, session_id)
