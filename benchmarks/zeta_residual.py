@@ -16,7 +16,8 @@ within ε of the val clip's proxies, against the serve clips within the threshol
 optimises ζσ, so it may find where ζσ errs). ``--seeds N`` asks how noisy the skill itself is: N val clips
 re-simulated at their own parameters with ``SEEDS`` other seeds, and the proxies' spread across those seeds in ε
 (where it is near ε a search should choose among seeds too: ``Domain.noisy_skill``). A tuning measurement: never
-on test. Writes ``benchmarks/results/zeta_residual.md`` and ``.json``.
+on test. Writes ``benchmarks/results/zeta_residual.md`` and ``.json``; rows of domains a run does not
+measure are kept from the report before (each row says which command measured it, and when).
 
     python benchmarks/zeta_residual.py --domains walker manipulator snake lane_change --local 40 --generated 40 \
         --seeds 10
@@ -40,7 +41,7 @@ from rba.generate import SearchConfig, ZetaDistance, search
 from rba.interact import load_context
 from rba.interact.generating import STARTS, THRESHOLD
 from rba.library import SkillLibrary
-from rba.storage import save_text
+from rba.storage import report_path, save_text
 
 RESULTS = Path(__file__).resolve().parent / "results"
 STEPS = (0.01, 0.03, 0.1)  # std of the parameter moves, in units of each free parameter's range
@@ -195,7 +196,7 @@ def _row(domain, rep, precision, ctx, val, val_zeta, near, fits, eps) -> dict:
     return row
 
 
-def report(rows: list[dict], command: str) -> str:
+def report(rows: list[dict]) -> str:
     lines = ["# ζσ precision against ε (val)", "",
              "Proxy spread among clips of equal ζσ (isotonic residual std, in ε), and the share of serve clips "
              f"within the generation threshold ({THRESHOLD}) of a val target's ζσ that are within ε of it on "
@@ -265,8 +266,26 @@ def report(rows: list[dict], command: str) -> str:
         for r in seeded:
             s = r["seeds"]
             lines.append(f"| {r['domain']} | {s['clips']} | {fmt(s['median'])} | {fmt(s['max'])} |")
-    lines += ["", f"Command: `{command}`; {dt.date.today().isoformat()}."]
+    runs: dict[str, list[str]] = {}  # each run's command and date -> the domains it measured
+    for r in rows:
+        runs.setdefault(r["measured"], []).append(r["domain"])
+    lines += [""] + [f"Command: {run} ({', '.join(dict.fromkeys(domains))})." for run, domains in runs.items()]
     return "\n".join(lines) + "\n"
+
+
+def merge_rows(rows: list[dict], earlier: Path) -> list[dict]:
+    """``rows`` with the earlier report's rows of the domains they do not measure, in its domain order: one
+    domain is re-measured after its library or models changed. Rows of a report that predates the ``measured``
+    field take that report's one command line."""
+    old = json.loads(report_path(earlier, ".json").read_text()) if report_path(earlier, ".json").exists() else []
+    if any("measured" not in r for r in old):
+        text = report_path(earlier, ".md").read_text()
+        command = next(line for line in text.splitlines() if line.startswith("Command: "))
+        old = [{**r, "measured": command.removeprefix("Command: ").removesuffix(".")} for r in old]
+    measured = {r["domain"] for r in rows}
+    order = list(dict.fromkeys([r["domain"] for r in old] + [r["domain"] for r in rows]))
+    kept = [r for r in old if r["domain"] not in measured]
+    return sorted(kept + rows, key=lambda r: order.index(r["domain"]))  # stable: a domain's rows keep their order
 
 
 def main() -> None:
@@ -287,8 +306,11 @@ def main() -> None:
     command = " ".join(["python benchmarks/zeta_residual.py", "--domains", *args.domains, "--rep", args.rep,
                        "--precisions", *args.precisions, "--local", str(args.local), "--generated",
                        str(args.generated), "--seeds", str(args.seeds)])
+    for row in rows:
+        row["measured"] = f"`{command}`; {dt.date.today().isoformat()}"
+    rows = merge_rows(rows, RESULTS / "zeta_residual")
     save_text(RESULTS / "zeta_residual.json", json.dumps(rows, indent=1) + "\n")
-    save_text(RESULTS / "zeta_residual.md", report(rows, command))
+    save_text(RESULTS / "zeta_residual.md", report(rows))
 
 
 if __name__ == "__main__":

@@ -44,6 +44,15 @@ def test_shipped_artifacts_serve_a_fresh_clone(domain):
     assert result.success_rate >= 0.8
 
 
+@pytest.mark.parametrize("domain", [d for d in SHIPPED if get_domain(d).state_encoder is None])
+def test_generation_keeps_the_serve_library_at_1200(domain):
+    """Issue 14's bound: the generating agent makes what a library lacks, so no domain (hand-made or raw states)
+    ships more than 1,200 serve rollouts; lane change needed 3,600 before. The image view, the paper's image
+    states through a learned encoder, keeps its own library (``LaneChangeImage.serve_size``)."""
+    assert get_domain(domain).serve_size <= 1200
+    assert len(SkillLibrary.load(domain, "serve", REPO_ROOT / "data")) <= 1200
+
+
 @pytest.mark.parametrize("domain", SHIPPED)
 def test_epsilons_come_from_the_serve_librarys_robust_range(domain):
     """ARCHITECTURE §4: ε is a seventh of the 1st–99th percentile range of serve's proxies, high precision 6× finer;

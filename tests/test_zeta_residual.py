@@ -2,6 +2,7 @@
 moved parameters move ζσ; a search made for a val clip's ζσ is scored against that clip's proxies."""
 
 import itertools
+import json
 
 from tests.benchmark_scripts import load_benchmark
 
@@ -15,8 +16,8 @@ def test_high_precision_hits_fewer_and_spreads_wider_in_epsilon_units():
     assert 0.0 <= high["hit_share"] <= normal["hit_share"] <= 1.0
     assert all(high["residual_over_epsilon"][a] > normal["residual_over_epsilon"][a] for a in ("sharpness", "gap"))
     assert 0 < high["targets_with_near_clips"] <= high["targets"]
-    table = zeta_residual.report([high, normal], "cmd")
-    assert "| lane_change | onehot | high | sharpness" in table and "Command: `cmd`" in table
+    table = zeta_residual.report([{**high, "measured": "`cmd`; today"}, {**normal, "measured": "`cmd`; today"}])
+    assert "| lane_change | onehot | high | sharpness" in table and "Command: `cmd`; today (lane_change)." in table
     moves = [m["zeta_move"]["gap"] for m in high["local"]]
     assert [m["step"] for m in high["local"]] == list(zeta_residual.STEPS)
     assert all(m["clips"] > 0 for m in high["local"])
@@ -41,3 +42,17 @@ def test_the_manipulators_tremor_spreads_its_instability_across_seeds():
     spread = zeta_residual._reseeded("manipulator", val, 2, 0)
     eps = zeta_residual.get_domain("manipulator").epsilons(val.proxies, "high")
     assert spread.shape == (2, 2) and (spread[:, 1] / eps[1]).max() > 0.5
+
+
+def test_a_run_of_one_domain_keeps_the_others_rows_and_says_who_measured_them(tmp_path):
+    """Re-measuring one domain (its library changed) keeps the other domains' rows, in the report's order; rows
+    of a report from before rows named their run take that report's command line."""
+    earlier = [{"domain": d, "precision": p} for d in ("walker", "lane_change", "snake") for p in ("high", "normal")]
+    (tmp_path / "z.json").write_text(json.dumps(earlier))
+    (tmp_path / "z.md").write_text("# t\n\nCommand: `old cmd`; 2026-12-01.\n")
+    new = [{"domain": "lane_change", "precision": p, "measured": "`new`; today"} for p in ("high", "normal")]
+    merged = zeta_residual.merge_rows(new, tmp_path / "z")
+    assert [(r["domain"], r["precision"]) for r in merged] == [(r["domain"], r["precision"]) for r in earlier]
+    assert [r["measured"] for r in merged] == ["`old cmd`; 2026-12-01"] * 2 + ["`new`; today"] * 2 + [
+        "`old cmd`; 2026-12-01"] * 2
+    assert zeta_residual.merge_rows(new, tmp_path / "absent") == new
