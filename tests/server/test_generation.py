@@ -163,10 +163,10 @@ def test_a_search_stops_at_its_seconds(gen_settings):
 
 def test_each_domain_has_its_own_default_bound(gen_settings, monkeypatch):
     """Unset, a search's bound is its domain's, chosen on val (generation_seconds_val.md): the walker and the
-    manipulator keep SR at 1 s, the snake at 1.5 s; a domain not named gets 2 s."""
+    manipulator keep SR at 1 s, the snake at 1.25 s; a domain not named gets 2 s."""
     assert Settings.model_fields["generate_seconds"].default is None
     default = Settings(generate_seconds=None)
-    assert [default.search_seconds(d) for d in ("walker", "manipulator", "snake")] == [1.0, 1.0, 1.5]
+    assert [default.search_seconds(d) for d in ("walker", "manipulator", "snake")] == [1.0, 1.0, 1.25]
     assert default.search_seconds("toy") == GENERATE_SECONDS_OTHERS == 2.0
     monkeypatch.setitem(GENERATE_SECONDS, "toy", 0.2)  # the catalog asks the settings per domain
     unset = gen_settings.model_copy(update={"generate_seconds": None})
