@@ -277,7 +277,8 @@ def merge_rows(rows: list[dict], earlier: Path) -> list[dict]:
     """``rows`` with the earlier report's rows of the domains they do not measure, in its domain order: one
     domain is re-measured after its library or models changed. Rows of a report that predates the ``measured``
     field take that report's one command line."""
-    old = json.loads(report_path(earlier, ".json").read_text()) if report_path(earlier, ".json").exists() else []
+    path = report_path(earlier, ".json")
+    old = json.loads(path.read_text()) if path.exists() else []
     if any("measured" not in r for r in old):
         text = report_path(earlier, ".md").read_text()
         command = next(line for line in text.splitlines() if line.startswith("Command: "))
