@@ -275,14 +275,9 @@ def report(rows: list[dict]) -> str:
 
 def merge_rows(rows: list[dict], earlier: Path) -> list[dict]:
     """``rows`` with the earlier report's rows of the domains they do not measure, in its domain order: one
-    domain is re-measured after its library or models changed. Rows of a report that predates the ``measured``
-    field take that report's one command line."""
+    domain is re-measured after its library or models changed (each row keeps its ``measured``: command and date)."""
     path = report_path(earlier, ".json")
     old = json.loads(path.read_text()) if path.exists() else []
-    if any("measured" not in r for r in old):
-        text = report_path(earlier, ".md").read_text()
-        command = next(line for line in text.splitlines() if line.startswith("Command: "))
-        old = [{**r, "measured": command.removeprefix("Command: ").removesuffix(".")} for r in old]
     measured = {r["domain"] for r in rows}
     order = list(dict.fromkeys([r["domain"] for r in old] + [r["domain"] for r in rows]))
     kept = [r for r in old if r["domain"] not in measured]

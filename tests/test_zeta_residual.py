@@ -45,11 +45,11 @@ def test_the_manipulators_tremor_spreads_its_instability_across_seeds():
 
 
 def test_a_run_of_one_domain_keeps_the_others_rows_and_says_who_measured_them(tmp_path):
-    """Re-measuring one domain (its library changed) keeps the other domains' rows, in the report's order; rows
-    of a report from before rows named their run take that report's command line."""
-    earlier = [{"domain": d, "precision": p} for d in ("walker", "lane_change", "snake") for p in ("high", "normal")]
+    """Re-measuring one domain (its library changed) keeps the other domains' rows and who measured them, in the
+    report's order; with no earlier report the run's rows are the report."""
+    earlier = [{"domain": d, "precision": p, "measured": "`old cmd`; 2026-12-01"}
+               for d in ("walker", "lane_change", "snake") for p in ("high", "normal")]
     (tmp_path / "z.json").write_text(json.dumps(earlier))
-    (tmp_path / "z.md").write_text("# t\n\nCommand: `old cmd`; 2026-12-01.\n")
     new = [{"domain": "lane_change", "precision": p, "measured": "`new`; today"} for p in ("high", "normal")]
     merged = zeta_residual.merge_rows(new, tmp_path / "z")
     assert [(r["domain"], r["precision"]) for r in merged] == [(r["domain"], r["precision"]) for r in earlier]
