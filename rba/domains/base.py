@@ -203,8 +203,8 @@ class Domain(ABC):
     zeta_surface: int = 0
     # the generating agent searches only where the library clip misses its target by more than this share of the
     # belief's half interquartile range (and the threshold): while it is unsure where the target is, a library clip
-    # there asks as well as a made one, at once (0: by the threshold alone). Chosen on val (generation_spread_val.md;
-    # the walker's with its surface, generation_surface_val.md)
+    # there asks as well as a made one, at once (0: by the threshold alone). Chosen on val (generation_spread_val.md,
+    # the manipulator's 0.5 too; the walker's with its surface, generation_surface_val.md)
     generate_spread: float = 1.0
     # the skill's outcome depends on its seed beyond the parameters (the manipulator's tremor is drawn from it): a
     # search then simulates each candidate with a seed of its own (``rba.generate.search``), so the noise is part of

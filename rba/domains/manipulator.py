@@ -263,6 +263,8 @@ class Manipulator(Domain):
     frame_rate = FRAME_RATE
     feedback_phrases = FEEDBACK_PHRASES
     zeta_noise = 0.1  # the generating agent's soft step: val AF lowest with SR held (generation_noise_val.md)
+    generate_spread = 0.5  # searches once the belief is this sure: val AF lower on two target draws, normal precision
+    # unchanged (generation_spread_val.md)
     noisy_skill = True  # the tremor is drawn from the seed: other seeds at a val clip's parameters spread its
     # instability by 2.3 high-precision ε (std, median of 10 clips: zeta_residual.md); generation_seeds_val.md
 
