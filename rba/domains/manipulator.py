@@ -262,7 +262,8 @@ class Manipulator(Domain):
     param_names = tuple(PARAM_RANGES)
     frame_rate = FRAME_RATE
     feedback_phrases = FEEDBACK_PHRASES
-    zeta_noise = 0.1  # the generating agent's soft step: val AF lowest with SR held (generation_noise_val.md)
+    zeta_noise = 0.06  # the generating agent's soft step: val AF lowest with SR held (generation_noise_val.md; 0.06
+    # since its spread became 0.5: generation_spread_val.md)
     generate_spread = 0.5  # searches once the belief is this sure: val AF lower on two target draws, normal precision
     # unchanged (generation_spread_val.md)
     noisy_skill = True  # the tremor is drawn from the seed: other seeds at a val clip's parameters spread its
