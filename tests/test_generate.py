@@ -174,10 +174,14 @@ def test_a_clip_made_with_a_seed_of_its_own_replays_from_that_seed(ctx, gap_root
     assert not np.array_equal(replay("toy", r.params, r.seed + 1).states, r.states)  # the seed is part of the clip
 
 
-def test_each_domain_searches_once_its_belief_is_as_sure_as_chosen_on_val():
-    """``Domain.generate_spread`` (generation_spread_val.md): the walker and the manipulator search sooner."""
-    spread = {d: get_domain(d).generate_spread for d in ("walker", "manipulator", "snake", "lane_change")}
-    assert spread == {"walker": 0.5, "manipulator": 0.5, "snake": 1.0, "lane_change": 1.0}
+def test_each_domain_generates_as_chosen_on_val():
+    """``Domain.generate_spread`` (generation_spread_val.md: the walker and the manipulator search sooner) and
+    ``Domain.zeta_noise`` (generation_noise_val.md: the soft step; the manipulator's chosen with its spread)."""
+    names = ("walker", "manipulator", "snake", "lane_change")
+    assert {d: get_domain(d).generate_spread for d in names} == {"walker": 0.5, "manipulator": 0.5, "snake": 1.0,
+                                                                 "lane_change": 1.0}
+    assert {d: get_domain(d).zeta_noise for d in names} == {"walker": 0.04, "manipulator": 0.06, "snake": 0.03,
+                                                            "lane_change": 0.0}
 
 
 def test_a_noisy_skills_candidates_each_get_a_seed_of_their_own(ctx, gap_roots, monkeypatch):
