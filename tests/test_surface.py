@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from rba.generate import SearchConfig, is_generated, surface_search
+from rba.interact import generating
 from rba.interact.generating import REPEAT, GeneratingGlobalAgent
 from rba.interact.global_agent import GlobalContext
 from rba.surface import ZetaSurface
@@ -114,6 +115,25 @@ def test_a_clip_the_surface_makes_again_is_made_by_the_zeta_search(ctx, gap_root
     again, _, _ = gen.generate(target, starts, 0, judged=[near])
     assert again.rollout.id != first.rollout.id  # CMA-ES on ζσ of simulated clips ...
     assert len(jobs) - 1 == again.simulations > 2  # ... after the surface's clip, which counts too
+
+
+def test_the_zeta_search_after_a_repeated_clip_gets_what_is_left_of_the_bound(ctx, gap_roots, monkeypatch):
+    """The app bounds a search in time; the surface's clip set aside took part of it, and the person waits for both
+    (the walker's answers that fell back took 1.3-1.6 s at its 1 s bound: generation_latency.md)."""
+    gen = dataclasses.replace(_gen(ctx, gap_roots, surface=16), config=SearchConfig(seconds=1.0))
+    starts = [dict(zip(ctx.serve.param_names, map(float, ctx.serve.params[i]), strict=True)) for i in range(4)]
+    target = gen.zeta_surface(np.array([0.3, 0.6]))[0]
+    first, _, _ = gen.generate(target, starts, 0)
+    bounds = []
+    real = generating.search
+    monkeypatch.setattr(generating, "search", lambda *a, **k: bounds.append(a[4].seconds) or real(*a, **k))
+    slow = dataclasses.replace(first, seconds=0.4)  # the surface's clip took 0.4 s ...
+    monkeypatch.setattr(generating, "surface_search", lambda *a, **k: slow)
+    again, _, _ = gen.generate(target, starts, 0, judged=[first.rollout.params])
+    assert bounds == [pytest.approx(0.6)] and again.seconds >= 0.4  # ... so the ζσ search gets 0.6 s of the 1 s
+    monkeypatch.setattr(generating, "surface_search", lambda *a, **k: dataclasses.replace(first, seconds=5.0))
+    gen.generate(target, starts, 0, judged=[first.rollout.params])
+    assert bounds[-1] == generating.MIN_SECONDS  # nothing left: it still makes a clip
 
 
 def test_the_surface_is_the_domains_unless_asked(ctx, gap_roots, monkeypatch):

@@ -14,7 +14,7 @@ Where the proxies move smoothly with the skill's parameters (``Domain.zeta_surfa
 every clip on ζ̃, a fit of the serve library's ζσ over the parameters (``rba.surface``), not on ζσ of the clip's own
 states, and makes a clip by solving ζ̃ for its target (``rba.generate.surface_search``: one simulation), starting
 from the clip it made last, so its clips stay in one region of the parameters; a clip it would make again (within
-``REPEAT`` of one the user judged) is made by the ζσ search instead.
+``REPEAT`` of one the user judged) is made by the ζσ search instead, in what is left of the time bound.
 A search whose best clip stayed farther than ``threshold`` from its target is not run again for a target
 within ``threshold`` of that one for ``RETRY_AFTER`` rounds: the same starts and budget would fail again;
 later it may, with the session's new clips as starts and another seed.
@@ -73,6 +73,7 @@ OBJECTIVES = ("zeta", "reward")
 REPEAT = 0.01  # a made clip this near one judged before (unit box, per parameter) is made again by the ζσ search
 POOL_KEEP = 8  # a search's runners-up the session keeps (the best by the search's objective) ...
 POOL_SIZE = 64  # ... up to this many in all, the oldest dropped first
+MIN_SECONDS = 0.05  # the least time bound a ζσ search after the surface's set-aside clip gets (it makes one clip)
 Made = tuple[Rollout, np.ndarray]  # a made clip and its ζ as the agent reads it
 
 
@@ -183,8 +184,8 @@ class GenerationContext:
         if found is None:
             objective = dist if self.objective == "zeta" else RewardObjective(self.base.scorer.model, dist.target)
             good = self.threshold if self.objective == "zeta" else None
-            found = search(self.base.domain, starts, objective, self.simulate, replace(config, good_enough=good),
-                           self.on_progress)
+            found = search(self.base.domain, starts, objective, self.simulate,
+                           replace(config, good_enough=good, seconds=_left(config.seconds, spent)), self.on_progress)
         if spent is not None:  # the surface's clip, simulated and set aside, is part of what this search cost
             found = replace(found, simulations=found.simulations + spent.simulations,
                             seconds=found.seconds + spent.seconds)
@@ -373,6 +374,14 @@ class GeneratingGlobalAgent(Agent):
         gen = state.get("generation", {})
         return cls(context, GlobalAgent.from_state(inner, context.base), gen.get("generated"), gen.get("showing"),
                    gen.get("searches"), gen.get("pool"))
+
+
+def _left(seconds: float | None, spent: Generation | None) -> float | None:
+    """A search's time bound less what the surface's clip set aside took: the person waits for both (at least
+    ``MIN_SECONDS``, in which the search still makes one clip)."""
+    if seconds is None or spent is None:
+        return seconds
+    return max(seconds - spent.seconds, MIN_SECONDS)
 
 
 def _moves(zeta: np.ndarray | list[float], before: np.ndarray | None, asked: list[tuple[int, int]]) -> bool:
