@@ -102,10 +102,15 @@ def test_on_the_surface_the_clip_made_last_starts_the_search(ctx, gap_roots):
     assert made["gen-a"]["params"] in nearest[:2] and made["gen-b"]["params"] not in nearest  # at 0 from the target
 
 
-def test_a_clip_the_surface_makes_again_is_made_by_the_zeta_search(ctx, gap_roots):
-    gen = _gen(ctx, gap_roots, surface=16)
+def _on_the_surface(ctx, gap_roots, **options):
+    """A generating context on a 16-clip surface, the first 4 serve clips as starts, and a target on the surface."""
+    gen = _gen(ctx, gap_roots, surface=16, **options)
     starts = [dict(zip(ctx.serve.param_names, map(float, ctx.serve.params[i]), strict=True)) for i in range(4)]
-    target = gen.zeta_surface(np.array([0.3, 0.6]))[0]
+    return gen, starts, gen.zeta_surface(np.array([0.3, 0.6]))[0]
+
+
+def test_a_clip_the_surface_makes_again_is_made_by_the_zeta_search(ctx, gap_roots):
+    gen, starts, target = _on_the_surface(ctx, gap_roots)
     jobs = []
     gen.simulate = recording_simulator(jobs)
     first, _, _ = gen.generate(target, starts, 0)
@@ -120,9 +125,7 @@ def test_a_clip_the_surface_makes_again_is_made_by_the_zeta_search(ctx, gap_root
 def test_the_zeta_search_after_a_repeated_clip_gets_what_is_left_of_the_bound(ctx, gap_roots, monkeypatch):
     """The app bounds a search in time; the surface's clip set aside took part of it, and the person waits for both
     (the walker's answers that fell back took 1.3-1.6 s at its 1 s bound: generation_latency.md)."""
-    gen = dataclasses.replace(_gen(ctx, gap_roots, surface=16), config=SearchConfig(seconds=1.0))
-    starts = [dict(zip(ctx.serve.param_names, map(float, ctx.serve.params[i]), strict=True)) for i in range(4)]
-    target = gen.zeta_surface(np.array([0.3, 0.6]))[0]
+    gen, starts, target = _on_the_surface(ctx, gap_roots, config=SearchConfig(seconds=1.0))
     first, _, _ = gen.generate(target, starts, 0)
     bounds = []
     real = generating.search
@@ -132,8 +135,8 @@ def test_the_zeta_search_after_a_repeated_clip_gets_what_is_left_of_the_bound(ct
     again, _, _ = gen.generate(target, starts, 0, judged=[first.rollout.params])
     assert bounds == [pytest.approx(0.6)] and again.seconds >= 0.4  # ... so the ζσ search gets 0.6 s of the 1 s
     monkeypatch.setattr(generating, "surface_search", lambda *a, **k: dataclasses.replace(first, seconds=5.0))
-    gen.generate(target, starts, 0, judged=[first.rollout.params])
-    assert bounds[-1] == generating.MIN_SECONDS  # nothing left: it still makes a clip
+    late, _, _ = gen.generate(target, starts, 0, judged=[first.rollout.params])
+    assert bounds[-1] == generating.MIN_SECONDS and late.rollout is not None  # nothing left: it still makes a clip
 
 
 def test_the_surface_is_the_domains_unless_asked(ctx, gap_roots, monkeypatch):
