@@ -26,7 +26,7 @@ from server.settings import Settings
 from tests.server.test_processes import alive, wait_dead
 
 # The heartbeat tests' timings. A live job must look alive however busy the machine: 20 beats may be missed
-# before another replica may fail it (a CI run once stalled a keeper for over 0.6 s).
+# before another replica may fail it (with 6, one CI run saw a live job go 0.6 s without a heartbeat).
 BEAT, STALE = 0.1, 2.0
 PAST_STALE = STALE + 0.4
 
