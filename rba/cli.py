@@ -202,6 +202,8 @@ def _generation(args) -> tuple[dict, Compute | None]:
         options["zeta_noise"] = args.gen_noise
     if args.gen_surface is not None:
         options["surface"] = args.gen_surface
+    if args.gen_refit is not None:
+        options["refit"] = args.gen_refit
     if not args.ray and args.gen_workers == 1:
         return options, None
     from rba.compute import make_compute
@@ -406,6 +408,9 @@ def _eval_command(sub) -> argparse.ArgumentParser:
                    help="read and make clips on a fit of ζσ over the skill's parameters through the N nearest "
                         "serve clips (0: each clip's own ζσ); default: the domain's Domain.zeta_surface; tune it "
                         "on --split val")
+    e.add_argument("--gen-refit", action=argparse.BooleanOptionalAction, default=None,
+                   help="re-fit ζσ's last layers near the target on the session's answers (rba.interact.refit); "
+                        "default: the domain's Domain.session_refit; not with --gen-surface; tune it on --split val")
     e.add_argument("--gen-seeds", choices=("one", "each"), default=None,
                    help="simulate a search's candidates with one seed, or each with a seed of its own (the skill's "
                         "noise is then chosen among too); default: each where the domain's skill is noisy "

@@ -227,14 +227,15 @@ def surface_search(domain: str, starts: list[dict[str, float]], surface: ZetaSur
     return Generation(made if made.success else None, best_f, 1, 1, seconds)
 
 
-def _data(rollouts: list[Rollout]) -> Ragged:
+def rollout_data(rollouts: list[Rollout]) -> Ragged:
+    """The states of ``rollouts`` as one ``Ragged`` (what the models score)."""
     offsets = np.concatenate([[0], np.cumsum([len(r.states) for r in rollouts])])
     return Ragged.from_numpy(np.concatenate([r.states for r in rollouts]), offsets)
 
 
 def ranker_zeta(ranker: AttributeRanker, rollouts: list[Rollout]) -> np.ndarray:
     """ζσ of each rollout's states, float[len(rollouts), k]."""
-    return ranker.score(_data(rollouts))
+    return ranker.score(rollout_data(rollouts))
 
 
 @dataclass
@@ -267,4 +268,4 @@ class RewardObjective:
 
     def __call__(self, rollouts: list[Rollout]) -> np.ndarray:
         with torch.no_grad():
-            return -LibraryScorer(self.reward, _data(rollouts)).returns(self.target)
+            return -LibraryScorer(self.reward, rollout_data(rollouts)).returns(self.target)

@@ -487,8 +487,9 @@ def test_the_soft_step_is_the_domains_unless_asked_and_kept_in_the_state(ctx, ga
         _gen(ctx, gap_roots, zeta_noise=1.5)
 
 
-def cli_context_option(gap_roots, monkeypatch, option: str, value: str, attribute: str) -> list:
-    """The generating context's ``attribute`` as ``rba eval`` sets it: with ``option value``, then without."""
+def cli_context_option(gap_roots, monkeypatch, option: str, value: str | None, attribute: str) -> list:
+    """The generating context's ``attribute`` as ``rba eval`` sets it: with ``option value`` (a flag: ``value``
+    None), then without."""
     monkeypatch.setenv("RBA_DATA_DIR", str(gap_roots[0]))
     monkeypatch.setenv("RBA_MODELS_DIR", str(gap_roots[1]))
     asked, load = [], GenerationContext.load.__func__
@@ -499,7 +500,7 @@ def cli_context_option(gap_roots, monkeypatch, option: str, value: str, attribut
         return gen
 
     monkeypatch.setattr(GenerationContext, "load", classmethod(recording_load))
-    for extra in ([option, value], []):
+    for extra in ([option] if value is None else [option, value], []):
         assert main(["eval", "--domain", "toy", "--targets", "1", "--gen-workers", "1", "--gen-budget", "8",
                      *extra]) == 0
     return asked

@@ -201,6 +201,9 @@ class Domain(ABC):
     # makes them from: where the proxies move smoothly with the parameters it orders nearby clips better than ζσ of
     # their states. 0: each clip's own ζσ. Chosen on val (generation_surface_val.md)
     zeta_surface: int = 0
+    # the generating agent re-fits ζσ's last layers near the target on the session's answers (rba.interact.refit):
+    # where ζσ's labels leave it least precise. Not with a surface. Chosen on val (session_refit_val.md)
+    session_refit: bool = False
     # the generating agent searches only where the library clip misses its target by more than this share of the
     # belief's half interquartile range (and the threshold): while it is unsure where the target is, a library clip
     # there asks as well as a made one, at once (0: by the threshold alone). Chosen on val (generation_spread_val.md,

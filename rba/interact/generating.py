@@ -52,12 +52,16 @@ from rba.generate import (
     in_process,
     ranker_zeta,
     replay,
+    rollout_data,
     search,
     surface_search,
 )
 from rba.interact.base import SATISFIED, Agent, Feedback
 from rba.interact.global_agent import GlobalAgent, GlobalContext
+from rba.interact.refit import Answered, refit_heads
+from rba.learn.common import Ragged
 from rba.learn.ranker import AttributeRanker
+from rba.library import SkillLibrary
 from rba.methods import get_method, methods
 from rba.surface import ZetaSurface
 
@@ -74,6 +78,7 @@ REPEAT = 0.01  # a made clip this near one judged before (unit box, per paramete
 POOL_KEEP = 8  # a search's runners-up the session keeps (the best by the search's objective) ...
 POOL_SIZE = 64  # ... up to this many in all, the oldest dropped first
 MIN_SECONDS = 0.05  # the least time bound a ζσ search after the surface's set-aside clip gets (it makes one clip)
+FEATURES_SIZE = 2048  # made clips whose summed features (``rba.interact.refit``) a context keeps
 Made = tuple[Rollout, np.ndarray]  # a made clip and its ζ as the agent reads it
 
 
@@ -108,6 +113,48 @@ class GeneratedStore:
         return found
 
 
+class FeatureCache:
+    """ζσ's summed features (``AttributeRanker.summed_features``) of the serve library (computed once, when first
+    asked for) and of recent made clips by id: what re-fitting ζσ's last layers on a session reads (thread-safe)."""
+
+    def __init__(self, size: int = FEATURES_SIZE) -> None:
+        self.size = size
+        self._serve: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # by the library's version
+        self._made: OrderedDict[str, tuple[np.ndarray, float]] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def serve(self, ranker: AttributeRanker, serve: SkillLibrary) -> tuple[np.ndarray, np.ndarray]:
+        """float[k, N, H] features and float[N] lengths of the serve library's clips."""
+        with self._lock:
+            if serve.version not in self._serve:
+                data = Ragged.from_numpy(serve.states, serve.state_offsets)
+                self._serve[serve.version] = ranker.summed_features(data)
+            return self._serve[serve.version]
+
+    def made(self, ranker: AttributeRanker, rollouts: list[Rollout]) -> list[tuple[np.ndarray, float]]:
+        """Each made clip's float[k, H] features and length: kept, else computed (and kept). One clip at a time:
+        the same clip's features are then the same bits whichever clips it was made with (a restored session)."""
+        found = []
+        for r in rollouts:
+            kept = self.get(r.id)
+            if kept is None:
+                phi, lengths = ranker.summed_features(rollout_data([r]))
+                kept = (phi[:, 0], float(lengths[0]))
+                with self._lock:
+                    self._made[r.id] = kept
+                    while len(self._made) > self.size:
+                        self._made.popitem(last=False)
+            found.append(kept)
+        return found
+
+    def get(self, rollout_id: str) -> tuple[np.ndarray, float] | None:
+        with self._lock:
+            found = self._made.get(rollout_id)
+            if found is not None:
+                self._made.move_to_end(rollout_id)
+            return found
+
+
 @dataclass
 class GenerationContext:
     """A ``GlobalContext`` plus what generating needs: the ζσ ranker for new clips, a simulator, a store."""
@@ -129,6 +176,10 @@ class GenerationContext:
     # fitted on construction from ``surface`` (then ``base`` reads the library on it); passed on by
     # ``dataclasses.replace`` (the app's per-step contexts), so a copy neither fits again nor smooths twice
     zeta_surface: ZetaSurface | None = None
+    # re-fit ζσ's last layers on the session's answers (``rba.interact.refit``; None: the domain's
+    # ``Domain.session_refit``); its features are shared by the copies ``with_heads`` makes
+    refit: bool | None = None
+    features: FeatureCache = field(default_factory=FeatureCache)
 
     def __post_init__(self) -> None:
         if self.objective not in OBJECTIVES:
@@ -146,6 +197,11 @@ class GenerationContext:
             self.surface = domain.zeta_surface
         if self.surface == 1 or self.surface < 0:
             raise ValueError(f"a ζσ surface fits a plane through 2 or more clips (0: none), got {self.surface}")
+        if self.refit is None:
+            self.refit = domain.session_refit
+        if self.refit and self.surface:
+            raise ValueError("a session's re-fit reads ζσ of each clip's states, the surface ζ̃ over the parameters: "
+                             "use one (surface=0 or refit=False)")
         self._space = domain.param_space()
         if self.surface and self.zeta_surface is None:
             self.zeta_surface = self._fit_surface()
@@ -205,11 +261,32 @@ class GenerationContext:
         """Made clips' ζ as the belief takes it: ζ̃ at their parameters on the surface, else ζσ of their states."""
         if self.zeta_surface is not None:
             return np.array([self.zeta_surface.at(self._space, r.params) for r in rollouts])
+        if self.ranker.heads is not None:  # re-fitted: the features are kept for the next fit
+            phi, lengths = zip(*self.features.made(self.ranker, rollouts), strict=True)
+            return self.ranker.zeta_of(np.stack(phi, 1), np.array(lengths), *self.ranker.head())
         return ranker_zeta(self.ranker, rollouts)
 
     def rollout(self, rollout_id: str, params: dict[str, float], seed: int) -> Rollout:
         """A generated rollout: from the store, else simulated again from its params and seed."""
         return self.store.rollout(self.base.domain, rollout_id, params, seed, self.simulate)
+
+    def with_heads(self, weight: np.ndarray, bias: np.ndarray) -> GenerationContext:
+        """This context with ζσ's last layers (weight, bias) per attribute: its ranker, and the serve library read
+        under them (``rba.interact.refit``)."""
+        phi, lengths = self.features.serve(self.ranker, self.base.serve)
+        base = replace(self.base, serve_zeta=self.ranker.zeta_of(phi, lengths, weight, bias))
+        return replace(self, base=base, ranker=self.ranker.with_heads(weight, bias))
+
+    def clip_features(self, rollout_id: str, made: dict | None) -> tuple[np.ndarray, float]:
+        """A clip's summed features and length: a serve clip's (``made`` None), or a made one's (its params, seed)."""
+        if made is None:
+            phi, lengths = self.features.serve(self.ranker, self.base.serve)
+            i = self.base.serve.index_of(rollout_id)
+            return phi[:, i], float(lengths[i])
+        found = self.features.get(rollout_id)
+        if found is None:
+            found = self.features.made(self.ranker, [self.rollout(rollout_id, made["params"], made["seed"])])[0]
+        return found
 
 
 class GeneratingGlobalAgent(Agent):
@@ -220,7 +297,8 @@ class GeneratingGlobalAgent(Agent):
 
     def __init__(self, ctx: GenerationContext, inner: GlobalAgent | None = None,
                  generated: dict[str, dict] | None = None, showing: str | None = None,
-                 searches: list[dict] | None = None, pool: dict[str, dict] | None = None) -> None:
+                 searches: list[dict] | None = None, pool: dict[str, dict] | None = None,
+                 answered: Answered | None = None) -> None:
         self.ctx = ctx
         self.inner = inner or GlobalAgent(ctx.base, zeta_noise=ctx.zeta_noise)
         # id -> {"params", "seed", "zeta", "round" it was shown at, "pooled" if a runner-up shown without a search}
@@ -228,6 +306,11 @@ class GeneratingGlobalAgent(Agent):
         self.pool = dict(pool or {})  # id -> {"params", "seed", "zeta"}: searches' runners-up, not shown yet
         self.showing = showing  # the generated clip shown now (None: the inner agent's library clip)
         self.searches = list(searches or [])  # per search: simulations, whether its clip was shown
+        # with ``ctx.refit``: per answer, the clip's id and the (attribute, ±1) said; ζσ's last layers are fitted on
+        # them (``rba.interact.refit``), and ``ctx`` is then a copy with those, read by everything below
+        self.answered: Answered = [(rid, [tuple(x) for x in asked]) for rid, asked in answered or []]
+        if self.answered:
+            self._refit()
         # wall-clock seconds of this object's searches: kept out of the state, which must be a function of the
         # answers alone (equal states share the server's memo of steps)
         self.seconds: list[float] = []
@@ -246,6 +329,12 @@ class GeneratingGlobalAgent(Agent):
         return self._choose(None, [])
 
     def update(self, feedback: Feedback) -> str:
+        names = self.ctx.base.attribute_names
+        if self.ctx.refit and not self.inner._is_satisfied(feedback, names):
+            shown = self.showing or self.ctx.base.serve.ids[self.inner.shown]
+            self.answered.append((shown, [(names.index(fb.attribute), fb.direction) for fb in feedback]))
+            self._refit()
+            self._read_again()
         before = self._zeta_shown()
         self.inner.shown_zeta = before if self.showing is not None else None
         try:
@@ -254,8 +343,29 @@ class GeneratingGlobalAgent(Agent):
             self.inner.shown_zeta = None
         if feedback == SATISFIED:
             return self.showing or library
-        names = self.ctx.base.attribute_names
         return self._choose(before, [(names.index(fb.attribute), fb.direction) for fb in feedback])
+
+    def _refit(self) -> None:
+        """ζσ's last layers fitted on the answers so far: ``ctx`` becomes a copy that reads clips with them."""
+        self.ctx = self.ctx.with_heads(*refit_heads(self.ctx.ranker, self.answered, self._features))
+        self.inner.ctx = self.ctx.base
+
+    def _features(self, rollout_id: str) -> tuple[np.ndarray, float]:
+        made = self.generated.get(rollout_id) or self.pool.get(rollout_id)
+        return self.ctx.clip_features(rollout_id, made)
+
+    def _read_again(self) -> None:
+        """Made clips' ζ, and where each earlier answer was given, read under the re-fitted ζσ (the answer just
+        given is placed by ``update``, at the shown clip's ζ)."""
+        for rollout_id, made in (*self.generated.items(), *self.pool.items()):
+            made["zeta"] = [float(v) for v in self._zeta_of(rollout_id)]
+        self.inner.answers = [(a, float(self._zeta_of(rid)[a]), h) for rid, asked in self.answered[:-1]
+                              for a, h in asked]
+        self.inner.target = self.inner._medians()
+
+    def _zeta_of(self, rollout_id: str) -> np.ndarray:
+        phi, length = self._features(rollout_id)
+        return self.ctx.ranker.zeta_of(phi[:, None], np.array([length]), *self.ctx.ranker.head())[0]
 
     def _starts(self, dist: ZetaDistance) -> list[dict[str, float]]:
         """Parameters of the ``STARTS`` clips nearest the target, library and this session's generated ones; on the
@@ -366,14 +476,15 @@ class GeneratingGlobalAgent(Agent):
 
     def state_dict(self) -> dict:
         return {**self.inner.state_dict(), "generation": {
-            "generated": self.generated, "showing": self.showing, "searches": self.searches, "pool": self.pool}}
+            "generated": self.generated, "showing": self.showing, "searches": self.searches, "pool": self.pool,
+            "answered": [[rid, [list(x) for x in asked]] for rid, asked in self.answered]}}
 
     @classmethod
     def from_state(cls, state: dict, context: GenerationContext) -> GeneratingGlobalAgent:
         inner = {k: v for k, v in state.items() if k != "generation"}
         gen = state.get("generation", {})
         return cls(context, GlobalAgent.from_state(inner, context.base), gen.get("generated"), gen.get("showing"),
-                   gen.get("searches"), gen.get("pool"))
+                   gen.get("searches"), gen.get("pool"), gen.get("answered"))
 
 
 def _left(seconds: float | None, spent: Generation | None) -> float | None:

@@ -13,6 +13,7 @@ answers instead; admins add orderings and comparisons of their own (``rba.labels
 
 from __future__ import annotations
 
+import copy
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -53,7 +54,13 @@ class RankerConfig:
 
 
 class AttributeRanker(nn.Module):
-    """fσ([s, e_α]) summed over a trajectory; ``attr_embed`` holds e_α for every attribute."""
+    """fσ([s, e_α]) summed over a trajectory; ``attr_embed`` holds e_α for every attribute.
+
+    fσ's last layer is linear, so ζσ is soft_clip(φ(τ, α) · w + T b), φ the last layer's input summed over the
+    trajectory (``summed_features``): a copy ``with_heads`` gives each attribute a last layer of its own
+    (``rba.interact.refit``: re-fitted near a session's target on its answers) while sharing everything below."""
+
+    heads: tuple[torch.Tensor, torch.Tensor] | None = None  # per-attribute last layers (float32[k, H], [k])
 
     def __init__(self, state_dim: int, attr_embed: torch.Tensor, hidden: int = 256, layers: int = 3,
                  clip: float = 20.0) -> None:
@@ -77,8 +84,52 @@ class AttributeRanker(nn.Module):
     def per_state(self, states: torch.Tensor, attr: int) -> torch.Tensor:
         """fσ for each state: float32[N] for float32[N, state_dim]."""
         check_shape(states, None, self.state_dim, name="states")
-        e = self.attr_embed[attr].expand(len(states), -1)
-        return self.f(torch.cat([self.norm(states), e], 1)).squeeze(1)
+        x = torch.cat([self.norm(states), self.attr_embed[attr].expand(len(states), -1)], 1)
+        if self.heads is None:
+            return self.f(x).squeeze(1)
+        weight, bias = self.heads
+        return self.f[:-1](x) @ weight[attr] + bias[attr]
+
+    def trained_head(self) -> tuple[np.ndarray, np.ndarray]:
+        """The trained last layer, as each attribute's: float64[k, H] weights, float64[k] biases."""
+        last = self.f[-1]
+        k = self.num_attributes
+        return (np.tile(last.weight.detach().double().numpy()[0], (k, 1)),
+                np.full(k, float(last.bias.detach()[0])))
+
+    def head(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each attribute's last layer as used now (``with_heads``, else the trained one)."""
+        if self.heads is None:
+            return self.trained_head()
+        return self.heads[0].double().numpy(), self.heads[1].double().numpy()
+
+    def with_heads(self, weight: np.ndarray, bias: np.ndarray) -> AttributeRanker:
+        """A copy (sharing every other weight) that scores attribute a with last layer ``weight[a], bias[a]``."""
+        check_shape(torch.as_tensor(weight), self.num_attributes, self.f[-1].in_features, name="weight")
+        check_shape(torch.as_tensor(bias), self.num_attributes, name="bias")
+        out = copy.copy(self)
+        out.heads = (torch.as_tensor(weight, dtype=torch.float32), torch.as_tensor(bias, dtype=torch.float32))
+        return out
+
+    @torch.no_grad()
+    def summed_features(self, data: Ragged, batch_states: int = 65536) -> tuple[np.ndarray, np.ndarray]:
+        """φ per attribute and trajectory, float64[k, N, H], and trajectory lengths T, float64[N]:
+        ζσ = soft_clip(φ · w + T b) for a last layer (w, b) (``zeta_of``)."""
+        self.eval()
+        seg = data.segment_ids()
+        out = np.zeros((self.num_attributes, len(data), self.f[-1].in_features))
+        for a in range(self.num_attributes):
+            for lo in range(0, len(data.states), batch_states):
+                s = data.states[lo:lo + batch_states]
+                h = self.f[:-1](torch.cat([self.norm(s), self.attr_embed[a].expand(len(s), -1)], 1))
+                out[a] += segment_sum(h.T, seg[lo:lo + batch_states], len(data)).T.double().numpy()
+        return out, data.lengths.double().numpy()
+
+    def zeta_of(self, features: np.ndarray, lengths: np.ndarray, weight: np.ndarray, bias: np.ndarray
+                ) -> np.ndarray:
+        """ζσ, float64[N, k], of trajectories given their ``summed_features``, under last layers (weight, bias)."""
+        raw = np.einsum("knh,kh->nk", features, weight) + lengths[:, None] * bias[None, :]
+        return self.clip * np.tanh(raw / self.clip)
 
     def trajectory_scores(self, states: torch.Tensor, seg: torch.Tensor, n: int, attr: int) -> torch.Tensor:
         """ζσ for ``n`` trajectories whose states are tagged by ``seg``: float32[n]."""
