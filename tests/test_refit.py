@@ -10,6 +10,7 @@ import pytest
 from rba.artifacts import load_model
 from rba.cli import main
 from rba.generate import is_generated
+from rba.interact import generating
 from rba.interact.base import AttributeFeedback
 from rba.interact.generating import GeneratingGlobalAgent, GenerationContext
 from rba.interact.global_agent import GlobalContext
@@ -122,6 +123,20 @@ def test_a_refitting_session_round_trips_through_json_and_continues_identically(
     answer = user.respond(i)
     assert restored.update(answer) == agent.update(answer)
     assert restored.state_dict() == agent.state_dict()
+
+
+def test_a_session_restored_in_the_same_process_reads_its_fitted_heads_instead_of_fitting(ctx, gap_roots,
+                                                                                          monkeypatch):
+    gen = _gen(ctx, gap_roots, threshold=0.0, spread=0.0)
+    agent = GeneratingGlobalAgent(gen)
+    _session(agent, ctx, 2)
+
+    def no_fit(*args, **kwargs):
+        raise AssertionError("fitted again")
+
+    monkeypatch.setattr(generating, "refit_heads", no_fit)
+    restored = GeneratingGlobalAgent.from_state(json.loads(json.dumps(agent.state_dict())), gen)
+    np.testing.assert_array_equal(restored.ctx.base.serve_zeta, agent.ctx.base.serve_zeta)
 
 
 def test_refit_is_the_domains_unless_asked_and_not_with_a_surface(ctx, gap_roots, monkeypatch):

@@ -121,6 +121,9 @@ class FeatureCache:
         self.size = size
         self._serve: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # by the library's version
         self._made: OrderedDict[str, tuple[np.ndarray, float]] = OrderedDict()
+        # the last layers fitted on a session's answers, by those answers: a restored session (the app restores
+        # one every step) reads them instead of fitting again
+        self._heads: OrderedDict[tuple, tuple[np.ndarray, np.ndarray]] = OrderedDict()
         self._lock = threading.Lock()
 
     def serve(self, ranker: AttributeRanker, serve: SkillLibrary) -> tuple[np.ndarray, np.ndarray]:
@@ -145,6 +148,22 @@ class FeatureCache:
                     while len(self._made) > self.size:
                         self._made.popitem(last=False)
             found.append(kept)
+        return found
+
+    def heads(self, answered: Answered, fit: Callable[[], tuple[np.ndarray, np.ndarray]]
+              ) -> tuple[np.ndarray, np.ndarray]:
+        """The last layers ``fit`` gives for ``answered``: kept from an earlier fit on the same answers, else fitted."""
+        key = tuple((rid, tuple(map(tuple, asked))) for rid, asked in answered)
+        with self._lock:
+            found = self._heads.get(key)
+            if found is not None:
+                self._heads.move_to_end(key)
+                return found
+        found = fit()
+        with self._lock:
+            self._heads[key] = found
+            while len(self._heads) > self.size:
+                self._heads.popitem(last=False)
         return found
 
     def get(self, rollout_id: str) -> tuple[np.ndarray, float] | None:
@@ -347,7 +366,9 @@ class GeneratingGlobalAgent(Agent):
 
     def _refit(self) -> None:
         """ζσ's last layers fitted on the answers so far: ``ctx`` becomes a copy that reads clips with them."""
-        self.ctx = self.ctx.with_heads(*refit_heads(self.ctx.ranker, self.answered, self._features))
+        heads = self.ctx.features.heads(self.answered,
+                                        lambda: refit_heads(self.ctx.ranker, self.answered, self._features))
+        self.ctx = self.ctx.with_heads(*heads)
         self.inner.ctx = self.ctx.base
 
     def _features(self, rollout_id: str) -> tuple[np.ndarray, float]:
