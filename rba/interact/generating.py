@@ -56,7 +56,7 @@ from rba.generate import (
     search,
     surface_search,
 )
-from rba.interact.base import SATISFIED, Agent, Feedback
+from rba.interact.base import SATISFIED, Agent, Feedback, validate_feedback
 from rba.interact.global_agent import GlobalAgent, GlobalContext
 from rba.interact.refit import Answered, refit_heads
 from rba.learn.common import Ragged
@@ -349,7 +349,8 @@ class GeneratingGlobalAgent(Agent):
 
     def update(self, feedback: Feedback) -> str:
         names = self.ctx.base.attribute_names
-        if self.ctx.refit and not self.inner._is_satisfied(feedback, names):
+        if self.ctx.refit and feedback != SATISFIED and self.shown is not None:
+            validate_feedback(feedback, self.feedback_kind, names)  # before it joins what the heads are fitted on
             shown = self.showing or self.ctx.base.serve.ids[self.inner.shown]
             self.answered.append((shown, [(names.index(fb.attribute), fb.direction) for fb in feedback]))
             self._refit()
@@ -380,9 +381,8 @@ class GeneratingGlobalAgent(Agent):
         given is placed by ``update``, at the shown clip's ζ)."""
         for rollout_id, made in (*self.generated.items(), *self.pool.items()):
             made["zeta"] = [float(v) for v in self._zeta_of(rollout_id)]
-        self.inner.answers = [(a, float(self._zeta_of(rid)[a]), h) for rid, asked in self.answered[:-1]
-                              for a, h in asked]
-        self.inner.target = self.inner._medians()
+        self.inner.reread([(a, float(self._zeta_of(rid)[a]), h) for rid, asked in self.answered[:-1]
+                           for a, h in asked])
 
     def _zeta_of(self, rollout_id: str) -> np.ndarray:
         phi, length = self._features(rollout_id)

@@ -156,6 +156,13 @@ class GlobalAgent(Agent):
             out[name] = (lo, hi)
         return out
 
+    def reread(self, answers: list[tuple[int, float, int]]) -> None:
+        """The same answers placed again, at where ζσ reads their clips now (``rba.interact.refit``)."""
+        if [(a, h) for a, _, h in answers] != [(a, h) for a, _, h in self.answers]:
+            raise ValueError("reread places the answers given again, each at a new ζ; not other answers")
+        self.answers = list(answers)
+        self.target = self._medians()
+
     def _argmax(self, query: np.ndarray) -> int:
         exclude = np.zeros(len(self.ctx.serve), dtype=bool)
         exclude[self.rejected[-REJECT_MEMORY:]] = True
