@@ -207,7 +207,11 @@ def test_refusals_name_what_is_valid(gen_settings):
         assert progress["detail"] == f"session {s['id']} is abandoned; it takes no more feedback (start a new session)"
 
 
-def test_a_session_showing_a_generated_clip_continues_after_a_restart(gen_settings, tmp_path):
+@pytest.mark.parametrize("refit", [False, True], ids=["zeta", "zeta-refit"])
+def test_a_session_showing_a_generated_clip_continues_after_a_restart(gen_settings, tmp_path, monkeypatch, refit):
+    """Also with ζσ re-fitted on the session's answers (``Domain.session_refit``): the restored session fits the
+    same heads from its stored answers."""
+    monkeypatch.setattr(Toy, "session_refit", refit)
     with TestClient(create_app(gen_settings, InProcessCompute())) as first:
         s = first.post("/api/sessions", json={"domain": "toy"}).json()
         shown = answer_generating(first, s)
@@ -229,6 +233,10 @@ def test_a_session_showing_a_generated_clip_continues_after_a_restart(gen_settin
         assert other["clip"]["rollout_id"] == after["clip"]["rollout_id"]
         assert [h["rollout_before"]["rollout_id"] for h in after["history"]] == \
                [h["rollout_before"]["rollout_id"] for h in other["history"]]
+        with Session(second.app.state.services.engine) as db:
+            answered = db.get(TuningSession, s["id"]).agent_state["generation"]["answered"]
+        assert [rid for rid, _ in answered] == ([h["rollout_before"]["rollout_id"] for h in after["history"]]
+                                                if refit else [])
 
 
 def fallback_of(client: TestClient, sid: str) -> str:
