@@ -21,7 +21,9 @@ from scipy.special import expit
 
 from rba.learn.ranker import AttributeRanker
 
-PULL = 0.1  # weight of ‖(w, b) − trained‖² against the pairs' mean Bradley-Terry loss (refit_val.md)
+# weight of ‖(w, b) − trained‖² against the pairs' mean Bradley-Terry loss: the probe's in ranker_precision_val.md,
+# not tuned yet (session_refit_val.md)
+PULL = 0.1
 Answered = list[tuple[str, list[tuple[int, int]]]]  # per answer: the clip's id, (attribute, ±1) per named attribute
 Features = Callable[[str], tuple[np.ndarray, float]]  # a clip's id -> its summed features float[k, H], its length
 
