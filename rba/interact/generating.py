@@ -25,6 +25,10 @@ run again, the pooled clip nearest the target is shown when it is nearer than th
 clips are far (a target no serve clip is near is why the agent searched), and each clip a user judges near the
 target is another draw at it.
 
+With ``GenerationContext.refit`` (``Domain.session_refit``; off everywhere so far) the agent fits ζσ's last layers
+again after each answer on the pairs its answers order (``rba.interact.refit``) and reads everything above under them:
+the library, its made and pooled clips, where its earlier answers were given, its searches' objective.
+
 State: the agent's JSON keeps, per generated clip, its params, seed and ζσ (a few numbers), not its
 states: the id is content-addressed (``gen-<hash of domain, params, seed>``), so anything that needs the
 clip itself (the simulated user, a render) asks ``GenerationContext.rollout``, which keeps recent ones in
