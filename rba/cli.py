@@ -390,6 +390,14 @@ def _eval_command(sub) -> argparse.ArgumentParser:
                    help="let the agent make clips beyond the serve library when none is close to its target; "
                         "default: on where the method can (RBA-Global) and the user can judge new clips (not "
                         "myopic); --no-generate: the library alone, to compare")
+    _generation_options(e)
+    _ray_option(e)
+    e.set_defaults(func=cmd_eval)
+    return e
+
+
+def _generation_options(e: argparse.ArgumentParser) -> None:
+    """``rba eval``'s options of the generating agent (``--generate``): its searches and how it reads clips."""
     e.add_argument("--gen-budget", type=_positive, default=48, help="simulations per generated clip at most")
     e.add_argument("--gen-seconds", type=seconds_arg, default=None,
                    help="bound each search in time as the app does (RBA_GENERATE_SECONDS): no CMA-ES generation "
@@ -417,9 +425,6 @@ def _eval_command(sub) -> argparse.ArgumentParser:
                         "(Domain.noisy_skill), else one; tune it on --split val")
     e.add_argument("--gen-workers", type=_positive, default=2,
                    help="local processes simulating candidates (1: this process)")
-    _ray_option(e)
-    e.set_defaults(func=cmd_eval)
-    return e
 
 
 def _render_command(sub) -> argparse.ArgumentParser:
