@@ -41,6 +41,7 @@ import threading
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from typing import Generic, TypeVar
 
 import numpy as np
 
@@ -86,96 +87,103 @@ FEATURES_SIZE = 2048  # made clips whose summed features (``rba.interact.refit``
 Made = tuple[Rollout, np.ndarray]  # a made clip and its ζ as the agent reads it
 
 
-class GeneratedStore:
-    """Recent generated rollouts by id (thread-safe): a cache, since (params, seed) remake any of them."""
+K = TypeVar("K")
+V = TypeVar("V")
 
-    def __init__(self, size: int = STORE_SIZE) -> None:
+
+class Recent(Generic[K, V]):
+    """The ``size`` most recently used values by key (thread-safe): the caches below, each of something that can
+    be made again."""
+
+    def __init__(self, size: int) -> None:
         self.size = size
-        self._items: OrderedDict[str, Rollout] = OrderedDict()
+        self._items: OrderedDict[K, V] = OrderedDict()
         self._lock = threading.Lock()
 
-    def put(self, rollout: Rollout) -> None:
+    def get(self, key: K) -> V | None:
         with self._lock:
-            self._items[rollout.id] = rollout
-            self._items.move_to_end(rollout.id)
+            found = self._items.get(key)
+            if found is not None:
+                self._items.move_to_end(key)
+            return found
+
+    def put(self, key: K, value: V) -> None:
+        with self._lock:
+            self._items[key] = value
+            self._items.move_to_end(key)
             while len(self._items) > self.size:
                 self._items.popitem(last=False)
 
+    def get_or_make(self, key: K, make: Callable[[], V]) -> V:
+        """The value kept for ``key``, else ``make()`` (outside the lock: it may take long), kept."""
+        found = self.get(key)
+        if found is None:
+            found = make()
+            self.put(key, found)
+        return found
+
+
+class GeneratedStore:
+    """Recent generated rollouts by id: a cache, since (params, seed) remake any of them."""
+
+    def __init__(self, size: int = STORE_SIZE) -> None:
+        self._recent: Recent[str, Rollout] = Recent(size)
+
+    def put(self, rollout: Rollout) -> None:
+        self._recent.put(rollout.id, rollout)
+
     def get(self, rollout_id: str) -> Rollout | None:
-        with self._lock:
-            return self._items.get(rollout_id)
+        return self._recent.get(rollout_id)
 
     def rollout(self, domain: str, rollout_id: str, params: dict[str, float], seed: int,
                 simulate: Simulate = in_process) -> Rollout:
         """A generated rollout: from here, else simulated again from its params and seed (and kept)."""
-        found = self.get(rollout_id)
-        if found is None:
-            found = replay(domain, params, seed, simulate)
-            if found.id != rollout_id:
-                raise ValueError(f"params and seed make {found.id}, not {rollout_id}")
-            self.put(found)
-        return found
+        return self._recent.get_or_make(rollout_id, lambda: _remade(domain, rollout_id, params, seed, simulate))
+
+
+def _remade(domain: str, rollout_id: str, params: dict[str, float], seed: int, simulate: Simulate) -> Rollout:
+    found = replay(domain, params, seed, simulate)
+    if found.id != rollout_id:
+        raise ValueError(f"params and seed make {found.id}, not {rollout_id}")
+    return found
+
+
+Features = tuple[np.ndarray, float]  # a clip's summed features float[k, H] and its length
 
 
 class FeatureCache:
     """ζσ's summed features (``AttributeRanker.summed_features``) of the serve library (computed once, when first
-    asked for) and of recent made clips by id: what re-fitting ζσ's last layers on a session reads (thread-safe)."""
+    asked for) and of recent made clips by id, and the last layers fitted per session's answers: what re-fitting
+    ζσ's last layers on a session reads (``rba.interact.refit``)."""
 
     def __init__(self, size: int = FEATURES_SIZE) -> None:
-        self.size = size
         self._serve: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # by the library's version
-        self._made: OrderedDict[str, tuple[np.ndarray, float]] = OrderedDict()
-        # the last layers fitted on a session's answers, by those answers: a restored session (the app restores
-        # one every step) reads them instead of fitting again
-        self._heads: OrderedDict[tuple, tuple[np.ndarray, np.ndarray]] = OrderedDict()
-        self._lock = threading.Lock()
+        self._serve_lock = threading.Lock()
+        self._made: Recent[str, Features] = Recent(size)
+        # by the answers they were fitted on: a restored session (the app restores one every step) reads them
+        self._heads: Recent[tuple, tuple[np.ndarray, np.ndarray]] = Recent(size)
 
     def serve(self, ranker: AttributeRanker, serve: SkillLibrary) -> tuple[np.ndarray, np.ndarray]:
         """float[k, N, H] features and float[N] lengths of the serve library's clips."""
-        with self._lock:
+        with self._serve_lock:
             if serve.version not in self._serve:
                 data = Ragged.from_numpy(serve.states, serve.state_offsets)
                 self._serve[serve.version] = ranker.summed_features(data)
             return self._serve[serve.version]
 
-    def made(self, ranker: AttributeRanker, rollouts: list[Rollout]) -> list[tuple[np.ndarray, float]]:
-        """Each made clip's float[k, H] features and length: kept, else computed (and kept). One clip at a time:
+    def made(self, ranker: AttributeRanker, rollout_id: str, rollout: Callable[[], Rollout]) -> Features:
+        """A made clip's features: kept, else computed from ``rollout()`` (only then asked for). One clip at a time:
         the same clip's features are then the same bits whichever clips it was made with (a restored session)."""
-        found = []
-        for r in rollouts:
-            kept = self.get(r.id)
-            if kept is None:
-                phi, lengths = ranker.summed_features(rollout_data([r]))
-                kept = (phi[:, 0], float(lengths[0]))
-                with self._lock:
-                    self._made[r.id] = kept
-                    while len(self._made) > self.size:
-                        self._made.popitem(last=False)
-            found.append(kept)
-        return found
+        def compute() -> Features:
+            phi, lengths = ranker.summed_features(rollout_data([rollout()]))
+            return phi[:, 0], float(lengths[0])
+
+        return self._made.get_or_make(rollout_id, compute)
 
     def heads(self, answered: Answered, fit: Callable[[], tuple[np.ndarray, np.ndarray]]
               ) -> tuple[np.ndarray, np.ndarray]:
         """The last layers ``fit`` gives for ``answered``: kept from an earlier fit on the same answers, else fitted."""
-        key = tuple((rid, tuple(map(tuple, asked))) for rid, asked in answered)
-        with self._lock:
-            found = self._heads.get(key)
-            if found is not None:
-                self._heads.move_to_end(key)
-                return found
-        found = fit()
-        with self._lock:
-            self._heads[key] = found
-            while len(self._heads) > self.size:
-                self._heads.popitem(last=False)
-        return found
-
-    def get(self, rollout_id: str) -> tuple[np.ndarray, float] | None:
-        with self._lock:
-            found = self._made.get(rollout_id)
-            if found is not None:
-                self._made.move_to_end(rollout_id)
-            return found
+        return self._heads.get_or_make(tuple((rid, tuple(map(tuple, asked))) for rid, asked in answered), fit)
 
 
 @dataclass
@@ -285,7 +293,8 @@ class GenerationContext:
         if self.zeta_surface is not None:
             return np.array([self.zeta_surface.at(self._space, r.params) for r in rollouts])
         if self.ranker.heads is not None:  # re-fitted: the features are kept for the next fit
-            phi, lengths = zip(*self.features.made(self.ranker, rollouts), strict=True)
+            made = [self.features.made(self.ranker, r.id, lambda r=r: r) for r in rollouts]
+            phi, lengths = zip(*made, strict=True)
             return self.ranker.zeta_of(np.stack(phi, 1), np.array(lengths), *self.ranker.head())
         return ranker_zeta(self.ranker, rollouts)
 
@@ -300,16 +309,14 @@ class GenerationContext:
         base = replace(self.base, serve_zeta=self.ranker.zeta_of(phi, lengths, weight, bias))
         return replace(self, base=base, ranker=self.ranker.with_heads(weight, bias))
 
-    def clip_features(self, rollout_id: str, made: dict | None) -> tuple[np.ndarray, float]:
+    def clip_features(self, rollout_id: str, made: dict | None) -> Features:
         """A clip's summed features and length: a serve clip's (``made`` None), or a made one's (its params, seed)."""
         if made is None:
             phi, lengths = self.features.serve(self.ranker, self.base.serve)
             i = self.base.serve.index_of(rollout_id)
             return phi[:, i], float(lengths[i])
-        found = self.features.get(rollout_id)
-        if found is None:
-            found = self.features.made(self.ranker, [self.rollout(rollout_id, made["params"], made["seed"])])[0]
-        return found
+        return self.features.made(self.ranker, rollout_id,
+                                  lambda: self.rollout(rollout_id, made["params"], made["seed"]))
 
 
 class GeneratingGlobalAgent(Agent):
@@ -376,7 +383,7 @@ class GeneratingGlobalAgent(Agent):
         self.ctx = self.ctx.with_heads(*heads)
         self.inner.ctx = self.ctx.base
 
-    def _features(self, rollout_id: str) -> tuple[np.ndarray, float]:
+    def _features(self, rollout_id: str) -> Features:
         made = self.generated.get(rollout_id) or self.pool.get(rollout_id)
         return self.ctx.clip_features(rollout_id, made)
 
@@ -385,8 +392,8 @@ class GeneratingGlobalAgent(Agent):
         given is placed by ``update``, at the shown clip's ζ)."""
         for rollout_id, made in (*self.generated.items(), *self.pool.items()):
             made["zeta"] = [float(v) for v in self._zeta_of(rollout_id)]
-        self.inner.reread([(a, float(self._zeta_of(rid)[a]), h) for rid, asked in self.answered[:-1]
-                           for a, h in asked])
+        placed = [(self._zeta_of(rid), asked) for rid, asked in self.answered[:-1]]
+        self.inner.reread([(a, float(z[a]), h) for z, asked in placed for a, h in asked])
 
     def _zeta_of(self, rollout_id: str) -> np.ndarray:
         phi, length = self._features(rollout_id)
