@@ -32,7 +32,8 @@ def ranker(gap_roots):
 
 
 def _gen(ctx, gap_roots, **options) -> GenerationContext:
-    return GenerationContext.load(ctx, gap_roots[1], refit=True, **options)
+    """A re-fitting context; from the first answer on unless ``refit_after`` is given (the toy's sessions are short)."""
+    return GenerationContext.load(ctx, gap_roots[1], **{"refit": True, "refit_after": 1, **options})
 
 
 def test_summed_features_and_heads_reproduce_the_rankers_scores(ctx, ranker):
@@ -109,6 +110,19 @@ def test_answers_refit_the_agents_zeta_and_everything_it_reads_moves_with_it(ctx
     a, h = asked[0]
     z = agent._zeta_of(first_id)[a]
     assert agent.inner.answers[0] == (a, pytest.approx(z), h)  # the first answer sits where its clip is read now
+
+
+def test_a_session_shorter_than_refit_after_is_the_session_without_refit(ctx, gap_roots):
+    agents = [GeneratingGlobalAgent(_gen(ctx, gap_roots, threshold=0.0, spread=0.0, refit=on, refit_after=3))
+              for on in (True, False)]
+    shown = [_session(agent, ctx, 2)[1] for agent in agents]
+    assert shown[0] == shown[1] and len(agents[0].answered) == 2 and agents[0].ctx.ranker.heads is None
+    np.testing.assert_array_equal(agents[0].ctx.base.serve_zeta, ctx.serve_zeta)
+    refitting = agents[0]
+    _session(refitting, ctx, 1)  # the third answer: the first fit
+    assert len(refitting.answered) == 3 and refitting.ctx.ranker.heads is not None
+    with pytest.raises(ValueError, match=r"refit_after counts the answers before the first re-fit \(≥ 1\), got 0"):
+        _gen(ctx, gap_roots, refit_after=0)
 
 
 def test_a_refitting_session_round_trips_through_json_and_continues_identically(ctx, gap_roots):

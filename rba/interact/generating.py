@@ -26,8 +26,9 @@ clips are far (a target no serve clip is near is why the agent searched), and ea
 target is another draw at it.
 
 With ``GenerationContext.refit`` (``Domain.session_refit``; off everywhere so far) the agent fits ζσ's last layers
-again after each answer on the pairs its answers order (``rba.interact.refit``) and reads everything above under them:
-the library, its made and pooled clips, where its earlier answers were given, its searches' objective.
+again after each answer, from the ``refit_after``-th on, on the pairs its answers order (``rba.interact.refit``),
+and reads everything above under them: the library, its made and pooled clips, where its earlier answers were
+given, its searches' objective.
 
 State: the agent's JSON keeps, per generated clip, its params, seed and ζσ (a few numbers), not its
 states: the id is content-addressed (``gen-<hash of domain, params, seed>``), so anything that needs the
@@ -63,7 +64,7 @@ from rba.generate import (
 )
 from rba.interact.base import SATISFIED, Agent, Feedback, validate_feedback
 from rba.interact.global_agent import GlobalAgent, GlobalContext
-from rba.interact.refit import Answered, refit_heads
+from rba.interact.refit import REFIT_AFTER, Answered, refit_heads
 from rba.learn.common import Ragged
 from rba.learn.ranker import AttributeRanker
 from rba.library import SkillLibrary
@@ -210,6 +211,7 @@ class GenerationContext:
     # re-fit ζσ's last layers on the session's answers (``rba.interact.refit``; None: the domain's
     # ``Domain.session_refit``); its features are shared by the copies ``with_heads`` makes
     refit: bool | None = None
+    refit_after: int | None = None  # answers before the first re-fit (None: ``rba.interact.refit.REFIT_AFTER``)
     features: FeatureCache = field(default_factory=FeatureCache)
 
     def __post_init__(self) -> None:
@@ -230,6 +232,10 @@ class GenerationContext:
             raise ValueError(f"a ζσ surface fits a plane through 2 or more clips (0: none), got {self.surface}")
         if self.refit is None:
             self.refit = domain.session_refit
+        if self.refit_after is None:
+            self.refit_after = REFIT_AFTER
+        if self.refit_after < 1:
+            raise ValueError(f"refit_after counts the answers before the first re-fit (≥ 1), got {self.refit_after}")
         if self.refit and self.surface:
             raise ValueError("a session's re-fit reads ζσ of each clip's states, the surface ζ̃ over the parameters: "
                              "use one (surface=0 or refit=False)")
@@ -339,7 +345,7 @@ class GeneratingGlobalAgent(Agent):
         # with ``ctx.refit``: per answer, the clip's id and the (attribute, ±1) said; ζσ's last layers are fitted on
         # them (``rba.interact.refit``), and ``ctx`` is then a copy with those, read by everything below
         self.answered: Answered = [(rid, [tuple(x) for x in asked]) for rid, asked in answered or []]
-        if self.answered:
+        if self._fitted():
             self._refit()
         # wall-clock seconds of this object's searches: kept out of the state, which must be a function of the
         # answers alone (equal states share the server's memo of steps)
@@ -364,8 +370,9 @@ class GeneratingGlobalAgent(Agent):
             validate_feedback(feedback, self.feedback_kind, names)  # before it joins what the heads are fitted on
             shown = self.showing or self.ctx.base.serve.ids[self.inner.shown]
             self.answered.append((shown, [(names.index(fb.attribute), fb.direction) for fb in feedback]))
-            self._refit()
-            self._read_again()
+            if self._fitted():
+                self._refit()
+                self._read_again()
         before = self._zeta_shown()
         self.inner.shown_zeta = before if self.showing is not None else None
         try:
@@ -375,6 +382,10 @@ class GeneratingGlobalAgent(Agent):
         if feedback == SATISFIED:
             return self.showing or library
         return self._choose(before, [(names.index(fb.attribute), fb.direction) for fb in feedback])
+
+    def _fitted(self) -> bool:
+        """Whether enough answers were given for ζσ's last layers to be re-fitted on them (``refit_after``)."""
+        return len(self.answered) >= self.ctx.refit_after
 
     def _refit(self) -> None:
         """ζσ's last layers fitted on the answers so far: ``ctx`` becomes a copy that reads clips with them."""

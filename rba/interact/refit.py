@@ -8,7 +8,8 @@ each answer, each attribute's last layer of fσ (``AttributeRanker.with_heads``)
 the session's answers make (Bradley-Terry), pulled towards the trained weights (``PULL``) so that a few answers
 move it a little; everything the agent reads in ζσ is then read under the new last layers.
 
-Only named directions make pairs: a person who names one attribute says nothing about the others.
+Only named directions make pairs: a person who names one attribute says nothing about the others. The first fit
+waits for ``REFIT_AFTER`` answers: a few answers make a few pairs, and a fit on those moved ζσ more than they say.
 """
 
 from __future__ import annotations
@@ -24,6 +25,10 @@ from rba.learn.ranker import AttributeRanker
 # weight of ‖(w, b) − trained‖² against the pairs' mean Bradley-Terry loss: the probe's in ranker_precision_val.md,
 # not tuned yet (session_refit_val.md)
 PULL = 0.1
+# answers a session gives before the first fit: a session at normal precision ends within a few answers, and fits on
+# their few pairs cost it answers on val (four draws of 20 snake targets, all four longer); one at high precision
+# gives dozens (session_refit_val.md)
+REFIT_AFTER = 10
 Answered = list[tuple[str, list[tuple[int, int]]]]  # per answer: the clip's id, (attribute, ±1) per named attribute
 Features = Callable[[str], tuple[np.ndarray, float]]  # a clip's id -> its summed features float[k, H], its length
 

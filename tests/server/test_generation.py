@@ -17,7 +17,7 @@ from sqlmodel import Session
 
 from rba.export import read_export, replay
 from rba.generate import generated_id, is_generated
-from rba.interact import AttributeFeedback
+from rba.interact import AttributeFeedback, generating
 from rba.interact.generating import GeneratingGlobalAgent
 from server.admin_models import BUILTIN_VERSION
 from server.exporting import export_to_file
@@ -209,9 +209,10 @@ def test_refusals_name_what_is_valid(gen_settings):
 
 @pytest.mark.parametrize("refit", [False, True], ids=["zeta", "zeta-refit"])
 def test_a_session_showing_a_generated_clip_continues_after_a_restart(gen_settings, tmp_path, monkeypatch, refit):
-    """Also with ζσ re-fitted on the session's answers (``Domain.session_refit``): the restored session fits the
-    same heads from its stored answers."""
+    """Also with ζσ re-fitted on the session's answers (``Domain.session_refit``, here from the first answer on): the
+    restored session fits the same heads from its stored answers."""
     monkeypatch.setattr(Toy, "session_refit", refit)
+    monkeypatch.setattr(generating, "REFIT_AFTER", 1)
     with TestClient(create_app(gen_settings, InProcessCompute())) as first:
         s = first.post("/api/sessions", json={"domain": "toy"}).json()
         shown = answer_generating(first, s)
