@@ -330,9 +330,6 @@ class Snake(Domain):
     frame_rate = 1.0 / (FRAME_EVERY * CONTROL_EVERY * TIMESTEP)
     feedback_phrases = FEEDBACK_PHRASES
     zeta_noise = 0.03  # the generating agent's soft step: val AF lowest with SR held (generation_noise_val.md)
-    # the generating agent re-fits ζσ's last layers on the session's answers from the 10th on: on three val draws at
-    # high precision 3,367 answers against 5,705, one target missed against two (session_refit_val.md)
-    session_refit = True
 
     def __init__(self) -> None:
         self._model: mujoco.MjModel | None = None
