@@ -115,11 +115,13 @@ def test_answers_refit_the_agents_zeta_and_everything_it_reads_moves_with_it(ctx
 def test_a_session_shorter_than_refit_after_is_the_session_without_refit(ctx, gap_roots):
     agents = [GeneratingGlobalAgent(_gen(ctx, gap_roots, threshold=0.0, spread=0.0, refit=on, refit_after=3))
               for on in (True, False)]
-    shown = [_session(agent, ctx, 2)[1] for agent in agents]
-    assert shown[0] == shown[1] and len(agents[0].answered) == 2 and agents[0].ctx.ranker.heads is None
-    np.testing.assert_array_equal(agents[0].ctx.base.serve_zeta, ctx.serve_zeta)
+    (user, rid), (_, rid_off) = [_session(agent, ctx, 2) for agent in agents]
     refitting = agents[0]
-    _session(refitting, ctx, 1)  # the third answer: the first fit
+    assert rid == rid_off and len(refitting.answered) == 2 and refitting.ctx.ranker.heads is None
+    np.testing.assert_array_equal(refitting.ctx.base.serve_zeta, ctx.serve_zeta)
+    i = ctx.serve.index_of(rid) if not is_generated(rid) else user.add_clip(
+        [refitting.rollout(rid).proxies[a] for a in ctx.serve.attribute_names])
+    refitting.update(user.respond(i))  # the third answer: the first fit
     assert len(refitting.answered) == 3 and refitting.ctx.ranker.heads is not None
     with pytest.raises(ValueError, match=r"refit_after counts the answers before the first re-fit \(≥ 1\), got 0"):
         _gen(ctx, gap_roots, refit_after=0)

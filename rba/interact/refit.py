@@ -5,11 +5,12 @@ its labels, not the model (``benchmarks/results/ranker_precision_val.md``). A se
 dozens of clips near one target, and every pair of them where one was answered "more α" and the other "less α"
 is a correctly ordered label exactly there: the first shows less α than the target, the second more. So after
 each answer, each attribute's last layer of fσ (``AttributeRanker.with_heads``) is fitted again on the pairs
-the session's answers make (Bradley-Terry), pulled towards the trained weights (``PULL``) so that a few answers
-move it a little; everything the agent reads in ζσ is then read under the new last layers.
+the session's answers make (Bradley-Terry), pulled towards the trained weights (``PULL``); everything the agent
+reads in ζσ is then read under the new last layers.
 
 Only named directions make pairs: a person who names one attribute says nothing about the others. The first fit
-waits for ``REFIT_AFTER`` answers: a few answers make a few pairs, and a fit on those moved ζσ more than they say.
+waits for ``REFIT_AFTER`` answers: the loss is the pairs' mean, so a pair or two move the last layer as far as
+many do, further than they say.
 """
 
 from __future__ import annotations
