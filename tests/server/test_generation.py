@@ -213,6 +213,8 @@ def test_a_session_showing_a_generated_clip_continues_after_a_restart(gen_settin
     restored session fits the same heads from its stored answers."""
     monkeypatch.setattr(Toy, "session_refit", refit)
     monkeypatch.setattr(generating, "REFIT_AFTER", 1)
+    fits, fit = [], generating.refit_heads
+    monkeypatch.setattr(generating, "refit_heads", lambda *args: fits.append(len(args[1])) or fit(*args))
     with TestClient(create_app(gen_settings, InProcessCompute())) as first:
         s = first.post("/api/sessions", json={"domain": "toy"}).json()
         shown = answer_generating(first, s)
@@ -238,6 +240,7 @@ def test_a_session_showing_a_generated_clip_continues_after_a_restart(gen_settin
             answered = db.get(TuningSession, s["id"]).agent_state["generation"]["answered"]
         assert [rid for rid, _ in answered] == ([h["rollout_before"]["rollout_id"] for h in after["history"]]
                                                 if refit else [])
+    assert bool(fits) == refit  # the heads were fitted on the answers, and only with the re-fit
 
 
 def fallback_of(client: TestClient, sid: str) -> str:
