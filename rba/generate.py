@@ -16,6 +16,7 @@ domain's skill is noisy), so a search gives the same rollout every time.
 from __future__ import annotations
 
 import hashlib
+import itertools
 import json
 import logging
 import math
@@ -137,9 +138,15 @@ def _out_of_time(elapsed: float, generations: int, seconds: float | None) -> boo
 def _simulate_until(simulate: Simulate, jobs: list[SimJob], deadline: float) -> list[Rollout]:
     """The jobs' rollouts in order, or those before the first to arrive after ``deadline`` (``perf_counter``)
     once one succeeded: closing the stream cancels the jobs not started (a slow candidate, e.g. a snake
-    that swims its whole horizon, must not hold the clip a person waits for)."""
+    that swims its whole horizon, must not hold the clip a person waits for). The jobs are handed over one at
+    a time, and none after the deadline once one succeeded: a backend that takes them as its workers free up
+    (``LocalCompute``) starts nothing the clip's render would then wait for."""
     rollouts: list[Rollout] = []
-    stream = iter(simulate(jobs))
+
+    def in_time(_: SimJob) -> bool:
+        return time.perf_counter() <= deadline or not any(r.success for r in rollouts)
+
+    stream = iter(simulate(itertools.takewhile(in_time, jobs)))
     try:
         for rollout in stream:
             rollouts.append(rollout)

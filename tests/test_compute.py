@@ -139,6 +139,22 @@ def test_simulate_keeps_the_jobs_order(local_compute):
     assert all(np.array_equal(a.states, b.states) for a, b in zip(got, local_compute.simulate(jobs), strict=True))
 
 
+def test_a_searchs_jobs_are_taken_as_workers_free_up_and_none_once_the_stream_is_closed(local_compute):
+    """A search out of time closes its stream: what the pool had already been handed ran anyway, and the clip
+    rendered next waited for it. Jobs are now taken one per free worker, so at most one more than the workers."""
+    target, taken = domain_target("toy"), []
+
+    def jobs():
+        for i in range(9):
+            taken.append(i)
+            yield SimJob(target, {"amplitude": 0.2 + 0.05 * i, "pace": 0.5}, seed=i)
+
+    stream = local_compute.simulate(jobs())
+    assert next(stream).seed == 0
+    stream.close()
+    assert 1 <= len(taken) <= local_compute.workers + 1  # handed over at once, all 9 were taken
+
+
 def test_a_generated_clip_is_rendered_in_parts_on_the_workers_and_joined(local_compute, tmp_path):
     """Both workers render half the clip each; joined, it is every frame, and the split, not the number of workers,
     decides the bytes. A library clip (split 1) renders whole: the bytes ``rba render`` writes."""

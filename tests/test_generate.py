@@ -7,18 +7,21 @@ alone cannot succeed there; with generation it makes a clip that does, seeded an
 from __future__ import annotations
 
 import json
+import math
 import time
 
 import numpy as np
 import pytest
 
 from rba.cli import main
-from rba.domains import ParamSpace, get_domain
+from rba.compute import SimJob
+from rba.domains import ParamSpace, domain_target, get_domain
 from rba.evaluate import beyond_targets, evaluate, simulate
 from rba.generate import (
     SearchConfig,
     ZetaDistance,
     _out_of_time,
+    _simulate_until,
     generated_id,
     in_process,
     is_generated,
@@ -140,6 +143,35 @@ def test_a_generation_running_past_the_bound_ends_with_what_was_simulated_by_the
     started.clear()
     unbounded = search("toy", [start], dist, slow, SearchConfig(budget=16, popsize=8))
     assert unbounded.simulations == len(started) == 16
+
+
+def test_a_search_out_of_time_hands_over_no_more_jobs(ctx, gap_roots):
+    """A backend takes the next job as soon as a worker is free, before the search has seen the rollout that freed
+    it (``LocalCompute``): past the deadline, once a candidate succeeded, the search gives it none, so nothing is
+    simulated that the search would not wait for."""
+    start = dict(zip(ctx.serve.param_names, map(float, ctx.serve.params[0]), strict=True))
+    jobs = [SimJob(domain_target("toy"), start, seed=i) for i in range(8)]
+    taken: list[SimJob] = []
+
+    def take(stream) -> SimJob | None:
+        job = next(stream, None)
+        if job is not None:
+            taken.append(job)
+        return job
+
+    def one_worker(stream):  # each job takes 0.1 s; the freed worker takes the next before handing this one's over
+        stream = iter(stream)
+        job = take(stream)
+        while job is not None:
+            time.sleep(0.1)
+            (rollout,) = in_process([job])
+            job = take(stream)
+            yield rollout
+
+    got = _simulate_until(one_worker, jobs, time.perf_counter() + 0.25)
+    assert len(got) == 3 and len(taken) == 3  # without the gate a 4th was taken at 0.3 s, past the deadline
+    taken.clear()
+    assert len(_simulate_until(one_worker, jobs, math.inf)) == len(taken) == 8
 
 
 def test_fixed_parameters_keep_the_start_clips_value(ctx, gap_roots, monkeypatch):

@@ -149,7 +149,9 @@ class Compute(ABC):
 
     @abstractmethod
     def simulate(self, jobs: Iterable[SimJob]) -> Iterator[Rollout]:
-        """Each job's rollout, in the jobs' order, as they finish (a library build streams through this)."""
+        """Each job's rollout, in the jobs' order, as they finish (a library build streams through this). A backend
+        may take the jobs only as it has room for them (``LocalCompute``: a search's), so an iterator of jobs that
+        stops early (a search out of time) starts no more."""
 
     @abstractmethod
     def render(self, job: RenderJob, urgent: bool = True) -> Task:

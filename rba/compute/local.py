@@ -13,8 +13,9 @@ import logging
 import multiprocessing as mp
 import os
 import threading
-from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import Future, ProcessPoolExecutor
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator, Sized
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 
 from rba.compute import tasks
@@ -107,11 +108,41 @@ class LocalCompute(Compute):
         return self.workers
 
     def simulate(self, jobs: Iterable[SimJob]) -> Iterator[Rollout]:
-        """In order, in chunks of ``sim_chunk`` rollouts per round trip."""
-        jobs = list(jobs)
-        chunk = sim_chunk(len(jobs), self.workers)
-        yield from self._urgent.executor.map(tasks.simulate, [j.target for j in jobs], [j.params for j in jobs],
-                                             [j.seed for j in jobs], chunksize=chunk)
+        """In order: a library's many jobs in chunks of ``sim_chunk`` rollouts per round trip; a search's few (or
+        jobs given as an iterator) one per worker at a time (``_one_per_worker``)."""
+        if isinstance(jobs, Sized) and (chunk := sim_chunk(len(jobs), self.workers)) > 1:
+            jobs = list(jobs)
+            yield from self._urgent.executor.map(tasks.simulate, [j.target for j in jobs], [j.params for j in jobs],
+                                                 [j.seed for j in jobs], chunksize=chunk)
+        else:
+            yield from self._one_per_worker(iter(jobs))
+
+    def _one_per_worker(self, jobs: Iterator[SimJob]) -> Iterator[Rollout]:
+        """At most one simulation per worker in flight, the next job taken from ``jobs`` only when a worker is free.
+
+        Why: a search out of time stops taking jobs and closes the stream; jobs handed to the pool before then
+        ran anyway (the pool queues one more than it has workers, beyond cancelling), and the clip the search
+        made, rendered next on the same workers, waited for them: 0.5-2.0 s for a snake clip after a cut search
+        against 0.3-0.6 s after a whole one (``benchmarks/results/generation_latency.md``).
+        """
+        window: deque[Future] = deque()
+
+        def fill() -> None:
+            while sum(not f.done() for f in window) < self.workers and (job := next(jobs, None)) is not None:
+                window.append(self._urgent.submit(tasks.simulate, job.target, job.params, job.seed).future)
+
+        try:
+            fill()
+            while window:
+                while not window[0].done():
+                    wait([f for f in window if not f.done()], return_when=FIRST_COMPLETED)
+                    fill()
+                rollout = window.popleft().result()
+                yield rollout
+                fill()
+        finally:
+            for f in window:
+                f.cancel()
 
     def render(self, job: RenderJob, urgent: bool = True) -> Task:
         """The clip's parts on the pool's workers at once, joined on one of them."""
