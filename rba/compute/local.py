@@ -125,24 +125,27 @@ class LocalCompute(Compute):
         made, rendered next on the same workers, waited for them: 0.5-2.0 s for a snake clip after a cut search
         against 0.3-0.6 s after a whole one (``benchmarks/results/generation_latency.md``).
         """
-        window: deque[Future] = deque()
+        window: deque[Task] = deque()
+
+        def running() -> list[Future]:
+            return [t.future for t in window if not t.future.done()]
 
         def fill() -> None:
-            while sum(not f.done() for f in window) < self.workers and (job := next(jobs, None)) is not None:
-                window.append(self._urgent.submit(tasks.simulate, job.target, job.params, job.seed).future)
+            while len(running()) < self.workers and (job := next(jobs, None)) is not None:
+                window.append(self._urgent.submit(tasks.simulate, job.target, job.params, job.seed))
 
         try:
             fill()
             while window:
-                while not window[0].done():
-                    wait([f for f in window if not f.done()], return_when=FIRST_COMPLETED)
+                while not window[0].future.done():
+                    wait(running(), return_when=FIRST_COMPLETED)
                     fill()
-                rollout = window.popleft().result()
+                rollout = window.popleft().future.result()
                 yield rollout
                 fill()
         finally:
-            for f in window:
-                f.cancel()
+            for task in window:  # queued behind a render, not started: dropped (a started one runs to its end)
+                task.cancel()
 
     def render(self, job: RenderJob, urgent: bool = True) -> Task:
         """The clip's parts on the pool's workers at once, joined on one of them."""
