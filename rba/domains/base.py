@@ -203,7 +203,7 @@ class Domain(ABC):
     zeta_surface: int = 0
     # the generating agent re-fits ζσ's last layers near the target on the session's answers (rba.interact.refit):
     # where ζσ's labels leave it least precise. Not with a surface. On for the snake (session_refit_val.md: its val
-    # answers fell by 41 % over three draws; the manipulator's rose)
+    # answers fell by 41 % over three draws; the manipulator's rose by 9.5 %)
     session_refit: bool = False
     # the generating agent searches only where the library clip misses its target by more than this share of the
     # belief's half interquartile range (and the threshold): while it is unsure where the target is, a library clip
