@@ -54,14 +54,15 @@ def _local_card(rep: str) -> str:
     card = load_model("walker", "local_reward", rep).card
     h = card["held_out"]
     return (f"local_reward-{rep}: target above negative {h['target_vs_negative']:.3f}, above anchor "
-            f"{h['target_vs_anchor']:.3f} ({h['pairs']} test pairs); argmax over serve is a useful edit "
+            f"{h['target_vs_anchor']:.3f} ({h['pairs']} {h['split']} pairs); argmax over serve is a useful edit "
             f"{h['argmax_over_serve']['useful_edit_rate']:.2f} of the time; trained in "
             f"{card['training']['seconds']:.0f} s")
 
 
 def _global_card(rep: str) -> str:
     card = load_model("walker", "global_reward", rep).card
-    return f"global_reward-{rep}: argmax within ε of a test target {card['held_out']['argmax_within_epsilon']:.2f}"
+    h = card["held_out"]
+    return f"global_reward-{rep}: argmax within ε of a {h['split']} target {h['argmax_within_epsilon']:.2f}"
 
 
 def _pbrl_config(_rep: str) -> str:
