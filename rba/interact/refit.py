@@ -27,9 +27,10 @@ from rba.learn.ranker import AttributeRanker
 # not tuned yet (session_refit_val.md)
 PULL = 0.1
 # answers a session gives before the first fit: a session at normal precision ends within a few answers, and fits on
-# their few pairs cost it answers on val (four draws of 20 snake targets, all four longer); one at high precision
-# gives dozens (session_refit_val.md)
-REFIT_AFTER = 10
+# their few pairs cost it answers on val (from the 1st answer: all four draws of 20 snake targets longer; from the
+# 5th: one session; from the 7th: none); one at high precision gives dozens, and there 7 took 21 % fewer answers
+# than 10 over three val draws (session_refit_val.md)
+REFIT_AFTER = 7
 Answered = list[tuple[str, list[tuple[int, int]]]]  # per answer: the clip's id, (attribute, ±1) per named attribute
 Features = Callable[[str], tuple[np.ndarray, float]]  # a clip's id -> its summed features float[k, H], its length
 
