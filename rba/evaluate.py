@@ -203,12 +203,12 @@ def evaluate(domain_name: str, method: str, rep: str = "onehot", targets: int = 
     spec = parse_user(user)
     domain = get_domain(domain_name)
     context = context or load_context(domain_name, method, rep, data_root, models_root)
+    eps = domain.epsilons(context.serve.proxies, precision)  # the whole library's: the task, whatever the agent sees
     if serve_size is not None:
         if not hasattr(context, "first"):
             raise ValueError(f"a smaller serve library works with method global only, not {method!r}")
         context = context.first(serve_size)
     serve = context.serve
-    eps = domain.epsilons(serve.proxies, precision)
     make = _agents(method, context, spec, models_root, generate, generate_options)
     if beyond is None:
         test = SkillLibrary.load(domain_name, split, data_root)

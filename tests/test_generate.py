@@ -13,6 +13,7 @@ import time
 import numpy as np
 import pytest
 
+import rba.evaluate as evaluate_module
 from rba.cli import main
 from rba.compute import SimJob
 from rba.domains import ParamSpace, domain_target, get_domain
@@ -486,6 +487,13 @@ def test_evaluate_over_the_first_serve_rollouts_only(gap_roots, monkeypatch, cap
     assert evaluate("toy", "global", targets=1, data_root=data, models_root=models).serve_size > 40
     first = set(SkillLibrary.load("toy", "serve", data).ids[:40])
     assert {r for t in small.trials for r in t.shown_ids} <= first
+    epsilons = []  # the task's ε is the whole library's, whatever the agent sees
+    monkeypatch.setattr(evaluate_module, "simulate", lambda agent, target, eps, *rest: epsilons.append(eps) or
+                        evaluate_module.Trial(target={}, success=False, feedback_count=0))
+    for size in (40, None):
+        evaluate("toy", "global", targets=1, data_root=data, models_root=models, serve_size=size)
+    np.testing.assert_array_equal(*epsilons)
+    monkeypatch.undo()
     monkeypatch.setenv("RBA_DATA_DIR", str(data))
     monkeypatch.setenv("RBA_MODELS_DIR", str(models))
     assert main(["eval", "--domain", "toy", "--all-methods", "--serve-size", "40"]) == 2
