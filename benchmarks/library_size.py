@@ -59,11 +59,12 @@ def _key(row: dict) -> tuple:
 
 def markdown(report: dict) -> str:
     lines = ["# How small a serve library generation needs", "",
-             f"RBA-Global one-hot, the paper's user, {report['precision']}-precision ε, {report['split']} targets "
-             f"(seed {report['seed']}). *size*: the agent chooses among the serve library's first N clips (ε, targets "
-             "and users are the whole library's). *library*: those clips only; *gen*: the agent also makes clips "
-             "when none is near its target (`rba eval`'s default). SR / AF (std): AF over successful trials, "
-             f"500-answer budget; *answers in all*: every trial's answers, a failure counting {MISS}.", "",
+             f"RBA-Global one-hot, the paper's user, {report['precision']}-precision ε, {report['targets']} "
+             f"{report['split']} targets (seed {report['seed']}). *size*: the agent chooses among the serve "
+             "library's first N clips (ε, targets and users are the whole library's). *library*: those clips "
+             "only; *gen*: the agent also makes clips when none is near its target (`rba eval`'s default). "
+             "SR / AF (std): AF over successful trials, 500-answer budget; *answers in all*: every trial's "
+             f"answers, a failure counting {MISS}.", "",
              "| domain | size | mode | targets | SR / AF (std) | answers in all | longest success | searches (shown) | "
              "simulations | seconds | measured |", "|---|---:|---|---:|---|---:|---:|---:|---:|---:|---|"]
     for r in sorted(report["rows"], key=lambda r: (DOMAINS.index(r["domain"]) if r["domain"] in DOMAINS else 99,
@@ -97,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     if min(args.sizes) < 2:
         ap.error(f"--sizes are numbers of serve clips (at least 2), got {min(args.sizes)}")
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
-    setting = {"precision": args.precision, "split": args.split, "seed": args.seed}
+    setting = {"precision": args.precision, "split": args.split, "seed": args.seed, "targets": args.targets}
     path = report_path(args.out, ".json")
     old = json.loads(path.read_text()) if path.exists() else {"rows": []}
     kept = old["rows"] if all(old.get(k) == v for k, v in setting.items()) else []  # another setting: not mixed

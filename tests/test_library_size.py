@@ -13,8 +13,8 @@ def test_measures_each_size_alone_and_generating_and_keeps_other_rows(toy_roots,
     monkeypatch.setenv("RBA_DATA_DIR", str(toy_roots[0]))
     monkeypatch.setenv("RBA_MODELS_DIR", str(toy_roots[1]))
     out = tmp_path / "size"
-    base = ["--domains", "toy", "--targets", "3", "--precision", "high", "--out", str(out)]
-    assert library_size.main([*base, "--sizes", "20", "300"]) == 0
+    base = ["--domains", "toy", "--precision", "high", "--out", str(out)]
+    assert library_size.main([*base, "--targets", "3", "--sizes", "20", "300"]) == 0
     rows = json.loads(out.with_suffix(".json").read_text())["rows"]
     assert [(r["size"], r["mode"]) for r in rows] == [(20, "library"), (20, "gen"), (300, "library"), (300, "gen")]
     small, small_gen = rows[0], rows[1]
@@ -22,12 +22,13 @@ def test_measures_each_size_alone_and_generating_and_keeps_other_rows(toy_roots,
     for r in rows:  # answers in all: the successes' answers, and the whole budget for each failure
         hits = round(r["success_rate"] * r["targets"])
         assert r["answers"] == pytest.approx((r["avg_feedback"] or 0.0) * hits + 500 * (r["targets"] - hits))
-    assert library_size.main([*base, "--sizes", "20", "--modes", "gen"]) == 0  # one row again: the others kept
+    assert library_size.main([*base, "--targets", "3", "--sizes", "20", "--modes", "gen"]) == 0  # the others kept
     again = json.loads(out.with_suffix(".json").read_text())["rows"]
     assert len(again) == 4 and {(r["size"], r["mode"]) for r in again} == {(r["size"], r["mode"]) for r in rows}
     assert "| toy | 20 | gen | 3 |" in out.with_suffix(".md").read_text()
-    assert library_size.main([*base, "--sizes", "20", "--modes", "gen", "--split", "val"]) == 0  # not mixed
-    assert len(json.loads(out.with_suffix(".json").read_text())["rows"]) == 1
+    for other in (["--split", "val"], ["--targets", "2"]):  # another setting: its rows are not mixed with these
+        assert library_size.main([*base, "--targets", "3", "--sizes", "20", "--modes", "gen", *other]) == 0
+        assert len(json.loads(out.with_suffix(".json").read_text())["rows"]) == 1
     for bad, says in ((["--sizes", "1"], "--sizes are numbers of serve clips (at least 2), got 1"),
                       (["--gen-workers", "0"], "--gen-workers must be at least 1, got 0")):
         with pytest.raises(SystemExit) as exit_:
