@@ -15,10 +15,7 @@ domain at a time can run in parallel and be combined). Writes ``benchmarks/resul
 from __future__ import annotations
 
 import argparse
-import json
 import logging
-import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -29,7 +26,7 @@ from rba.domains import domain_names
 from rba.evaluate import EvalResult, evaluate
 from rba.generate import SearchConfig, Simulate
 from rba.interact import load_context
-from rba.storage import report_path, save_report
+from rba.storage import report_to_extend, save_report
 
 log = logging.getLogger("beyond_range")
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -102,12 +99,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--gen-workers must be at least 1, got {args.gen_workers}")
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     setting = {"share": args.share, "precision": args.precision, "seed": args.seed}
-    old = report_path(args.out, ".json")
-    kept = [r for r in (json.loads(old.read_text())["rows"] if old.exists() else [])
-            if all(r[k] == v for k, v in setting.items())]
-    report = {**setting, "command": "python benchmarks/beyond_range.py " + " ".join(argv or sys.argv[1:]),
-              "machine": f"{os.cpu_count()} cores, {platform.machine()}, Python {platform.python_version()}",
-              "rows": kept}
+    report = report_to_extend(args.out, setting, "python benchmarks/beyond_range.py " + " ".join(argv or sys.argv[1:]))
     with simulation_pool(args.gen_workers) as simulate:
         for domain in args.domains:
             for mode in args.modes:

@@ -15,10 +15,7 @@ Writes ``benchmarks/results/library_size.md`` and ``.json``.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
-import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -28,7 +25,7 @@ from rba.domains import domain_names
 from rba.evaluate import EvalResult, evaluate
 from rba.generate import Simulate
 from rba.interact import load_context
-from rba.storage import report_path, save_report
+from rba.storage import report_to_extend, save_report
 
 log = logging.getLogger("library_size")
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -99,12 +96,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--sizes are numbers of serve clips (at least 2), got {min(args.sizes)}")
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     setting = {"precision": args.precision, "split": args.split, "seed": args.seed, "targets": args.targets}
-    path = report_path(args.out, ".json")
-    old = json.loads(path.read_text()) if path.exists() else {"rows": []}
-    kept = old["rows"] if all(old.get(k) == v for k, v in setting.items()) else []  # another setting: not mixed
-    report = {**setting, "command": "python benchmarks/library_size.py " + " ".join(argv or sys.argv[1:]),
-              "machine": f"{os.cpu_count()} cores, {platform.machine()}, Python {platform.python_version()}",
-              "rows": kept}
+    report = report_to_extend(args.out, setting, "python benchmarks/library_size.py " + " ".join(argv or sys.argv[1:]))
     with simulation_pool(args.gen_workers) as simulate:
         for domain in args.domains:
             for size in args.sizes:

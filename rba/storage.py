@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import platform
 import tempfile
 import zipfile
 from pathlib import Path
@@ -52,6 +53,20 @@ def report_path(out: Path, suffix: str) -> Path:
     (``--out runs/pull0.001``) is part of it (``with_suffix`` would replace ``.001``: two runs, one file); an ``out``
     that already ends in ``.json`` or ``.md`` has that suffix replaced."""
     return out.with_suffix(suffix) if out.suffix in (".json", ".md") else out.with_name(out.name + suffix)
+
+
+def machine() -> str:
+    """The machine a benchmark ran on, for its report."""
+    return f"{os.cpu_count()} cores, {platform.machine()}, Python {platform.python_version()}"
+
+
+def report_to_extend(out: Path, setting: dict[str, Any], command: str) -> dict:
+    """A benchmark's report that keeps the rows of ``out``'s earlier one if that was measured in the same ``setting``
+    (runs of one domain at a time can run side by side and be combined); otherwise it starts empty."""
+    path = report_path(out, ".json")
+    old = json.loads(path.read_text()) if path.exists() else {}
+    kept = old.get("rows", []) if all(old.get(k) == v for k, v in setting.items()) else []
+    return {**setting, "command": command, "machine": machine(), "rows": kept}
 
 
 def save_report(out: Path, report: dict, markdown: str) -> None:
