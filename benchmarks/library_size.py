@@ -4,8 +4,9 @@ generating.
 Issue 14 asks that no domain need a library larger than 1,200 serve rollouts. Each row is ``rba eval --domain D
 --method global --precision P --split test --targets T --seed S --serve-size N [--no-generate]``: the agent
 chooses among the serve library's first N clips (a random sample: the library's parameters come from one seeded
-stream); ε, the targets and the users are the whole library's, whatever N. Rows of earlier runs in ``--out``'s
-.json are kept for (domain, size, mode) this run does not measure, so domains can run in parallel and be combined.
+stream); ε, the targets and the users are the whole library's, whatever N. Rows of an earlier run in the same
+setting (precision, split, seed, targets) in ``--out``'s .json are kept for (domain, size, mode) this run does not
+measure, so domains can run in parallel and be combined.
 Writes ``benchmarks/results/library_size.md`` and ``.json``.
 
     python benchmarks/library_size.py --domains walker manipulator lane_change --sizes 300 600 1200
@@ -25,6 +26,7 @@ from rba.domains import domain_names
 from rba.evaluate import EvalResult, evaluate
 from rba.generate import Simulate
 from rba.interact import load_context
+from rba.interact.global_agent import GlobalContext
 from rba.storage import report_to_extend, save_report
 
 log = logging.getLogger("library_size")
@@ -34,11 +36,12 @@ MODES = {"library": False, "gen": True}  # a row's mode -> whether the agent gen
 MISS = 500  # answers a failed trial counts in a row's *answers in all*: the evaluation's feedback budget
 
 
-def measure(domain: str, size: int, mode: str, args: argparse.Namespace, simulate: Simulate | None) -> dict:
-    """One row: RBA-Global one-hot over the serve library's first ``size`` clips, generating or not."""
-    generate = MODES[mode]
+def measure(context: GlobalContext, size: int, mode: str, args: argparse.Namespace, simulate: Simulate | None
+            ) -> dict:
+    """One row: RBA-Global one-hot over the first ``size`` clips of ``context``'s serve library, generating or not."""
+    generate, domain = MODES[mode], context.domain
     r: EvalResult = evaluate(domain, "global", "onehot", args.targets, args.seed, args.precision, "paper",
-                             context=load_context(domain, "global", "onehot"), split=args.split,
+                             context=context, split=args.split,
                              generate=generate, serve_size=size,
                              generate_options={"simulate": simulate} if generate and simulate else None)
     answers = sum(t.feedback_count if t.success else MISS for t in r.trials)
@@ -99,9 +102,10 @@ def main(argv: list[str] | None = None) -> int:
     report = report_to_extend(args.out, setting, "python benchmarks/library_size.py " + " ".join(argv or sys.argv[1:]))
     with simulation_pool(args.gen_workers) as simulate:
         for domain in args.domains:
+            context = load_context(domain, "global", "onehot")  # each row reads a copy: ``GlobalContext.first``
             for size in args.sizes:
                 for mode in args.modes:
-                    row = measure(domain, size, mode, args, simulate)
+                    row = measure(context, size, mode, args, simulate)
                     report["rows"] = [r for r in report["rows"] if _key(r) != _key(row)] + [row]
                     save_report(args.out, report, markdown(report))  # after every row: a stopped run keeps its rows
     return 0
