@@ -23,7 +23,7 @@ from pathlib import Path
 from rba.cli import seconds_arg
 from rba.compute import simulation_pool
 from rba.domains import domain_names
-from rba.evaluate import EvalResult, evaluate
+from rba.evaluate import EvalResult, af_cell, evaluate, searches_cell
 from rba.generate import SearchConfig, Simulate
 from rba.interact import load_context
 from rba.storage import report_to_extend, save_report
@@ -70,9 +70,8 @@ def markdown(report: dict) -> str:
              "measured |", "|---|---|---:|---|---:|---:|---|---:|---|"]
     for r in sorted(report["rows"], key=lambda r: (DOMAINS.index(r["domain"]) if r["domain"] in DOMAINS else 99,
                                                      r["mode"] != "library", r.get("bound_s") or 0.0)):
-        af = "–" if r["avg_feedback"] is None else f"{r['avg_feedback']:.2f} ({r['std_feedback']:.2f})"
+        af, searches = af_cell(r["avg_feedback"], r["std_feedback"]), searches_cell(r["generation"])
         g = r["generation"] or {}
-        searches = f"{g['searches']} ({g['shown']})" if g else "–"
         bound = "–" if r.get("bound_s") is None else f"{r['bound_s']:g} s"
         lines.append(f"| {r['domain']} | {r['mode']} | {r['targets']} | {r['success_rate']:.2f} / {af} | {searches} "
                      f"| {g.get('simulations', '–')} | {bound} | {r['seconds']:.0f} | {r['date']} |")

@@ -23,7 +23,7 @@ from pathlib import Path
 
 from rba.compute import simulation_pool
 from rba.domains import domain_names
-from rba.evaluate import EvalResult, evaluate
+from rba.evaluate import EvalResult, af_cell, evaluate, searches_cell
 from rba.generate import Simulate
 from rba.interact import load_context
 from rba.interact.global_agent import GlobalContext
@@ -69,9 +69,8 @@ def markdown(report: dict) -> str:
              "simulations | seconds | measured |", "|---|---:|---|---:|---|---:|---:|---:|---:|---:|---|"]
     for r in sorted(report["rows"], key=lambda r: (DOMAINS.index(r["domain"]) if r["domain"] in DOMAINS else 99,
                                                      r["size"], r["mode"] != "library")):
-        af = "–" if r["avg_feedback"] is None else f"{r['avg_feedback']:.2f} ({r['std_feedback']:.2f})"
+        af, searches = af_cell(r["avg_feedback"], r["std_feedback"]), searches_cell(r["generation"])
         g = r["generation"] or {}
-        searches = f"{g['searches']} ({g['shown']})" if g else "–"
         lines.append(f"| {r['domain']} | {r['size']:,} | {r['mode']} | {r['targets']} | {r['success_rate']:.2f} / "
                      f"{af} | {r['answers']:,} | {r['longest'] if r['longest'] is not None else '–'} | {searches} | "
                      f"{g.get('simulations', '–')} | {r['seconds']:.0f} | {r['date']} |")

@@ -24,7 +24,7 @@ from paper_tables import PAPER as PAPER_TABLES  # a sibling script, on sys.path 
 from paper_tables import PAPER_LABELS
 
 from rba.artifacts import ModelNotFoundError, load_model
-from rba.evaluate import EvalResult, evaluate
+from rba.evaluate import EvalResult, af_cell, evaluate
 from rba.interact import load_context
 from rba.learn.pbrl import PbRLConfig
 from rba.methods import get_method, method_names, methods
@@ -37,10 +37,6 @@ RESULTS = Path(__file__).resolve().parent / "results"
 # Paper Table 1, walker column, by row label: (SR, AF, std of AF); paper_tables keeps every table of the paper
 PAPER = dict(zip(PAPER_LABELS, PAPER_TABLES["normal"]["walker"], strict=True))
 LABELS = {(m.name, rep): m.label_for(rep) for m in methods(include_reference=True) for rep in m.run_reps}
-
-
-def _af(r: EvalResult) -> str:
-    return "–" if r.avg_feedback is None else f"{r.avg_feedback:.2f} ({r.std_feedback:.2f})"
 
 
 def _paper(label: str, user: str) -> tuple[str, str]:
@@ -111,8 +107,8 @@ def main(argv: list[str] | None = None) -> int:
         for noise in [0.0, *(args.noise if method in args.noise_methods else [])]:
             user = f"mistake:{noise:g}" if noise else "paper"
             r = evaluate("walker", method, rep, args.targets, args.seed, user=user, context=ctx)
-            log.info("%s %s noise %.2f: SR %.2f AF %s in %.0f s", method, rep, noise, r.success_rate, _af(r),
-                     r.seconds)
+            log.info("%s %s noise %.2f: SR %.2f AF %s in %.0f s", method, rep, noise, r.success_rate,
+                     af_cell(r.avg_feedback, r.std_feedback), r.seconds)
             rows.append((LABELS[(method, rep)], r))
     width_notes = []
     for width in args.widths:
@@ -143,8 +139,8 @@ def main(argv: list[str] | None = None) -> int:
     for label, r in rows:
         psr, paf = _paper(label, r.user)
         rep = r.rep if get_method(r.method).reps else "–"
-        lines.append(f"| {label} | {rep} | {r.user} | {r.success_rate:.2f} | {_af(r)} | "
-                     f"{psr} | {paf} | {r.seconds:.0f} |")
+        af = af_cell(r.avg_feedback, r.std_feedback)
+        lines.append(f"| {label} | {rep} | {r.user} | {r.success_rate:.2f} | {af} | {psr} | {paf} | {r.seconds:.0f} |")
     notes = [n for n in (_held_out(m, r) for m, r in runs) if n] + width_notes + missing + args.note
     given = sys.argv[1:] if argv is None else argv
     shown = [a for i, a in enumerate(given) if a != "--note" and (i == 0 or given[i - 1] != "--note")]

@@ -273,11 +273,21 @@ def generation_summary(agents: list) -> dict:
             "seconds_p95": round(float(np.percentile(seconds, 95)), 3) if len(runs) else None}
 
 
+def af_cell(avg_feedback: float | None, std_feedback: float | None) -> str:
+    """AF (std) as the reports write it; – where no trial succeeded."""
+    return "–" if avg_feedback is None else f"{avg_feedback:.2f} ({std_feedback:.2f})"
+
+
+def searches_cell(generation: dict | None) -> str:
+    """A ``generation_summary``'s searches (clips of theirs shown) as the reports write it; – without generation."""
+    return f"{generation['searches']} ({generation['shown']})" if generation else "–"
+
+
 def format_table(results: list[EvalResult]) -> str:
     """A Markdown table of SR / AF (std), one row per result."""
     rows = ["| domain | method | rep | precision | user | SR | AF (std) |", "|---|---|---|---|---|---|---|"]
     for r in results:
-        af = "–" if r.avg_feedback is None else f"{r.avg_feedback:.2f} ({r.std_feedback:.2f})"
-        cells = (r.domain, r.method, r.rep, r.precision, r.user, f"{r.success_rate:.2f}", af)
+        cells = (r.domain, r.method, r.rep, r.precision, r.user, f"{r.success_rate:.2f}",
+                 af_cell(r.avg_feedback, r.std_feedback))
         rows.append("| " + " | ".join(cells) + " |")
     return "\n".join(rows)
