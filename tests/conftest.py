@@ -40,6 +40,15 @@ def toy_roots(tmp_path_factory):
     return data, models, metrics
 
 
+@pytest.fixture
+def toy_env(toy_roots, monkeypatch):
+    """The toy data and models as the settings' defaults (``RBA_DATA_DIR``, ``RBA_MODELS_DIR``): for code that loads
+    by domain name alone, as the benchmarks and the CLI do; ``toy_roots``."""
+    monkeypatch.setenv("RBA_DATA_DIR", str(toy_roots[0]))
+    monkeypatch.setenv("RBA_MODELS_DIR", str(toy_roots[1]))
+    return toy_roots
+
+
 def own_copy(toy_roots, root: Path) -> tuple[Path, Path]:
     """Copies of the toy ``data`` and ``models`` folders under ``root`` (jobs, uploads and sweeps write there);
     their paths."""

@@ -9,9 +9,7 @@ from tests.benchmark_scripts import load_benchmark
 beyond_range = load_benchmark("beyond_range")
 
 
-def test_measures_both_modes_and_keeps_rows_of_the_same_setting(toy_roots, monkeypatch, tmp_path, capsys):
-    monkeypatch.setenv("RBA_DATA_DIR", str(toy_roots[0]))
-    monkeypatch.setenv("RBA_MODELS_DIR", str(toy_roots[1]))
+def test_measures_both_modes_and_keeps_rows_of_the_same_setting(toy_env, tmp_path, capsys):
     out = tmp_path / "b"
     base = ["--domains", "toy", "--targets", "3", "--out", str(out)]
     assert beyond_range.main(base) == 0
@@ -36,9 +34,7 @@ def test_measures_both_modes_and_keeps_rows_of_the_same_setting(toy_roots, monke
         assert f"must be a number of seconds > 0, got {bad}" in capsys.readouterr().err
 
 
-def test_gen_workers_simulate_elsewhere_and_give_the_same_unbounded_row(toy_roots, monkeypatch, tmp_path, capsys):
-    monkeypatch.setenv("RBA_DATA_DIR", str(toy_roots[0]))
-    monkeypatch.setenv("RBA_MODELS_DIR", str(toy_roots[1]))
+def test_gen_workers_simulate_elsewhere_and_give_the_same_unbounded_row(toy_env, tmp_path, capsys):
     base = ["--domains", "toy", "--targets", "3", "--modes", "gen", "--precision", "high"]  # long enough to search
     rows = []
     for workers in ("1", "2"):

@@ -9,9 +9,7 @@ from tests.benchmark_scripts import load_benchmark
 library_size = load_benchmark("library_size")
 
 
-def test_measures_each_size_alone_and_generating_and_keeps_other_rows(toy_roots, monkeypatch, tmp_path, capsys):
-    monkeypatch.setenv("RBA_DATA_DIR", str(toy_roots[0]))
-    monkeypatch.setenv("RBA_MODELS_DIR", str(toy_roots[1]))
+def test_measures_each_size_alone_and_generating_and_keeps_other_rows(toy_env, tmp_path, capsys):
     out = tmp_path / "size"
     base = ["--domains", "toy", "--precision", "high", "--out", str(out)]
     assert library_size.main([*base, "--targets", "3", "--sizes", "20", "300"]) == 0

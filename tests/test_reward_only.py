@@ -7,9 +7,7 @@ from tests.benchmark_scripts import load_benchmark
 reward_only = load_benchmark("reward_only")
 
 
-def test_reports_every_profile_and_searches_each_chosen_rollout_once(toy_roots, monkeypatch, tmp_path):
-    monkeypatch.setenv("RBA_DATA_DIR", str(toy_roots[0]))
-    monkeypatch.setenv("RBA_MODELS_DIR", str(toy_roots[1]))
+def test_reports_every_profile_and_searches_each_chosen_rollout_once(toy_env, tmp_path):
     out = tmp_path / "r"
     assert reward_only.main(["--domain", "toy", "--profiles", "6", "--budget", "12", "--out", str(out)]) == 0
     report = json.loads(out.with_suffix(".json").read_text())
@@ -26,15 +24,13 @@ def test_reports_every_profile_and_searches_each_chosen_rollout_once(toy_roots, 
     assert f"in **{report['within']} of 6** profiles" in out.with_suffix(".md").read_text()
 
 
-def test_ceiling_searches_by_zeta_distance_to_the_profiles_target(toy_roots, monkeypatch, tmp_path):
+def test_ceiling_searches_by_zeta_distance_to_the_profiles_target(toy_env, tmp_path):
     """The ceiling's objective is zero at the profile's own rollout (v* is its ζσ) and positive elsewhere; each
     profile reports the ceiling's find, and the report its share."""
     from rba.artifacts import load_model
     from rba.domains import get_domain
     from rba.export import read_export
 
-    monkeypatch.setenv("RBA_DATA_DIR", str(toy_roots[0]))
-    monkeypatch.setenv("RBA_MODELS_DIR", str(toy_roots[1]))
     out = tmp_path / "r"
     assert reward_only.main(["--domain", "toy", "--profiles", "3", "--budget", "12", "--ceiling",
                              "--out", str(out)]) == 0
@@ -86,7 +82,7 @@ def test_a_report_names_the_reward_its_exports_carried(capsys):
     assert exit_.value.code == 2 and "--no-refit turns off" in capsys.readouterr().err
 
 
-def test_draws_of_the_skill_prior_start_the_search_from_their_best(toy_roots, monkeypatch, tmp_path, capsys):
+def test_draws_of_the_skill_prior_start_the_search_from_their_best(toy_env, tmp_path, capsys):
     """``--draws``: the first rollouts of the budget are prior draws; what the search returns is no worse than the
     best of them, and the budget still bounds it. More draws than the budget is refused."""
     import pytest
@@ -94,8 +90,6 @@ def test_draws_of_the_skill_prior_start_the_search_from_their_best(toy_roots, mo
     from rba.domains import get_domain
     from rba.export import read_export
 
-    monkeypatch.setenv("RBA_DATA_DIR", str(toy_roots[0]))
-    monkeypatch.setenv("RBA_MODELS_DIR", str(toy_roots[1]))
     args = reward_only.parse_args(["--domain", "toy", "--profiles", "1", "--budget", "16", "--draws", "8"])
     (path,) = reward_only.profiles(args, tmp_path)
     domain, export = get_domain("toy"), read_export(path)
