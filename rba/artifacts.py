@@ -28,9 +28,9 @@ class ModelNotFoundError(FileNotFoundError):
 
 
 def _build_ranker(card: dict) -> nn.Module:
-    arch = card["architecture"]  # cards written before ζσ could pool by mean say nothing: they sum
+    arch = card["architecture"]
     return AttributeRanker(arch["state_dim"], torch.zeros(arch["num_attributes"], arch["embed_dim"]),
-                           arch["hidden"], arch["layers"], arch["clip"], arch.get("pool", "sum"))
+                           arch["hidden"], arch["layers"], arch["clip"])
 
 
 def _build_global_reward(card: dict) -> nn.Module:

@@ -61,7 +61,7 @@ class Preset:
     ranker: RankerConfig = field(default_factory=RankerConfig)
     global_reward: GlobalRewardConfig = field(default_factory=GlobalRewardConfig)
     local_reward: LocalRewardConfig = field(default_factory=LocalRewardConfig)
-    domain_ranker_steps: bool = False  # ζσ takes the domain's steps (``Domain.ranker_steps``) and pooling
+    domain_ranker_steps: bool = False  # ζσ takes the domain's steps (``Domain.ranker_steps``) if it sets them
     global_only: bool = False  # it only changes RBA-Global's ζσ (RBA-Local does not offer it)
 
 
@@ -88,7 +88,7 @@ def get_preset(name: str, valid: tuple[str, ...] = PRESETS) -> Preset:
 # first release's test split (split code 2), where these were chosen; ``test`` was then rebuilt from split code 3
 # and is read only by `rba eval` and benchmarks/paper_tables.py. Each card says so (``tuning``).
 TUNED = {
-    "ranker": ("Domain.ranker_steps", "Domain.ranker_pool"),
+    "ranker": ("Domain.ranker_steps",),
     "global_reward": ("GlobalRewardConfig.focus", "rba.interact.global_agent.SHORTLIST", "Domain.serve_size",
                       "rba.interact.base.REJECT_MEMORY"),
     "local_reward": ("Domain.serve_size", "rba.interact.base.REJECT_MEMORY"),
@@ -109,13 +109,11 @@ class GlobalTrainConfig:
 
     @classmethod
     def preset(cls, name: str, seed: int = 0, domain: str | None = None) -> GlobalTrainConfig:
-        """A preset of ``PRESETS``; ``default`` and ``pairwise`` take ``domain``'s ζσ steps if it sets them, and its
-        ζσ pooling (``Domain.ranker_pool``)."""
+        """A preset of ``PRESETS``; ``default`` takes ``domain``'s ζσ steps if it sets them."""
         p = get_preset(name)
-        d = get_domain(domain) if domain and p.domain_ranker_steps else None
-        ranker = replace(p.ranker, seed=seed, **({"steps": d.ranker_steps} if d and d.ranker_steps else {}),
-                         **({"pool": d.ranker_pool} if d else {}))
-        return cls(ranker, replace(p.global_reward, seed=seed))
+        steps = get_domain(domain).ranker_steps if domain and p.domain_ranker_steps else None
+        return cls(replace(p.ranker, seed=seed, **({"steps": steps} if steps else {})),
+                   replace(p.global_reward, seed=seed))
 
 
 @dataclass
@@ -343,8 +341,7 @@ def train_global(domain_name: str, rep: str, cfg: GlobalTrainConfig | None = Non
     arch = {"state_dim": inputs.domain.state_dim, "num_attributes": len(inputs.attrs)}
     save_model(ranker, {**common, "kind": "ranker", "weights_sha": weights_sha(ranker),
                         "architecture": {**arch, "embed_dim": int(inputs.embed.shape[1]), "hidden": cfg.ranker.hidden,
-                                         "layers": cfg.ranker.layers, "clip": cfg.ranker.clip,
-                                         "pool": cfg.ranker.pool},
+                                         "layers": cfg.ranker.layers, "clip": cfg.ranker.clip},
                         "training": {**rstats, "seconds": ranker_seconds, "labels": how},
                         "tuning": tuning_record("ranker"),
                         "held_out": {"split": "val", "rollouts": len(inputs.val), **rmetrics}}, models_root)

@@ -36,9 +36,9 @@ def _gen(ctx, gap_roots, **options) -> GenerationContext:
     return GenerationContext.load(ctx, gap_roots[1], **{"refit": True, "refit_after": 1, **options})
 
 
-def test_pooled_features_and_heads_reproduce_the_rankers_scores(ctx, ranker):
+def test_summed_features_and_heads_reproduce_the_rankers_scores(ctx, ranker):
     data = Ragged.from_numpy(ctx.serve.states, ctx.serve.state_offsets)
-    phi, lengths = ranker.pooled_features(data)
+    phi, lengths = ranker.summed_features(data)
     assert phi.shape == (ranker.num_attributes, len(ctx.serve), ranker.f[-1].in_features)
     trained = ranker.trained_head()
     np.testing.assert_allclose(ranker.zeta_of(phi, lengths, *trained), ranker.score(data), atol=1e-4)
@@ -77,7 +77,7 @@ def test_a_fitted_head_orders_the_pairs_the_trained_one_got_wrong_and_the_pull_h
 
 def test_an_attribute_nobody_answered_keeps_its_trained_head(ranker, ctx):
     data = Ragged.from_numpy(ctx.serve.states, ctx.serve.state_offsets)
-    phi, lengths = ranker.pooled_features(data)
+    phi, lengths = ranker.summed_features(data)
     ids = ctx.serve.ids
     answered = [(ids[i], [(0, 1 if i % 2 else -1)]) for i in range(6)]  # attribute 0 only
     weight, bias = refit_heads(ranker, answered, lambda rid: (phi[:, ids.index(rid)], lengths[ids.index(rid)]))

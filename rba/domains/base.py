@@ -194,7 +194,6 @@ class Domain(ABC):
     frame_rate: float  # frames per second of ``replay`` (and of rendered clips)
     serve_size: int = 1200  # rollouts in ``serve``: the generating agent makes what it lacks (the image view: 2,400)
     ranker_steps: int | None = None  # ζσ gradient steps of `rba train` where RankerConfig's default underfits
-    ranker_pool: str = "sum"  # how ζσ pools fσ over a clip's states: the paper's "sum", or "mean" (rba.learn.ranker)
     # the generating agent's soft step for answers, a share of ζσ's train range (rba.interact.bisection): about how
     # far ζσ can put a clip from where a person would; 0: the hard step. Chosen on val (generation_noise_val.md)
     zeta_noise: float = 0.0

@@ -84,7 +84,7 @@ REPEAT = 0.01  # a made clip this near one judged before (unit box, per paramete
 POOL_KEEP = 8  # a search's runners-up the session keeps (the best by the search's objective) ...
 POOL_SIZE = 64  # ... up to this many in all, the oldest dropped first
 MIN_SECONDS = 0.05  # the least time bound a ζσ search after the surface's set-aside clip gets (it makes one clip)
-FEATURES_SIZE = 2048  # made clips whose pooled features (``rba.interact.refit``) a context keeps
+FEATURES_SIZE = 2048  # made clips whose summed features (``rba.interact.refit``) a context keeps
 Made = tuple[Rollout, np.ndarray]  # a made clip and its ζ as the agent reads it
 
 
@@ -149,11 +149,11 @@ def _remade(domain: str, rollout_id: str, params: dict[str, float], seed: int, s
     return found
 
 
-Features = tuple[np.ndarray, float]  # a clip's pooled features float[k, H] and its length
+Features = tuple[np.ndarray, float]  # a clip's summed features float[k, H] and its length
 
 
 class FeatureCache:
-    """ζσ's pooled features (``AttributeRanker.pooled_features``) of the serve library (computed once, when first
+    """ζσ's summed features (``AttributeRanker.summed_features``) of the serve library (computed once, when first
     asked for) and of recent made clips by id, and the last layers fitted per session's answers: what re-fitting
     ζσ's last layers on a session reads (``rba.interact.refit``)."""
 
@@ -169,14 +169,14 @@ class FeatureCache:
         with self._serve_lock:
             if serve.version not in self._serve:
                 data = Ragged.from_numpy(serve.states, serve.state_offsets)
-                self._serve[serve.version] = ranker.pooled_features(data)
+                self._serve[serve.version] = ranker.summed_features(data)
             return self._serve[serve.version]
 
     def made(self, ranker: AttributeRanker, rollout_id: str, rollout: Callable[[], Rollout]) -> Features:
         """A made clip's features: kept, else computed from ``rollout()`` (only then asked for). One clip at a time:
         the same clip's features are then the same bits whichever clips it was made with (a restored session)."""
         def compute() -> Features:
-            phi, lengths = ranker.pooled_features(rollout_data([rollout()]))
+            phi, lengths = ranker.summed_features(rollout_data([rollout()]))
             return phi[:, 0], float(lengths[0])
 
         return self._made.get_or_make(rollout_id, compute)
@@ -316,7 +316,7 @@ class GenerationContext:
         return replace(self, base=base, ranker=self.ranker.with_heads(weight, bias))
 
     def clip_features(self, rollout_id: str, made: dict | None) -> Features:
-        """A clip's pooled features and length: a serve clip's (``made`` None), or a made one's (its params, seed)."""
+        """A clip's summed features and length: a serve clip's (``made`` None), or a made one's (its params, seed)."""
         if made is None:
             phi, lengths = self.features.serve(self.ranker, self.base.serve)
             i = self.base.serve.index_of(rollout_id)

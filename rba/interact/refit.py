@@ -32,7 +32,7 @@ PULL = 0.1
 # than 10 over three val draws (session_refit_val.md)
 REFIT_AFTER = 7
 Answered = list[tuple[str, list[tuple[int, int]]]]  # per answer: the clip's id, (attribute, ±1) per named attribute
-Features = Callable[[str], tuple[np.ndarray, float]]  # a clip id -> its pooled features float[k, H], its T (ranker)
+Features = Callable[[str], tuple[np.ndarray, float]]  # a clip's id -> its summed features float[k, H], its length
 
 
 def ordered_pairs(sides: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:

@@ -1,9 +1,5 @@
 """RBA-Global step 1: the attribute strength estimator ζσ(τ, α) = clip(Σ_t fσ([s_t, e_α])).
 
-``RankerConfig.pool`` "mean" takes ζσ = clip(Σ_t fσ / T) instead (the domain chooses: ``Domain.ranker_pool``): the
-paper's sum lets a clip's length speak for its attributes, so where clips differ in length and the attributes are
-rates or percentiles over time (the snake's run 27 to 103 states), fσ must learn to cancel the length out.
-
 The clip is soft (c·tanh(x / c), c = 20 as in the paper): a hard clamp has zero gradient
 once a sum saturates, and with ~100 states per clip a freshly initialised fσ saturates at
 once and never recovers. The last layer also starts small, so sums start near zero.
@@ -55,37 +51,22 @@ class RankerConfig:
     weight_decay: float = 1e-5
     seed: int = 0
     labels: GlobalLabelConfig = field(default_factory=GlobalLabelConfig)  # proxy ordering or annotator pairs
-    pool: str = "sum"  # how fσ's per-state values make ζσ: "sum" (the paper's) or "mean" (module docstring)
-
-    def __post_init__(self) -> None:
-        check_pool(self.pool)
-
-
-POOLS = ("sum", "mean")
-
-
-def check_pool(pool: str) -> None:
-    if pool not in POOLS:
-        raise ValueError(f"unknown ζσ pooling {pool!r}; valid: {', '.join(POOLS)}")
 
 
 class AttributeRanker(nn.Module):
     """fσ([s, e_α]) summed over a trajectory; ``attr_embed`` holds e_α for every attribute.
 
-    fσ's last layer is linear, so ζσ is soft_clip(φ(τ, α) · w + T b), φ the last layer's input pooled over the
-    trajectory and T its length (``pooled_features``; with ``pool`` "mean", φ is the mean and T is 1): a copy
-    ``with_heads`` gives each attribute a last layer of its own (``rba.interact.refit``: re-fitted near a session's
-    target on its answers) while sharing everything below."""
+    fσ's last layer is linear, so ζσ is soft_clip(φ(τ, α) · w + T b), φ the last layer's input summed over the
+    trajectory (``summed_features``): a copy ``with_heads`` gives each attribute a last layer of its own
+    (``rba.interact.refit``: re-fitted near a session's target on its answers) while sharing everything below."""
 
     heads: tuple[torch.Tensor, torch.Tensor] | None = None  # per-attribute last layers (float32[k, H], [k])
 
     def __init__(self, state_dim: int, attr_embed: torch.Tensor, hidden: int = 256, layers: int = 3,
-                 clip: float = 20.0, pool: str = "sum") -> None:
+                 clip: float = 20.0) -> None:
         super().__init__()
-        check_pool(pool)
         self.state_dim = state_dim
         self.clip = clip
-        self.pool = pool
         self.register_buffer("attr_embed", torch.as_tensor(attr_embed, dtype=torch.float32))
         self.norm = Normalizer(state_dim)
         self.f = mlp(state_dim + self.attr_embed.shape[1], hidden, layers)
@@ -130,16 +111,10 @@ class AttributeRanker(nn.Module):
         out.heads = (torch.as_tensor(weight, dtype=torch.float32), torch.as_tensor(bias, dtype=torch.float32))
         return out
 
-    def _pooled(self, sums: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
-        """Per-trajectory sums [n, ...] as ζσ pools them: unchanged, or divided by the lengths [n] ("mean")."""
-        if self.pool == "sum":
-            return sums
-        return sums / lengths.reshape(-1, *([1] * (sums.dim() - 1))).to(sums.dtype)
-
     @torch.no_grad()
-    def pooled_features(self, data: Ragged, batch_states: int = 65536) -> tuple[np.ndarray, np.ndarray]:
-        """φ per attribute and trajectory, float64[k, N, H], and T, float64[N]: ζσ = soft_clip(φ · w + T b) for a
-        last layer (w, b) (``zeta_of``). Summed: φ over the states, T the length; "mean": their mean, T = 1."""
+    def summed_features(self, data: Ragged, batch_states: int = 65536) -> tuple[np.ndarray, np.ndarray]:
+        """φ per attribute and trajectory, float64[k, N, H], and trajectory lengths T, float64[N]:
+        ζσ = soft_clip(φ · w + T b) for a last layer (w, b) (``zeta_of``)."""
         self.eval()
         seg = data.segment_ids()
         out = np.zeros((self.num_attributes, len(data), self.f[-1].in_features))
@@ -148,21 +123,17 @@ class AttributeRanker(nn.Module):
                 s = data.states[lo:lo + batch_states]
                 h = self.f[:-1](torch.cat([self.norm(s), self.attr_embed[a].expand(len(s), -1)], 1))
                 out[a] += segment_sum(h.T, seg[lo:lo + batch_states], len(data)).T.double().numpy()
-        lengths = data.lengths.double()
-        if self.pool == "sum":
-            return out, lengths.numpy()
-        return out / lengths.numpy()[None, :, None], np.ones(len(data))
+        return out, data.lengths.double().numpy()
 
     def zeta_of(self, features: np.ndarray, lengths: np.ndarray, weight: np.ndarray, bias: np.ndarray
                 ) -> np.ndarray:
-        """ζσ, float64[N, k], of trajectories given their ``pooled_features``, under last layers (weight, bias)."""
+        """ζσ, float64[N, k], of trajectories given their ``summed_features``, under last layers (weight, bias)."""
         raw = np.einsum("knh,kh->nk", features, weight) + lengths[:, None] * bias[None, :]
         return self.clip * np.tanh(raw / self.clip)
 
     def trajectory_scores(self, states: torch.Tensor, seg: torch.Tensor, n: int, attr: int) -> torch.Tensor:
         """ζσ for ``n`` trajectories whose states are tagged by ``seg``: float32[n]."""
-        sums = segment_sum(self.per_state(states, attr), seg, n)
-        return self.soft_clip(self._pooled(sums, torch.bincount(seg, minlength=n)))
+        return self.soft_clip(segment_sum(self.per_state(states, attr), seg, n))
 
     @torch.no_grad()
     def score(self, data: Ragged, batch_states: int = 65536) -> np.ndarray:
@@ -174,7 +145,7 @@ class AttributeRanker(nn.Module):
             for lo in range(0, len(data.states), batch_states):
                 out[:, a] += segment_sum(self.per_state(data.states[lo:lo + batch_states], a),
                                          seg[lo:lo + batch_states], len(data))
-        return self.soft_clip(self._pooled(out, data.lengths)).double().numpy()
+        return self.soft_clip(out).double().numpy()
 
     def score_library(self, lib: SkillLibrary) -> np.ndarray:
         return self.score(Ragged.from_numpy(lib.states, lib.state_offsets))
@@ -193,8 +164,7 @@ def train_ranker(data: Ragged, labels: list[AttributeLabels], attr_embed: np.nda
         raise ValueError(f"attributes {empty} have no labelled pairs")
     gen = seed_everything(cfg.seed)
     torch.set_num_threads(LibrarySettings().train_threads)
-    model = AttributeRanker(data.states.shape[1], torch.as_tensor(attr_embed), cfg.hidden, cfg.layers, cfg.clip,
-                            cfg.pool)
+    model = AttributeRanker(data.states.shape[1], torch.as_tensor(attr_embed), cfg.hidden, cfg.layers, cfg.clip)
     used = torch.as_tensor(np.unique(np.concatenate([lab.clips for lab in labels])))
     model.norm.fit(data.select(used)[0].numpy())
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
