@@ -151,6 +151,13 @@ def simulate(agent: Agent, target: np.ndarray, epsilon: np.ndarray, serve: Skill
     return loop.run(agent, loop.make(parse_user(user), target, epsilon, serve, seed), serve, max_feedback)
 
 
+def held_out_targets(held_out: SkillLibrary, count: int, seed: int) -> np.ndarray:
+    """float64[n, k]: the proxies of ``count`` rollouts of a held-out split drawn without replacement (seeded),
+    every agent's targets for that split and seed."""
+    pick = np.random.default_rng(seed).choice(len(held_out), size=min(count, len(held_out)), replace=False)
+    return held_out.proxies[pick]
+
+
 def beyond_targets(serve: SkillLibrary, share: float, count: int, seed: int = 0) -> np.ndarray:
     """Up to ``count`` targets outside the serve library's proxy range by at most ``share`` of it, each the
     proxies of a rollout the skill made (so the skill can produce it), float64[n, k].
@@ -211,9 +218,7 @@ def evaluate(domain_name: str, method: str, rep: str = "onehot", targets: int = 
     serve = context.serve
     make = _agents(method, context, spec, models_root, generate, generate_options)
     if beyond is None:
-        test = SkillLibrary.load(domain_name, split, data_root)
-        chosen = test.proxies[np.random.default_rng(seed).choice(len(test), size=min(targets, len(test)),
-                                                                 replace=False)]
+        chosen = held_out_targets(SkillLibrary.load(domain_name, split, data_root), targets, seed)
     else:
         chosen = beyond_targets(serve, beyond, targets, seed)
         if not len(chosen):

@@ -1,0 +1,121 @@
+"""How few answers any agent could need: bisection on the true proxies that shows exactly what it estimates.
+
+The tables' Oracle (``rba.interact.reference``) knows the true proxies of every serve clip, runs probabilistic
+bisection on them with the user's answers and shows the serve clip nearest its estimate. Here the same bisection
+shows a clip with exactly the proxies it estimates, as if a generator could make any behaviour on demand and the
+agent read every clip perfectly. An agent that reads clips through ζσ and makes them by simulation has neither, so
+this is a floor under the AF any agent reaches (for bisection; the user's answers are all it learns from), and the
+measure of what an AF goal asks. Same targets (``rba.evaluate.held_out_targets``), ε and user as ``rba eval``;
+nothing is simulated, so it takes seconds. Writes ``benchmarks/results/ideal_oracle.md`` and ``.json``.
+
+    python benchmarks/ideal_oracle.py                       # every domain, both precisions, 20 test targets, seed 0
+    python benchmarks/ideal_oracle.py --targets 120 --domains snake
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from rba.domains import domain_names, get_domain
+from rba.evaluate import MAX_FEEDBACK, af_cell, evaluate, held_out_targets
+from rba.interact.bisection import posterior, quantile
+from rba.interact.reference import ERROR_RATE, ReferenceContext
+from rba.interact.users import SimulatedUser
+from rba.library import HELD_OUT, SkillLibrary
+from rba.storage import machine, save_report
+
+log = logging.getLogger("ideal_oracle")
+RESULTS = Path(__file__).resolve().parent / "results"
+DOMAINS = ("walker", "manipulator", "snake", "lane_change")
+PURE = 1e-9  # the error rate of plain bisection: the paper's user never errs
+
+
+def ideal_trial(user: SimulatedUser, grids: np.ndarray, error_rate: float, budget: int = MAX_FEEDBACK
+                ) -> tuple[bool, int]:
+    """(success, attribute feedbacks) of bisection on each proxy that shows its estimate itself; an attribute the
+    user is silent about keeps the value just shown, as the Oracle does."""
+    answers: list[list[tuple[float, int]]] = [[] for _ in grids]
+    shown = np.array([quantile(g, posterior(g, np.zeros(len(g)), [], error_rate), 0.5) for g in grids])
+    feedbacks = 0
+    while feedbacks < budget:
+        signs = user.signs(shown)
+        if not signs.any():
+            return True, feedbacks
+        feedbacks += int(np.count_nonzero(signs))
+        for a in np.flatnonzero(signs):
+            answers[a].append((float(shown[a]), int(signs[a])))
+            g = grids[a]
+            shown[a] = quantile(g, posterior(g, np.zeros(len(g)), answers[a], error_rate), 0.5)
+    return False, feedbacks
+
+
+def summary(results: list[tuple[bool, int]]) -> dict:
+    fb = np.array([n for ok, n in results if ok], dtype=float)
+    return {"success_rate": float(np.mean([ok for ok, _ in results])),
+            "avg_feedback": float(fb.mean()) if len(fb) else None, "std_feedback": float(fb.std()) if len(fb) else None}
+
+
+def measure(domain: str, precision: str, args: argparse.Namespace) -> dict:
+    """One row: the ideal bisection (the Oracle's error rate and plain) and the tables' Oracle, same targets."""
+    serve = SkillLibrary.load(domain, "serve")
+    eps = get_domain(domain).epsilons(serve.proxies, precision)
+    grids = ReferenceContext.from_library(serve).grids
+    targets = held_out_targets(SkillLibrary.load(domain, args.split), args.targets, args.seed)
+    row = {"domain": domain, "precision": precision, "targets": len(targets)}
+    for name, rate in (("ideal", ERROR_RATE), ("ideal_pure", PURE)):
+        users = [SimulatedUser(t, eps, serve.attribute_names, np.empty((0, len(eps)))) for t in targets]
+        row[name] = summary([ideal_trial(u, grids, rate) for u in users])
+    oracle = evaluate(domain, "oracle", targets=args.targets, seed=args.seed, precision=precision, split=args.split)
+    row["oracle_library"] = {"success_rate": oracle.success_rate, "avg_feedback": oracle.avg_feedback,
+                             "std_feedback": oracle.std_feedback}
+    log.info("%s", row)
+    return row
+
+
+def _cell(r: dict) -> str:
+    return f"{r['success_rate']:.2f} / {af_cell(r['avg_feedback'], r['std_feedback'])}"
+
+
+def markdown(report: dict) -> str:
+    lines = ["# The ideal oracle: the fewest answers bisection on the true proxies needs", "",
+             f"{report['targets']} `{report['split']}` targets (seed {report['seed']}), the paper's user, "
+             "SR / AF (std), AF over successful trials. *ideal*: the Oracle's probabilistic bisection (error rate "
+             f"{ERROR_RATE}) showing a clip with exactly its estimate; *ideal, plain*: the same with plain bisection "
+             "(the paper's user never errs); *Oracle (library)*: the tables' row, the serve clip nearest the "
+             "estimate. No agent that reads clips through ζσ can expect fewer answers than the ideal rows.", "",
+             "| domain | precision | ideal | ideal, plain | Oracle (library) |", "|---|---|---|---|---|"]
+    for r in report["rows"]:
+        lines.append(f"| {r['domain']} | {r['precision']} | {_cell(r['ideal'])} | {_cell(r['ideal_pure'])} | "
+                     f"{_cell(r['oracle_library'])} |")
+    lines += ["", f"Command: `{report['command']}` ({report['machine']}, {report['date']})."]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--domains", nargs="+", choices=domain_names(), default=list(DOMAINS))
+    ap.add_argument("--precisions", nargs="+", choices=("high", "normal"), default=["high", "normal"])
+    ap.add_argument("--targets", type=int, default=20)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--split", choices=HELD_OUT, default="test")
+    ap.add_argument("--out", type=Path, default=RESULTS / "ideal_oracle", help="writes <out>.json and <out>.md")
+    args = ap.parse_args(argv)
+    if args.targets < 1:
+        ap.error(f"--targets must be at least 1, got {args.targets}")
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+    report = {"targets": args.targets, "seed": args.seed, "split": args.split, "date": time.strftime("%Y-%m-%d"),
+              "command": "python benchmarks/ideal_oracle.py " + " ".join(argv or sys.argv[1:]), "machine": machine(),
+              "rows": [measure(d, p, args) for p in args.precisions for d in args.domains]}
+    save_report(args.out, report, markdown(report))
+    print(markdown(report))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
