@@ -22,6 +22,13 @@ def test_plain_bisection_halves_until_within():
     assert ideal_oracle.ideal_trial(user([0.3], [0.02]), GRID[None], ideal_oracle.PURE) == (True, 3)
 
 
+def test_a_prior_where_behaviours_lie_starts_the_bisection_there():
+    prior = ideal_oracle.library_prior(GRID, np.full(50, 0.3), bandwidth=0.01)
+    assert ideal_oracle.ideal_trial(user([0.3], [0.02]), GRID[None], ideal_oracle.PURE, prior[None]) == (True, 0)
+    far = ideal_oracle.ideal_trial(user([0.9], [0.02]), GRID[None], ideal_oracle.PURE, prior[None])
+    assert far[0] and far[1] > 3  # a target where no behaviour lies costs more than from a uniform belief
+
+
 def test_a_silent_attribute_costs_nothing_and_an_unreachable_target_fails_at_the_budget():
     ok, feedbacks = ideal_oracle.ideal_trial(user([0.5, 0.3], [0.02, 0.02]), np.stack([GRID, GRID]),
                                              ideal_oracle.PURE)
@@ -36,7 +43,8 @@ def test_toy_domain_report_and_bad_targets(toy_env, tmp_path, capsys):
     assert [(r["domain"], r["precision"], r["targets"]) for r in report["rows"]] == [("toy", "high", 4),
                                                                                   ("toy", "normal", 4)]
     for row in report["rows"]:
-        assert row["ideal"]["success_rate"] == 1.0 and row["ideal"]["avg_feedback"] >= 0
+        for kind in ("ideal", "ideal_pure", "ideal_prior", "ideal_prior_pure"):
+            assert row[kind]["success_rate"] == 1.0 and row[kind]["avg_feedback"] >= 0
         assert set(row["oracle_library"]) == {"success_rate", "avg_feedback", "std_feedback"}
     assert "| toy | high |" in out.with_suffix(".md").read_text()
     with pytest.raises(SystemExit) as exit_:
