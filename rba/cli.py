@@ -200,6 +200,8 @@ def _generation(args) -> tuple[dict, Compute | None]:
         options["spread"] = args.gen_spread
     if args.gen_noise is not None:
         options["zeta_noise"] = args.gen_noise
+    if args.gen_prior is not None:
+        options["prior_width"] = args.gen_prior
     if args.gen_surface is not None:
         options["surface"] = args.gen_surface
     if args.gen_refit is not None:
@@ -412,6 +414,10 @@ def _generation_options(e: argparse.ArgumentParser) -> None:
     e.add_argument("--gen-noise", type=_noise_share, default=None,
                    help="the generating agent's soft step for answers, a share of ζσ's train range (0: the hard "
                         "step); default: the domain's Domain.zeta_noise; tune it on --split val")
+    e.add_argument("--gen-prior", type=_noise_share, default=None, metavar="WIDTH",
+                   help="the generating agent's belief starts where the serve clips lie in ζσ, a kernel of this "
+                        "share of ζσ's train range (0: uniform over it); default: the domain's Domain.belief_prior; "
+                        "tune it on --split val")
     e.add_argument("--gen-surface", type=_surface_neighbours, default=None, metavar="N",
                    help="read and make clips on a fit of ζσ over the skill's parameters through the N nearest "
                         "serve clips (0: each clip's own ζσ); default: the domain's Domain.zeta_surface; tune it "

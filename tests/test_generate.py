@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import math
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -29,9 +30,9 @@ from rba.generate import (
     replay,
     search,
 )
-from rba.interact import generating
+from rba.interact import generating, global_agent
 from rba.interact.base import AttributeFeedback
-from rba.interact.bisection import posterior
+from rba.interact.bisection import posterior, quantile
 from rba.interact.generating import (
     POOL_KEEP,
     RETRY_AFTER,
@@ -535,6 +536,27 @@ def test_the_soft_step_is_the_domains_unless_asked_and_kept_in_the_state(ctx, ga
         _gen(ctx, gap_roots, zeta_noise=1.5)
 
 
+def test_the_belief_prior_is_the_domains_unless_asked_and_lies_where_the_clips_do(ctx, gap_roots, monkeypatch):
+    monkeypatch.setattr(Toy, "belief_prior", 0.05)
+    base = _gen(ctx, gap_roots).base
+    assert base.prior_width == 0.05 and _gen(ctx, gap_roots, prior_width=0.0).base.prior_width == 0.0
+    np.testing.assert_array_equal(_gen(ctx, gap_roots, prior_width=0.0).base.prior(0), ctx.prior(0))  # uniform
+    for a in range(len(ctx.attribute_names)):
+        grid, mass = base.grid(a), np.exp(base.prior(a))
+        assert mass.sum() == pytest.approx(1.0)
+        h = 0.05 * (ctx.bounds[1, a] - ctx.bounds[0, a])
+        near = np.min(np.abs(grid[:, None] - base.serve_zeta[None, :, a]), 1) <= 3 * h
+        assert mass[near].sum() > 0.95  # the kernels' mass, less the uniform floor beyond them
+        uniform = np.exp(ctx.prior(a)) / np.exp(ctx.prior(a)).sum()
+        assert np.all(mass >= global_agent.PRIOR_FLOOR * uniform * (1 - 1e-9))  # no target ruled out
+    moved = replace(base, serve_zeta=base.serve_zeta + 0.3 * (ctx.bounds[1] - ctx.bounds[0]))
+    assert not np.allclose(moved.prior(0), base.prior(0))  # a copy over other ζσ has a prior of its own
+    agent = GeneratingGlobalAgent(_gen(ctx, gap_roots))
+    assert agent.inner.target[0] == pytest.approx(quantile(base.grid(0), np.exp(base.prior(0)), 0.5))
+    with pytest.raises(ValueError, match=r"prior_width is a share of ζσ's range in \[0, 1\), got 1.5"):
+        _gen(ctx, gap_roots, prior_width=1.5)
+
+
 def cli_context_option(gap_roots, monkeypatch, option: str, value: str | None, attribute: str) -> list:
     """The generating context's ``attribute`` as ``rba eval`` sets it: with ``option value`` (a flag: ``value``
     None), then without."""
@@ -566,6 +588,12 @@ def cli_refuses(capsys, option: str, bads: tuple[str, ...], valid: str) -> None:
 def test_cli_gen_noise_option(gap_roots, monkeypatch, capsys):
     assert cli_context_option(gap_roots, monkeypatch, "--gen-noise", "0.05", "zeta_noise") == [0.05, Toy.zeta_noise]
     cli_refuses(capsys, "--gen-noise", ("-0.1", "1", "wide"), "must be a share in [0, 1)")
+
+
+def test_cli_gen_prior_option(gap_roots, monkeypatch, capsys):
+    assert cli_context_option(gap_roots, monkeypatch, "--gen-prior", "0.05", "prior_width") == [0.05,
+                                                                                               Toy.belief_prior]
+    cli_refuses(capsys, "--gen-prior", ("-0.1", "1", "wide"), "must be a share in [0, 1)")
 
 
 def test_a_soft_step_keeps_answers_that_contradict_each_other_one_bump():

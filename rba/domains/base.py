@@ -197,6 +197,10 @@ class Domain(ABC):
     # the generating agent's soft step for answers, a share of ζσ's train range (rba.interact.bisection): about how
     # far ζσ can put a clip from where a person would; 0: the hard step. Chosen on val (generation_noise_val.md)
     zeta_noise: float = 0.0
+    # the generating agent's belief starts where the serve library's clips lie in ζσ (a kernel of this share of ζσ's
+    # train range, ``GlobalContext.prior_width``) rather than uniform over it (0): targets are behaviours of the
+    # same skill. Measured on val (belief_prior_val.md)
+    belief_prior: float = 0.0
     # neighbours of the ζσ surface over the skill's parameters (rba.surface) the generating agent reads clips on and
     # makes them from: where the proxies move smoothly with the parameters it orders nearby clips better than ζσ of
     # their states. 0: each clip's own ζσ. Chosen on val (generation_surface_val.md)

@@ -204,6 +204,8 @@ class GenerationContext:
     store: GeneratedStore = field(default_factory=GeneratedStore)
     first_from_library: bool = False  # the first clip is the library's (the app: one first clip for every session)
     zeta_noise: float | None = None  # the belief's soft step (None: the domain's ``Domain.zeta_noise``)
+    # where the belief starts (``GlobalContext.prior_width``; None: the domain's ``Domain.belief_prior``; 0: uniform)
+    prior_width: float | None = None
     surface: int | None = None  # neighbours of the ζσ surface clips are read on (None: the domain's; 0: none)
     # fitted on construction from ``surface`` (then ``base`` reads the library on it); passed on by
     # ``dataclasses.replace`` (the app's per-step contexts), so a copy neither fits again nor smooths twice
@@ -226,6 +228,12 @@ class GenerationContext:
             raise ValueError(f"spread is a share of the belief's half interquartile range (≥ 0), got {self.spread}")
         if not 0.0 <= self.zeta_noise < 1.0:
             raise ValueError(f"zeta_noise is a share of ζσ's range in [0, 1), got {self.zeta_noise}")
+        if self.prior_width is None:
+            self.prior_width = domain.belief_prior
+        if not 0.0 <= self.prior_width < 1.0:
+            raise ValueError(f"prior_width is a share of ζσ's range in [0, 1), got {self.prior_width}")
+        if self.prior_width != self.base.prior_width:
+            self.base = replace(self.base, prior_width=self.prior_width)
         if self.surface is None:
             self.surface = domain.zeta_surface
         if self.surface == 1 or self.surface < 0:

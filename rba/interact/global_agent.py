@@ -4,7 +4,8 @@ The paper bisects an interval [lower, upper] per attribute. A single wrong answe
 excludes the true target for good, so we run *probabilistic* bisection instead
 (``rba.interact.bisection``): a belief over a grid of ζ values per attribute, uniform over
 the ζ range seen in ``train`` (with a thin tail beyond it, so targets outside can still be
-reached); the new target is the belief's median. With a small error rate this moves almost
+reached) or, where the generating agent asks (``GlobalContext.prior_width``), mostly where the
+serve clips lie; the new target is the belief's median. With a small error rate this moves almost
 exactly like bisection (no extra feedback when users are right), and a wrong answer is
 outvoted by the next right ones instead of trapping the search.
 
@@ -20,7 +21,7 @@ is no update at all.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -43,6 +44,7 @@ MAX_PUSHES = 8  # doublings of the push step before giving up on a move
 GRID = 401  # belief grid points per attribute
 TAIL = 0.5  # the grid extends this fraction of the train ζ range beyond each end
 TAIL_DENSITY = 0.05  # prior density beyond the train range, relative to inside it
+PRIOR_FLOOR = 0.05  # share of a library prior (``GlobalContext.prior_width``) kept uniform: no target ruled out
 ERROR_RATE = 0.1  # assumed probability that an answer is wrong
 SHORTLIST = 32  # rollouts nearest the target in ζσ space that rθ ranks (None: all); see benchmarks/results/shortlist.md
 
@@ -60,6 +62,10 @@ class GlobalContext:
     scorer: LibraryScorer
     model_version: str
     shortlist: int | None = SHORTLIST
+    # the belief starts where the serve clips lie in ζσ: a Gaussian kernel of this share of ζσ's train range (0:
+    # uniform over the train range). Targets are behaviours of the same skill, so most lie where its clips do
+    prior_width: float = 0.0
+    _priors: dict[int, np.ndarray] = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @classmethod
     def load(cls, domain: str, rep: str, data_root=None, models_root=None) -> GlobalContext:
@@ -101,9 +107,18 @@ class GlobalContext:
         return np.linspace(lo - TAIL * (hi - lo), hi + TAIL * (hi - lo), GRID)
 
     def prior(self, a: int) -> np.ndarray:
-        g = self.grid(a)
-        inside = (g >= self.bounds[0, a]) & (g <= self.bounds[1, a])
-        return np.log(np.where(inside, 1.0, TAIL_DENSITY))
+        """The belief's log prior over ``grid(a)``: uniform over the train range with a thin tail beyond it, or with
+        ``prior_width`` mostly where the serve clips lie, the uniform one kept as a ``PRIOR_FLOOR`` share."""
+        if a not in self._priors:  # a copy made by ``replace`` (other ζσ of the clips) starts without any
+            g = self.grid(a)
+            inside = (g >= self.bounds[0, a]) & (g <= self.bounds[1, a])
+            density = np.where(inside, 1.0, TAIL_DENSITY)
+            if self.prior_width:
+                h = self.prior_width * float(self.bounds[1, a] - self.bounds[0, a])
+                near = np.exp(-0.5 * ((g[:, None] - self.serve_zeta[None, :, a]) / h) ** 2).sum(1)
+                density = (1 - PRIOR_FLOOR) * near / near.sum() + PRIOR_FLOOR * density / density.sum()
+            self._priors[a] = np.log(density)
+        return self._priors[a]
 
 
 class GlobalAgent(Agent):
