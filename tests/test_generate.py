@@ -224,6 +224,9 @@ def test_each_domain_generates_as_chosen_on_val():
                                                             "lane_change": 0.0}
     # session_refit_val.md: the snake's val answers fell by 41 %, the manipulator's rose
     assert [d for d in names if get_domain(d).session_refit] == ["snake"]
+    # belief_prior_val.md: the manipulator's val answers fell by 7.5 %, the snake's rose
+    assert {d: get_domain(d).belief_prior for d in names} == {"walker": 0.0, "manipulator": 0.05, "snake": 0.0,
+                                                              "lane_change": 0.0}
 
 
 def test_a_noisy_skills_candidates_each_get_a_seed_of_their_own(ctx, gap_roots, monkeypatch):

@@ -199,7 +199,7 @@ class Domain(ABC):
     zeta_noise: float = 0.0
     # the generating agent's belief starts where the serve library's clips lie in ζσ (a kernel of this share of ζσ's
     # train range, ``GlobalContext.prior_width``) rather than uniform over it (0): targets are behaviours of the
-    # same skill. Measured on val (belief_prior_val.md)
+    # same skill. Chosen on val (belief_prior_val.md: the manipulator's 0.05)
     belief_prior: float = 0.0
     # neighbours of the ζσ surface over the skill's parameters (rba.surface) the generating agent reads clips on and
     # makes them from: where the proxies move smoothly with the parameters it orders nearby clips better than ζσ of
