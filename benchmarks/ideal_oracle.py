@@ -25,7 +25,7 @@ import numpy as np
 
 from rba.domains import domain_names, get_domain
 from rba.evaluate import MAX_FEEDBACK, af_cell, evaluate, held_out_targets
-from rba.interact.bisection import posterior, quantile
+from rba.interact.bisection import kernel_prior, posterior, quantile
 from rba.interact.reference import ERROR_RATE, ReferenceContext
 from rba.interact.users import SimulatedUser
 from rba.library import HELD_OUT, SkillLibrary
@@ -37,12 +37,6 @@ DOMAINS = ("walker", "manipulator", "snake", "lane_change")
 PURE = 1e-9  # the error rate of plain bisection: the paper's user never errs
 PRIOR_BANDWIDTH = 0.05  # the library prior's kernel width, a share of each proxy's 1st-99th percentile range
 PRIOR_FLOOR = 0.01  # share of the prior spread evenly over the grid: no target is ruled out before an answer
-
-
-def library_prior(grid: np.ndarray, values: np.ndarray, bandwidth: float) -> np.ndarray:
-    """Log density over ``grid`` of where behaviours lie: a Gaussian kernel estimate over ``values``, with a floor."""
-    density = np.exp(-0.5 * ((grid[:, None] - values[None, :]) / bandwidth) ** 2).sum(1)
-    return np.log((1 - PRIOR_FLOOR) * density / density.sum() + PRIOR_FLOOR / len(grid))
 
 
 def ideal_trial(user: SimulatedUser, grids: np.ndarray, error_rate: float, priors: np.ndarray | None = None,
@@ -80,7 +74,7 @@ def measure(domain: str, precision: str, args: argparse.Namespace) -> dict:
     serve = SkillLibrary.load(domain, "serve")
     eps = get_domain(domain).epsilons(serve.proxies, precision)
     ref = ReferenceContext.from_library(serve)
-    priors = np.stack([library_prior(g, serve.proxies[:, a], PRIOR_BANDWIDTH * ref.scale[a])
+    priors = np.stack([kernel_prior(g, serve.proxies[:, a], PRIOR_BANDWIDTH * ref.scale[a], PRIOR_FLOOR)
                        for a, g in enumerate(ref.grids)])
     targets = held_out_targets(SkillLibrary.load(domain, args.split), args.targets, args.seed)
     row = {"domain": domain, "precision": precision, "targets": len(targets)}

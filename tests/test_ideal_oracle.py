@@ -5,6 +5,7 @@ import json
 import numpy as np
 import pytest
 
+from rba.interact.bisection import kernel_prior
 from rba.interact.users import SimulatedUser
 from tests.benchmark_scripts import load_benchmark
 
@@ -23,7 +24,7 @@ def test_plain_bisection_halves_until_within():
 
 
 def test_a_prior_where_behaviours_lie_starts_the_bisection_there():
-    prior = ideal_oracle.library_prior(GRID, np.full(50, 0.3), bandwidth=0.01)
+    prior = kernel_prior(GRID, np.full(50, 0.3), width=0.01, floor=ideal_oracle.PRIOR_FLOOR)
     assert ideal_oracle.ideal_trial(user([0.3], [0.02]), GRID[None], ideal_oracle.PURE, prior[None]) == (True, 0)
     far = ideal_oracle.ideal_trial(user([0.9], [0.02]), GRID[None], ideal_oracle.PURE, prior[None])
     assert far[0] and far[1] > 3  # a target where no behaviour lies costs more than from a uniform belief

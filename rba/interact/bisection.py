@@ -38,3 +38,12 @@ def posterior(grid: np.ndarray, log_prior: np.ndarray, answers: Iterable[tuple[f
 def quantile(grid: np.ndarray, belief: np.ndarray, q: float) -> float:
     """The ``q`` quantile of a belief over ``grid``."""
     return float(np.interp(q, np.cumsum(belief), grid))
+
+
+def kernel_prior(grid: np.ndarray, values: np.ndarray, width: float, floor: float,
+                 base: np.ndarray | None = None) -> np.ndarray:
+    """A log prior over ``grid`` where ``values`` lie (a Gaussian kernel estimate of ``width``), with a ``floor``
+    share of ``base`` (a density over the grid; None: uniform), so that no value is ruled out before an answer."""
+    near = np.exp(-0.5 * ((grid[:, None] - np.asarray(values)[None, :]) / width) ** 2).sum(1)
+    base = np.ones(len(grid)) if base is None else np.asarray(base, dtype=np.float64)
+    return np.log((1 - floor) * near / near.sum() + floor * base / base.sum())

@@ -30,7 +30,7 @@ import numpy as np
 from rba.artifacts import load_model
 from rba.embed import REPRESENTATIONS
 from rba.interact.base import REJECT_MEMORY, Agent, Feedback
-from rba.interact.bisection import posterior, quantile
+from rba.interact.bisection import kernel_prior, posterior, quantile
 from rba.learn.common import Ragged
 from rba.learn.global_reward import LibraryScorer
 from rba.library import SkillLibrary
@@ -112,12 +112,10 @@ class GlobalContext:
         if a not in self._priors:  # a copy made by ``replace`` (other ζσ of the clips) starts without any
             g = self.grid(a)
             inside = (g >= self.bounds[0, a]) & (g <= self.bounds[1, a])
-            density = np.where(inside, 1.0, TAIL_DENSITY)
-            if self.prior_width:
-                h = self.prior_width * float(self.bounds[1, a] - self.bounds[0, a])
-                near = np.exp(-0.5 * ((g[:, None] - self.serve_zeta[None, :, a]) / h) ** 2).sum(1)
-                density = (1 - PRIOR_FLOOR) * near / near.sum() + PRIOR_FLOOR * density / density.sum()
-            self._priors[a] = np.log(density)
+            flat = np.where(inside, 1.0, TAIL_DENSITY)
+            width = self.prior_width * float(self.bounds[1, a] - self.bounds[0, a])
+            self._priors[a] = (kernel_prior(g, self.serve_zeta[:, a], width, PRIOR_FLOOR, flat) if width
+                               else np.log(flat))
         return self._priors[a]
 
 
