@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from rba.domains import domain_names, get_domain
-from rba.evaluate import MAX_FEEDBACK, af_cell, evaluate, held_out_targets
+from rba.evaluate import MAX_FEEDBACK, af_cell, evaluate, held_out_targets, success_summary
 from rba.interact.bisection import kernel_prior, posterior, quantile
 from rba.interact.reference import ERROR_RATE, ReferenceContext
 from rba.interact.users import SimulatedUser
@@ -63,12 +63,6 @@ def ideal_trial(user: SimulatedUser, grids: np.ndarray, error_rate: float, prior
     return False, feedbacks
 
 
-def summary(results: list[tuple[bool, int]]) -> dict:
-    fb = np.array([n for ok, n in results if ok], dtype=float)
-    return {"success_rate": float(np.mean([ok for ok, _ in results])),
-            "avg_feedback": float(fb.mean()) if len(fb) else None, "std_feedback": float(fb.std()) if len(fb) else None}
-
-
 def measure(domain: str, precision: str, args: argparse.Namespace) -> dict:
     """One row: the ideal bisection (the Oracle's error rate and plain) and the tables' Oracle, same targets."""
     serve = SkillLibrary.load(domain, "serve")
@@ -81,7 +75,7 @@ def measure(domain: str, precision: str, args: argparse.Namespace) -> dict:
     for name, rate, prior in (("ideal", ERROR_RATE, None), ("ideal_pure", PURE, None),
                               ("ideal_prior", ERROR_RATE, priors), ("ideal_prior_pure", PURE, priors)):
         users = [SimulatedUser(t, eps, serve.attribute_names, np.empty((0, len(eps)))) for t in targets]
-        row[name] = summary([ideal_trial(u, ref.grids, rate, prior) for u in users])
+        row[name] = success_summary([ideal_trial(u, ref.grids, rate, prior) for u in users])
     oracle = evaluate(domain, "oracle", targets=args.targets, seed=args.seed, precision=precision, split=args.split)
     row["oracle_library"] = {"success_rate": oracle.success_rate, "avg_feedback": oracle.avg_feedback,
                              "std_feedback": oracle.std_feedback}

@@ -64,7 +64,8 @@ def _non_negative(text: str) -> float:
 
 
 def _noise_share(text: str) -> float:
-    """A share in [0, 1) of ζσ's range: the generating agent's soft step (``rba eval --gen-noise``)."""
+    """A share in [0, 1) of ζσ's range: the generating agent's soft step or prior width (``--gen-noise``,
+    ``--gen-prior``)."""
     value = _number(text)
     if not 0.0 <= value < 1.0:
         raise argparse.ArgumentTypeError(f"must be a share in [0, 1), got {text}")

@@ -151,6 +151,13 @@ def simulate(agent: Agent, target: np.ndarray, epsilon: np.ndarray, serve: Skill
     return loop.run(agent, loop.make(parse_user(user), target, epsilon, serve, seed), serve, max_feedback)
 
 
+def success_summary(outcomes: list[tuple[bool, int]]) -> dict[str, float | None]:
+    """SR and the mean and std of AF over the successful trials (None: none succeeded), from (success, feedbacks)."""
+    fb = np.array([n for ok, n in outcomes if ok], dtype=float)
+    return {"success_rate": float(np.mean([ok for ok, _ in outcomes])),
+            "avg_feedback": float(fb.mean()) if len(fb) else None, "std_feedback": float(fb.std()) if len(fb) else None}
+
+
 def held_out_targets(held_out: SkillLibrary, count: int, seed: int) -> np.ndarray:
     """float64[n, k]: the proxies of ``count`` rollouts of a held-out split drawn without replacement (seeded),
     every agent's targets for that split and seed."""
@@ -230,11 +237,8 @@ def evaluate(domain_name: str, method: str, rep: str = "onehot", targets: int = 
         trials.append(simulate(agent, t, eps, serve, spec, seed * 1000 + n))
         log.info("%s %s: trial %d of %d %s after %d feedbacks", domain_name, method, n + 1, len(chosen),
                  "succeeded" if trials[-1].success else "failed", trials[-1].feedback_count)
-    fb = np.array([t.feedback_count for t in trials if t.success], dtype=float)
     return EvalResult(domain_name, method, rep, precision, str(spec), seed,
-                      success_rate=float(np.mean([t.success for t in trials])),
-                      avg_feedback=float(fb.mean()) if len(fb) else None,
-                      std_feedback=float(fb.std()) if len(fb) else None,
+                      **success_summary([(t.success, t.feedback_count) for t in trials]),
                       seconds=round(time.perf_counter() - start, 2), trials=trials,
                       split=split if beyond is None else "beyond",
                       generate=generate, generation=generation_summary(agents) if generate else None,

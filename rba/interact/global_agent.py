@@ -21,7 +21,7 @@ is no update at all.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -65,7 +65,6 @@ class GlobalContext:
     # the belief starts where the serve clips lie in ζσ: a Gaussian kernel of this share of ζσ's train range (0:
     # uniform over the train range). Targets are behaviours of the same skill, so most lie where its clips do
     prior_width: float = 0.0
-    _priors: dict[int, np.ndarray] = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @classmethod
     def load(cls, domain: str, rep: str, data_root=None, models_root=None) -> GlobalContext:
@@ -109,14 +108,11 @@ class GlobalContext:
     def prior(self, a: int) -> np.ndarray:
         """The belief's log prior over ``grid(a)``: uniform over the train range with a thin tail beyond it, or with
         ``prior_width`` mostly where the serve clips lie, the uniform one kept as a ``PRIOR_FLOOR`` share."""
-        if a not in self._priors:  # a copy made by ``replace`` (other ζσ of the clips) starts without any
-            g = self.grid(a)
-            inside = (g >= self.bounds[0, a]) & (g <= self.bounds[1, a])
-            flat = np.where(inside, 1.0, TAIL_DENSITY)
-            width = self.prior_width * float(self.bounds[1, a] - self.bounds[0, a])
-            self._priors[a] = (kernel_prior(g, self.serve_zeta[:, a], width, PRIOR_FLOOR, flat) if width
-                               else np.log(flat))
-        return self._priors[a]
+        g = self.grid(a)
+        inside = (g >= self.bounds[0, a]) & (g <= self.bounds[1, a])
+        flat = np.where(inside, 1.0, TAIL_DENSITY)
+        width = self.prior_width * float(self.bounds[1, a] - self.bounds[0, a])
+        return kernel_prior(g, self.serve_zeta[:, a], width, PRIOR_FLOOR, flat) if width else np.log(flat)
 
 
 class GlobalAgent(Agent):
