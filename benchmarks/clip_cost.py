@@ -58,7 +58,7 @@ from rba.domains.base import Domain, Rollout
 from rba.domains.mujoco_render import Camera, Sky, ThreadRenderers, render_over_sky, sky_alone
 from rba.library import SkillLibrary
 from rba.settings import LibrarySettings
-from rba.storage import report_path, save_text
+from rba.storage import report_path, save_markdown, save_text
 
 log = logging.getLogger("clip_cost")
 
@@ -597,7 +597,7 @@ def main(argv: list[str] | None = None) -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     save_text(report_path(args.out, ".json"), json.dumps(report, indent=2) + "\n")
     text = markdown(report)
-    save_text(report_path(args.out, ".md"), text)
+    save_markdown(report_path(args.out, ".md"), text)
     print(text)
     log.info("wrote %s.json and %s.md", args.out, args.out)
     return 0

@@ -45,7 +45,7 @@ from rba.interact import load_context
 from rba.interact.users import USER_KINDS, UserSpec, parse_user
 from rba.library import LibraryNotFoundError
 from rba.methods import methods
-from rba.storage import load_json, report_path, save_json, save_text
+from rba.storage import load_json, report_path, save_json, save_markdown
 
 log = logging.getLogger("paper_tables")
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -354,7 +354,7 @@ def main(argv: list[str] | None = None) -> None:
         users = sorted({r.user for *_, r in rows} - {PAPER_USER})
         text = markdown(rows, sorted({d for d, *_ in rows}), shown, args.targets, args.seed, seconds, users,
                         args.out)
-        save_text(args.out, text)
+        save_markdown(args.out, text)
         save_json(report_path(args.out, ".json"), json_rows(rows))
         return text
 

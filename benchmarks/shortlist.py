@@ -24,7 +24,7 @@ from rba.artifacts import load_model
 from rba.domains import get_domain
 from rba.interact import load_context
 from rba.library import SkillLibrary
-from rba.storage import save_text
+from rba.storage import save_markdown
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -72,7 +72,7 @@ def main() -> None:
              "|---|---|---|---|---|---|"]
     lines += [f"| {r['rep']} | {r['k']} | {r['normal']:.3f} | {r['high']:.3f} | {r['same_as_full']:.3f} | "
               f"{r['ms_per_query']:.1f} |" for r in rows]
-    save_text(args.out, "\n".join(lines) + "\n")
+    save_markdown(args.out, "\n".join(lines) + "\n")
     print("\n".join(lines))
 
 

@@ -28,7 +28,7 @@ from rba.evaluate import EvalResult, af_cell, evaluate
 from rba.interact import load_context
 from rba.learn.pbrl import PbRLConfig
 from rba.methods import get_method, method_names, methods
-from rba.storage import report_path, save_json, save_text
+from rba.storage import report_path, save_json, save_markdown
 from rba.training import LocalTrainConfig, train_local
 
 log = logging.getLogger("walker_methods")
@@ -149,7 +149,7 @@ def main(argv: list[str] | None = None) -> int:
               f"Command: `{command}`; "
               f"{dt.date.today().isoformat()}, Python {platform.python_version()}, CPU only.", ""]
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    save_text(args.out, "\n".join(lines))
+    save_markdown(args.out, "\n".join(lines))
     save_json(report_path(args.out, ".json"),
               [{"label": label} | {k: v for k, v in r.to_json().items() if k != "trials"}
                | {"feedback_counts": [t.feedback_count if t.success else None for t in r.trials]}

@@ -41,7 +41,7 @@ from rba.generate import SearchConfig, ZetaDistance, search
 from rba.interact import load_context
 from rba.interact.generating import STARTS, THRESHOLD
 from rba.library import SkillLibrary
-from rba.storage import report_path, save_text
+from rba.storage import report_path, save_markdown, save_text
 
 RESULTS = Path(__file__).resolve().parent / "results"
 STEPS = (0.01, 0.03, 0.1)  # std of the parameter moves, in units of each free parameter's range
@@ -306,7 +306,7 @@ def main() -> None:
         row["measured"] = f"`{command}`; {dt.date.today().isoformat()}"
     rows = merge_rows(rows, RESULTS / "zeta_residual")
     save_text(RESULTS / "zeta_residual.json", json.dumps(rows, indent=1) + "\n")
-    save_text(RESULTS / "zeta_residual.md", report(rows))
+    save_markdown(RESULTS / "zeta_residual.md", report(rows))
 
 
 if __name__ == "__main__":

@@ -48,6 +48,22 @@ def save_text(path: Path, text: str) -> None:
     write_atomic(Path(path), lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
 
 
+# in a benchmark's Markdown report: what follows was written by hand (when, at which commit and why a row was measured
+# again) and is kept when the script writes the report again
+NOTES = "<!-- notes written by hand: kept when the report is written again -->"
+
+
+def save_markdown(path: Path, text: str) -> None:
+    """Write a generated report ``text`` atomically, followed by the hand-written notes of the one at ``path`` (from
+    ``NOTES`` on), if it has any: regenerating a report must not lose the history of its rows."""
+    path = Path(path)
+    old = path.read_text(encoding="utf-8") if path.exists() else ""
+    at = old.find(NOTES)
+    if at >= 0 and NOTES not in text:
+        text = text.rstrip("\n") + "\n\n" + old[at:]
+    save_text(path, text)
+
+
 def report_path(out: Path, suffix: str) -> Path:
     """``<out><suffix>``: a benchmark's ``--out`` names its reports without their suffix, and a dot in that name
     (``--out runs/pull0.001``) is part of it (``with_suffix`` would replace ``.001``: two runs, one file); an ``out``
@@ -73,7 +89,7 @@ def save_report(out: Path, report: dict, markdown: str) -> None:
     """A benchmark's report: ``<out>.json`` (the numbers) and ``<out>.md`` (for people), each atomically."""
     out.parent.mkdir(parents=True, exist_ok=True)
     save_text(report_path(out, ".json"), json.dumps(report, indent=2) + "\n")
-    save_text(report_path(out, ".md"), markdown)
+    save_markdown(report_path(out, ".md"), markdown)
 
 
 def save_json(path: Path, obj: Any) -> None:

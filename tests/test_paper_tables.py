@@ -226,3 +226,18 @@ def test_readme_results_say_what_the_report_says():
                     assert paper.rstrip(")").removeprefix("paper ") == want, (domain, label, precision)
                 checked += 1
     assert checked >= 30
+
+
+def test_the_report_written_again_keeps_its_notes(tmp_path):
+    """The shipped report regenerated from its own rows: the generated part as before, the notes below ``NOTES``
+    kept word for word (they say when and why rows were measured again)."""
+    from rba.storage import NOTES
+
+    shipped = (REPO_ROOT / "benchmarks" / "results" / "paper_tables.md").read_text()
+    out = tmp_path / "paper_tables.md"
+    out.write_text(shipped)
+    paper_tables.main(["--report-only", "--merge", str(REPO_ROOT / "benchmarks" / "results" / "paper_tables.json"),
+                       "--out", str(out)])
+    text = out.read_text()
+    assert NOTES in shipped and text[text.index(NOTES):] == shipped[shipped.index(NOTES):]
+    assert "## Table 2 — high precision (the headline)" in text[:text.index(NOTES)]
