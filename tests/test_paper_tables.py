@@ -7,7 +7,7 @@ import pytest
 
 from rba.evaluate import EvalResult
 from rba.settings import REPO_ROOT
-from rba.storage import save_json
+from rba.storage import NOTES, save_json
 from tests.benchmark_scripts import load_benchmark
 
 paper_tables = load_benchmark("paper_tables")
@@ -231,8 +231,6 @@ def test_readme_results_say_what_the_report_says():
 def test_the_report_written_again_keeps_its_notes(tmp_path):
     """The shipped report regenerated from its own rows: the generated part as before, the notes below ``NOTES``
     kept word for word (they say when and why rows were measured again)."""
-    from rba.storage import NOTES
-
     shipped = (REPO_ROOT / "benchmarks" / "results" / "paper_tables.md").read_text()
     out = tmp_path / "paper_tables.md"
     out.write_text(shipped)
