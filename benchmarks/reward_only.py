@@ -30,7 +30,7 @@ import platform
 import sys
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import cma
@@ -78,17 +78,18 @@ def prior_draws(domain: Domain, box: tuple[np.ndarray, np.ndarray], n: int, seed
             for q in (domain.sample_params(rng) for _ in range(n))]
 
 
-def profiles(args: argparse.Namespace, folder: Path) -> list[Path]:
-    """Exports of simulated sessions that ended satisfied within ε, ``args.profiles`` of them at most."""
+def profiles(args: argparse.Namespace, folder: Path) -> Iterator[Path]:
+    """Exports of simulated sessions that ended satisfied within ε, ``args.profiles`` of them at most, each as soon
+    as its session ends: a run's log then reports each profile's search before the next session runs."""
     domain = get_domain(args.domain)
     ctx = load_context(args.domain, "global", args.rep)
     serve, targets = ctx.serve, SkillLibrary.load(args.domain, args.split)
     eps = domain.epsilons(serve.proxies, "normal")
     version = ctx.model_version
-    out = []
+    made = 0
     for n, t in enumerate(np.random.default_rng(args.seed).permutation(len(targets))):
-        if len(out) == args.profiles:
-            break
+        if made == args.profiles:
+            return
         trial = simulate(new_agent("global", ctx), targets.proxies[t], eps, serve, "paper", args.seed * 1000 + n)
         if not trial.success:
             continue
@@ -98,10 +99,10 @@ def profiles(args: argparse.Namespace, folder: Path) -> list[Path]:
         src = ExportSource(args.domain, "global", args.rep, version, "builtin", model_files().root, serve,
                            shown[-1], rounds, clip=b"",
                            refit=_refit(args))
-        path = folder / f"profile-{len(out):02d}.zip"
+        path = folder / f"profile-{made:02d}.zip"
         write_export(path, src)
-        out.append(path)
-    return out
+        made += 1
+        yield path
 
 
 def _refit(args: argparse.Namespace) -> RefitConfig | None:
@@ -293,9 +294,8 @@ def main(argv: list[str] | None = None) -> int:
     ceiling = (ZetaLoss(load_model(args.domain, "ranker", args.rep).model,
                         load_model(args.domain, "global_reward", args.rep).model) if args.ceiling else None)
     with tempfile.TemporaryDirectory(prefix="rba-reward-only-") as folder:
-        paths = profiles(args, Path(folder))
         results, searched = [], {}  # rollout id -> its first profile's result
-        for path in paths:
+        for path in profiles(args, Path(folder)):
             r = _search_once(path, domain, box, args, searched, ceiling)
             r["within"] = _within(r["found"], r["target"], eps)
             if "ceiling" in r:
