@@ -109,7 +109,6 @@ def test_draws_of_the_skill_prior_start_the_search_from_their_best(toy_env, tmp_
     assert exit_.value.code == 2 and "--draws is a part of --budget (16): 0 to 15" in capsys.readouterr().err
 
 
-
 def test_each_profile_is_exported_when_its_session_ends(toy_env, tmp_path):
     """A run searches a profile before the next session runs: one profile asked for, one export on disk."""
     made = reward_only.profiles(reward_only.parse_args(["--domain", "toy", "--profiles", "3"]), tmp_path)
