@@ -49,6 +49,7 @@ SIMULATORS = ("mujoco", "dm-control", "highway-env", "gymnasium")  # package ver
 PICKLE_PROTOCOL_MARK = b"\x80"  # every pickle of protocol 2+ starts with the PROTO opcode
 DOMAIN_REFIT = "domain"  # ExportSource.refit: as the domain chooses
 REPLAY_RTOL, REPLAY_ATOL = 1e-6, 1e-9  # a replayed proxy "matches" within these (same packages: bit-exact)
+SEED_LIMIT = 2**32  # a profile's seed is below this: every domain's generator takes it (library seeds are below 4e6)
 
 
 class ExportError(ValueError):
@@ -108,8 +109,15 @@ class Profile:
             given = sorted(self.params) if isinstance(self.params, dict) else self.params
             raise ExportError(f"params {given} do not match domain {self.domain!r}'s param_names "
                               f"{list(domain.param_names)}")
-        if not all(isinstance(v, int | float) for v in self.params.values()) or not isinstance(self.seed, int):
-            raise ExportError("params must be numbers and seed an integer")
+        if not all(isinstance(v, int | float) and not isinstance(v, bool) for v in self.params.values()):
+            raise ExportError("params must be numbers")
+        if not isinstance(self.seed, int) or isinstance(self.seed, bool) or not 0 <= self.seed < SEED_LIMIT:
+            raise ExportError(f"seed must be an integer in [0, 2**32), got {self.seed!r}")
+        space = domain.param_space()
+        for name, value in self.params.items():
+            if not space.low[name] <= value <= space.high[name]:  # NaN fails too
+                raise ExportError(f"param {name} = {value!r} is outside domain {self.domain!r}'s range "
+                                  f"[{space.low[name]:g}, {space.high[name]:g}]")
         return domain
 
 
@@ -292,6 +300,8 @@ def export_bytes(profile: Profile, reward: RewardPart | None, clip: bytes) -> by
 
 def write_export(path: Path, src: ExportSource) -> Profile:
     """Build the export of ``src`` and write it to ``path`` atomically (temporary file, then rename)."""
+    if Path(path).is_dir():
+        raise ExportError(f"{path} is a folder; give the zip's file path, e.g. {Path(path) / 'behaviour.zip'}")
     profile, reward = build_export(src)
     data = export_bytes(profile, reward, src.clip)
     write_atomic(Path(path), lambda tmp: Path(tmp).write_bytes(data))

@@ -91,7 +91,12 @@ class ExportedReward(gym.Wrapper):
         self.export = _as_export(export)
         if self.export.reward is None:
             raise ExportError(f"this export has no reward model: {self.export.profile.reward_note}")
-        super().__init__(env if env is not None else gym.make(env_id(self.export.profile.domain)))
+        domain = self.export.profile.domain
+        super().__init__(env if env is not None else gym.make(env_id(domain)))
+        given = getattr(self.env.unwrapped, "domain", None)
+        if not isinstance(given, Domain) or given.name != domain:
+            raise ExportError(f"this export's reward is for {domain!r} ({env_id(domain)}); the env given is "
+                              f"{self.env.spec.id if self.env.spec else type(self.env.unwrapped).__name__}")
         self._pending = 0.0
 
     def _reward(self, obs: np.ndarray, recorded: bool) -> float:

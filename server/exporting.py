@@ -14,6 +14,7 @@ import logging
 from collections.abc import Callable
 from pathlib import Path
 
+from sqlalchemy.engine import make_url
 from sqlmodel import Session, select
 
 from rba.clips import GENERATED, ClipKey, Source
@@ -76,7 +77,8 @@ def export_session(svc: Services, db: Session, session_id: str) -> tuple[Profile
 def export_to_file(session_id: str, out: Path, settings: Settings | None = None) -> Profile:
     """``rba export``: the app's database and files (the server's settings), the zip written atomically to ``out``.
 
-    Raises ``LookupError`` for an unknown session and ``ValueError`` for one that cannot be exported.
+    Raises ``LookupError`` for an unknown session (naming the database) or a SQLite database not made yet (it is
+    not created empty), and ``ValueError`` for a session that cannot be exported.
     """
     from fastapi import HTTPException
 
@@ -100,12 +102,19 @@ def export_to_file(session_id: str, out: Path, settings: Settings | None = None)
     def remake(row: GeneratedClip) -> Rollout:  # simulated in this process, as the clip is rendered here
         return catalog.generated_store(row.domain).rollout(row.domain, row.id, row.params, row.seed)
 
+    url = make_url(settings.db_url)
+    where = url.render_as_string(hide_password=True)
+    if url.get_backend_name() == "sqlite" and not Path(url.database or "").is_file():  # not make an empty one
+        raise LookupError(f"no database at {url.database}: the app has not run with these settings "
+                          "(RBA_DATABASE_URL, RBA_DATA_DIR), so it has no session to export")
     engine = make_engine(settings.db_url)
     try:
         with Session(engine) as db:
             try:
                 return write_export(out, export_source(catalog, db, session_id, clip, remake))
             except HTTPException as exc:
-                raise (LookupError if exc.status_code == 404 else ValueError)(exc.detail) from None
+                if exc.status_code == 404:
+                    raise LookupError(f"{exc.detail} (database {where})") from None
+                raise ValueError(exc.detail) from None
     finally:
         engine.dispose()

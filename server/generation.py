@@ -110,7 +110,7 @@ class WouldSearch(Exception):
 def begin(svc: Services, s: TuningSession) -> Search:
     """A new search for the session's current step, registered so the progress route finds it."""
     gctx = svc.catalog.generation(s.domain, s.method, s.rep, s.model_set)
-    search = Search(s.step, gctx.config.generations, gctx.config.seconds)
+    search = Search(s.step, gctx.generations, gctx.config.seconds)
     with svc.search_lock:
         svc.searches.pop(s.id, None)  # to the end: the dict runs oldest first
         svc.searches[s.id] = search

@@ -86,6 +86,25 @@ def test_export_of_an_unknown_or_unfinished_session_exits_2(app_env, tmp_path, c
     assert not (tmp_path / "x.zip").exists()
 
 
+def test_export_names_the_database_and_makes_none(app_env, tmp_path, monkeypatch, capsys):
+    assert main(["export", "ghost", str(tmp_path / "x.zip")]) == 2
+    assert f"(database sqlite:///{tmp_path / 'rba.db'})" in capsys.readouterr().err
+    monkeypatch.setenv("RBA_DATABASE_URL", f"sqlite:///{tmp_path / 'elsewhere' / 'rba.db'}")
+    assert main(["export", "done", str(tmp_path / "x.zip")]) == 2
+    assert f"no database at {tmp_path / 'elsewhere' / 'rba.db'}: the app has not run with these settings" in \
+        capsys.readouterr().err
+    assert not (tmp_path / "elsewhere").exists() and not (tmp_path / "x.zip").exists()
+
+
+def test_export_to_a_folder_exits_2_and_writes_nothing(app_env, tmp_path, capsys):
+    folder = tmp_path / "exports"
+    folder.mkdir()
+    assert main(["export", "done", str(folder)]) == 2
+    err = capsys.readouterr().err
+    assert f"rba: error: {folder} is a folder; give the zip's file path, e.g. {folder / 'behaviour.zip'}" in err
+    assert list(folder.iterdir()) == [] and not list(tmp_path.glob(".exports*"))
+
+
 def _rewrite(src: Path, tmp_path: Path, drop: str | None = None, replace: dict[str, bytes] | None = None,
              profile=None) -> Path:
     """A copy of the export ``src`` without ``drop``, with members replaced, or with its profile edited."""
@@ -122,7 +141,8 @@ def _bad_cases(exported: Path, tmp_path: Path) -> dict[str, tuple[Path, str]]:
 
 @pytest.mark.parametrize("case", [
     "truncated", "not a zip", "foreign", "missing clip", "missing reward", "wrong version", "unknown domain",
-    "wrong params", "pickled reward", "pickled profile", "tampered clip", "unknown field",
+    "wrong params", "nan param", "param out of range", "negative seed", "huge seed",
+    "pickled reward", "pickled profile", "tampered clip", "unknown field",
 ])
 def test_bad_zips_exit_2_with_a_message(exported, tmp_path, case, capsys):
     edits = {
@@ -133,6 +153,13 @@ def test_bad_zips_exit_2_with_a_message(exported, tmp_path, case, capsys):
         "unknown domain": ({"profile": lambda p: {**p, "domain": "atlantis"}}, "unknown domain 'atlantis'; valid: "),
         "wrong params": ({"profile": lambda p: {**p, "params": {"amplitude": 1.0, "speed": 2.0}}},
                          "params ['amplitude', 'speed'] do not match domain 'toy''s param_names ['amplitude', 'pace']"),
+        "nan param": ({"profile": lambda p: {**p, "params": {**p["params"], "amplitude": float("nan")}}},
+                      "param amplitude = nan is outside domain 'toy''s range ["),
+        "param out of range": ({"profile": lambda p: {**p, "params": {**p["params"], "pace": 1e6}}},
+                               "param pace = 1000000.0 is outside domain 'toy''s range ["),
+        "negative seed": ({"profile": lambda p: {**p, "seed": -1}}, "seed must be an integer in [0, 2**32), got -1"),
+        "huge seed": ({"profile": lambda p: {**p, "seed": 2**80}},
+                      f"seed must be an integer in [0, 2**32), got {2**80}"),
         "pickled reward": ({"replace": {"reward.pt": pickle.dumps({"w": 1})}},
                            "member reward.pt is a pickle; exports hold no pickles"),
         "pickled profile": ({"replace": {"profile.json": pickle.dumps({"format": "rba-export"})}},

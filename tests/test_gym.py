@@ -9,6 +9,7 @@ from gymnasium.utils.env_checker import check_env
 
 import rba.gym
 from rba.domains import domain_names, get_domain
+from rba.export import ExportError
 from rba.gym import ExportedReward, SkillEnv, env_id, has_simulator, run_policy, skill_policy
 
 rba.gym.register_envs()  # the tests' toy domain was registered after rba.gym may have been imported
@@ -83,3 +84,10 @@ def exported_toy(toy_roots, tmp_path):
     out = tmp_path / "toy.zip"
     write_export(out, src)
     return out
+
+
+def test_an_exported_reward_refuses_another_domains_env(exported_toy):
+    with pytest.raises(ExportError, match=r"this export's reward is for 'toy' \(rba/Toy-v0\); the env given "
+                                                  r"is rba/Walker-v0"):
+        ExportedReward(exported_toy, gym.make("rba/Walker-v0"))
+    assert ExportedReward(exported_toy, gym.make("rba/Toy-v0")).export.profile.domain == "toy"

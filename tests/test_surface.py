@@ -67,6 +67,7 @@ def test_a_clip_made_on_the_surface_costs_one_simulation(ctx, gap_roots):
                            config=SearchConfig(), on_progress=lambda k, n: progress.append((k, n)))
     assert len(jobs) == found.simulations == 1 and found.rollout is not None and is_generated(found.rollout.id)
     assert found.objective < 0.02 and progress == [(1, 1)]
+    assert gen.generations == 1 and _gen(ctx, gap_roots, surface=0).generations == SearchConfig().generations == 6
     assert np.all(np.abs(gen.zetas([found.rollout])[0] - target) <= 0.02 * (ctx.bounds[1] - ctx.bounds[0]))
 
 

@@ -259,6 +259,12 @@ class GenerationContext:
         self.base = replace(self.base, serve_zeta=surface(surface.units))
         return surface
 
+    @property
+    def generations(self) -> int:
+        """Generations a search reports at most: one on the surface (one simulation; a search that falls back to
+        the ζσ search reports that one's), else CMA-ES's."""
+        return 1 if self.zeta_surface is not None and self.objective == "zeta" else self.config.generations
+
     @classmethod
     def load(cls, base: GlobalContext, models_root=None, **options) -> GenerationContext:
         return cls(base, load_model(base.domain, "ranker", base.rep, models_root).model, **options)
