@@ -49,7 +49,7 @@ SIMULATORS = ("mujoco", "dm-control", "highway-env", "gymnasium")  # package ver
 PICKLE_PROTOCOL_MARK = b"\x80"  # every pickle of protocol 2+ starts with the PROTO opcode
 DOMAIN_REFIT = "domain"  # ExportSource.refit: as the domain chooses
 REPLAY_RTOL, REPLAY_ATOL = 1e-6, 1e-9  # a replayed proxy "matches" within these (same packages: bit-exact)
-SEED_LIMIT = 2**32  # a profile's seed is below this: every domain's generator takes it (library seeds are below 4e6)
+SEED_BITS = 32  # a profile's seed is below 2**SEED_BITS: every domain's generator takes it (library seeds < 4e6)
 
 
 class ExportError(ValueError):
@@ -111,8 +111,8 @@ class Profile:
                               f"{list(domain.param_names)}")
         if not all(isinstance(v, int | float) and not isinstance(v, bool) for v in self.params.values()):
             raise ExportError("params must be numbers")
-        if not isinstance(self.seed, int) or isinstance(self.seed, bool) or not 0 <= self.seed < SEED_LIMIT:
-            raise ExportError(f"seed must be an integer in [0, 2**32), got {self.seed!r}")
+        if not isinstance(self.seed, int) or isinstance(self.seed, bool) or not 0 <= self.seed < 2**SEED_BITS:
+            raise ExportError(f"seed must be an integer in [0, 2**{SEED_BITS}), got {self.seed!r}")
         space = domain.param_space()
         for name, value in self.params.items():
             if not space.low[name] <= value <= space.high[name]:  # NaN fails too
