@@ -114,10 +114,10 @@ class Profile:
         if not isinstance(self.seed, int) or isinstance(self.seed, bool) or not 0 <= self.seed < 2**SEED_BITS:
             raise ExportError(f"seed must be an integer in [0, 2**{SEED_BITS}), got {self.seed!r}")
         space = domain.param_space()
-        for name, value in self.params.items():
-            if not space.low[name] <= value <= space.high[name]:  # NaN fails too
-                raise ExportError(f"param {name} = {value!r} is outside domain {self.domain!r}'s range "
-                                  f"[{space.low[name]:g}, {space.high[name]:g}]")
+        if outside := space.outside(self.params):
+            name = outside[0]
+            raise ExportError(f"param {name} = {self.params[name]!r} is outside domain {self.domain!r}'s range "
+                              f"[{space.low[name]:g}, {space.high[name]:g}]")
         return domain
 
 

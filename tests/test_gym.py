@@ -87,7 +87,7 @@ def exported_toy(toy_roots, tmp_path):
 
 
 def test_an_exported_reward_refuses_another_domains_env(exported_toy):
-    with pytest.raises(ExportError, match=r"this export's reward is for 'toy' \(rba/Toy-v0\); the env given "
-                                                  r"is rba/Walker-v0"):
+    refused = r"this export's reward is for 'toy' \(rba/Toy-v0\); the env given is rba/Walker-v0"
+    with pytest.raises(ExportError, match=refused):
         ExportedReward(exported_toy, gym.make("rba/Walker-v0"))
     assert ExportedReward(exported_toy, gym.make("rba/Toy-v0")).export.profile.domain == "toy"

@@ -93,7 +93,11 @@ class ParamSpace:
         return tuple(k for k in self.low if k not in self.fixed)
 
     def contains(self, params: Mapping[str, float]) -> bool:
-        return set(params) == set(self.low) and all(self.low[k] <= params[k] <= self.high[k] for k in self.low)
+        return set(params) == set(self.low) and not self.outside(params)
+
+    def outside(self, params: Mapping[str, float]) -> list[str]:
+        """The names of ``params`` (this space's names) whose values lie outside their range; NaN is outside."""
+        return [k for k in self.low if not self.low[k] <= params[k] <= self.high[k]]
 
     def to_unit(self, params: Mapping[str, float]) -> np.ndarray:
         """The free parameters of ``params`` scaled to [0, 1], float64[len(free)]."""

@@ -21,7 +21,7 @@ from rba.interact import AttributeFeedback, generating
 from rba.interact.generating import GeneratingGlobalAgent
 from server.admin_models import BUILTIN_VERSION
 from server.exporting import export_to_file
-from server.generation import WouldSearch, step_context
+from server.generation import WouldSearch, begin, step_context
 from server.main import create_app
 from server.models import TuningSession
 from server.prerender import next_clips, resume_prerender
@@ -122,6 +122,10 @@ def test_a_search_on_the_surface_makes_its_clip_in_one_generation(gen_settings, 
         assert r.status_code == 202, r.text
         progress = search_done(client, s["id"])
         assert progress["state"] == "done" and progress["generation"] == progress["generations"] == 1
+        svc = client.app.state.services
+        with Session(svc.engine) as db:  # a new search starts at generation 0 of 1, not of CMA-ES's 6
+            started = begin(svc, load_session(db, s["id"]))
+        assert (started.generation, started.generations) == (0, 1)
         clip = client.get(f"/api/sessions/{s['id']}").json()["clip"]
         assert is_generated(clip["rollout_id"]) and clip["generated"] is True and clip["ready"] is True
 
