@@ -52,3 +52,27 @@ def test_toy_domain_report_and_bad_targets(toy_env, tmp_path, capsys):
     with pytest.raises(SystemExit) as exit_:
         ideal_oracle.main(["--targets", "0", "--out", str(out)])
     assert exit_.value.code == 2 and "--targets must be at least 1, got 0" in capsys.readouterr().err
+
+
+def test_a_reading_error_costs_answers_and_none_changes_nothing():
+    target, eps = [0.3, 0.6], [0.01, 0.01]
+    grids = np.stack([GRID, GRID])
+    exact = ideal_oracle.ideal_trial(user(target, eps), grids, 0.1)
+    assert ideal_oracle.ideal_trial(user(target, eps), grids, 0.1, reading=np.zeros(2)) == exact
+    noisy = [ideal_oracle.ideal_trial(user(target, eps), grids, 0.1, reading=np.full(2, 0.03),
+                                      rng=np.random.default_rng(r)) for r in range(10)]
+    assert all(ok for ok, _ in noisy)  # the soft step still homes in ...
+    assert np.mean([n for _, n in noisy]) > 2 * exact[1]  # ... but clips landing 3 ε off take many more answers
+
+
+def test_reading_table_and_bad_options(toy_env, tmp_path, capsys):
+    out = tmp_path / "ideal"
+    argv = ["--domains", "toy", "--precisions", "high", "--targets", "3", "--split", "val", "--out", str(out)]
+    assert ideal_oracle.main([*argv, "--reading", "0", "2", "--repeats", "2"]) == 0
+    (row,) = json.loads(out.with_suffix(".json").read_text())["rows"]
+    assert row["reading"]["0"] == row["ideal_prior"]  # no error: the prior's bisection itself
+    assert row["reading"]["2"]["avg_feedback"] > row["reading"]["0"]["avg_feedback"]
+    assert "| s = 0 | s = 2 |" in out.with_suffix(".md").read_text()
+    with pytest.raises(SystemExit) as exit_:
+        ideal_oracle.main([*argv, "--reading", "-1"])
+    assert exit_.value.code == 2 and "--reading at least 0, got 5 and [-1.0]" in capsys.readouterr().err
