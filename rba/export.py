@@ -258,7 +258,7 @@ def build_export(src: ExportSource) -> tuple[Profile, RewardPart | None]:
             reward = RewardPart(kind, model.state_dict(), card, *made)
             note = REWARD_NOTES[kind]
     simulators, rba_version = _versions()
-    attrs = src.library.attribute_names
+    attrs = [a["name"] for a in arts["ranker"].card["attributes"]] if "ranker" in arts else []  # admins' too
     profile = Profile(
         domain=src.domain, method=src.method, rep=src.rep, rollout_id=src.rollout_id,
         params={k: float(v) for k, v in chosen.params.items()}, seed=int(chosen.seed),

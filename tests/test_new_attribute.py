@@ -10,8 +10,11 @@ version; then a simulated user tunes foot_lift in sessions over 10 held-out targ
 
 from __future__ import annotations
 
+import io
+import json
 import shutil
 import time
+import zipfile
 
 import numpy as np
 import pytest
@@ -88,7 +91,7 @@ def test_new_attribute_end_to_end(app_client):
     # a simulated user who only cares about foot_lift, targets from held-out test clips
     serve_lift = foot_lift(serve)
     targets = foot_lift(test)[np.random.default_rng(1).choice(len(test), TARGETS, replace=False)]
-    outcomes = []
+    outcomes, exported = [], {}
     for t, target in enumerate(targets):
         user = SimulatedUser(np.array([target]), np.array([EPSILON]), ("foot_lift",), serve_lift[:, None], seed=t)
         s = client.post("/api/sessions", json={"domain": "walker", "method": "global", "rep": "onehot"}).json()
@@ -107,6 +110,12 @@ def test_new_attribute_end_to_end(app_client):
             assert r.status_code == 200, r.text
             s = r.json()
         outcomes.append((s["status"] == "satisfied", feedbacks))
+        if s["status"] == "satisfied" and not exported:  # the export names ζσ by the model's attributes, new ones too
+            r = client.get(f"/api/sessions/{s['id']}/export")
+            assert r.status_code == 200, r.text
+            with zipfile.ZipFile(io.BytesIO(r.content)) as zf:
+                exported = json.loads(zf.read("profile.json"))["zeta"]
+    assert set(exported) == {"step_size", "softness", "foot_lift"}, exported
     sr = np.mean([ok for ok, _ in outcomes])
     af = np.mean([n for ok, n in outcomes if ok]) if sr else float("nan")
     print(f"foot_lift over {TARGETS} targets: SR {sr:.2f}, AF {af:.2f}")
