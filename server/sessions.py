@@ -205,16 +205,19 @@ def _search(svc: Services, s: TuningSession, body: FeedbackCreate, feedback: Fee
                 made = generation.generated_row(svc, db, s.domain, rollout_id, state)
                 _record_step(db, moving, body, feedback, rollout_id, state, made)
                 shown = made or (generation.lookup(db, s.domain, rollout_id) if is_generated(rollout_id) else None)
-            clip = None if shown is None else svc.clips.request(  # rendered now: the page asks for it next
-                svc.clips.generated_key(s.domain, rollout_id), generation.rollout_of(svc, shown), urgent=True)
-            search.end()
-            _after_step(svc, moving, feedback, clip)
         except HTTPException as exc:
-            search.end(exc)
+            return search.end(exc)
         except Exception as exc:  # the searcher's thread must report, not die: the page is waiting on it
             log.exception("session %s: the search of step %d failed", s.id, s.step)
-            search.end(HTTPException(500, f"the search for a new behaviour failed ({type(exc).__name__}); "
-                                          "answer again"))
+            return search.end(HTTPException(500, f"the search for a new behaviour failed ({type(exc).__name__}); "
+                                                 "answer again"))
+        search.end()  # the step is saved: whatever happens to the renders ahead, the answer was taken
+        try:
+            clip = None if shown is None else svc.clips.request(  # rendered now: the page asks for it next
+                svc.clips.generated_key(s.domain, rollout_id), generation.rollout_of(svc, shown), urgent=True)
+            _after_step(svc, moving, feedback, clip)
+        except Exception:  # the page's clip request renders (or reports) it again
+            log.exception("session %s: step %d is saved, but rendering ahead failed", s.id, s.step)
 
     svc.searcher.submit(s.id, step)
     while not search.news.wait(1.0):

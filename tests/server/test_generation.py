@@ -387,3 +387,24 @@ def at_next_target(svc, key, state: dict, pooled: str, answer) -> dict:
     state["generation"]["pool"][pooled]["zeta"] = [float(v) for v in probe.inner.target]
     return state
 
+
+
+def test_a_saved_step_is_done_even_if_rendering_ahead_fails(gen_settings, monkeypatch):
+    """Once the step is saved the search has ended well: a render request that fails afterwards is logged, not
+    reported as a failed search the page would answer again for (and get a 409: the session moved on)."""
+    with TestClient(create_app(gen_settings, InProcessCompute())) as client:
+        svc = client.app.state.services
+        s = client.post("/api/sessions", json={"domain": "toy"}).json()
+        asked = svc.clips.request
+
+        def fail_once(key, *args, **kwargs):
+            if not is_generated(key.rollout_id):  # the search's fallback, asked for before it simulates
+                return asked(key, *args, **kwargs)
+            monkeypatch.setattr(svc.clips, "request", asked)
+            raise RuntimeError("the render queue is gone")
+
+        monkeypatch.setattr(svc.clips, "request", fail_once)
+        now = answer_generating(client, s)  # the search reports done, the session is at its next step
+        assert svc.clips.request is asked  # the failing request ran (after the step was saved)
+        r = client.get(now["clip"]["url"])  # the page's own request renders it
+        assert r.status_code == 200 and r.content == InProcessCompute.CLIP, r.text
