@@ -127,15 +127,19 @@ def test_a_session_shorter_than_refit_after_is_the_session_without_refit(ctx, ga
         _gen(ctx, gap_roots, refit_after=0)
 
 
-def test_a_refitting_session_round_trips_through_json_and_continues_identically(ctx, gap_roots):
-    agent = GeneratingGlobalAgent(_gen(ctx, gap_roots, threshold=0.0, spread=0.0))
+@pytest.mark.parametrize("prior_width", [0.0, 0.05], ids=["uniform", "library-prior"])
+def test_a_refitting_session_round_trips_through_json_and_continues_identically(ctx, gap_roots, prior_width):
+    """With a library prior the belief depends on where the re-fitted ζσ reads the serve clips: a restored agent
+    must not keep beliefs it computed before its first re-fit."""
+    agent = GeneratingGlobalAgent(_gen(ctx, gap_roots, threshold=0.0, spread=0.0, prior_width=prior_width))
     user, rid = _session(agent, ctx, 3)
-    fresh = _gen(ctx, gap_roots, threshold=0.0, spread=0.0)  # a restarted process: features and clips re-made
+    fresh = _gen(ctx, gap_roots, threshold=0.0, spread=0.0, prior_width=prior_width)  # a restarted process
     restored = GeneratingGlobalAgent.from_state(json.loads(json.dumps(agent.state_dict())), fresh)
     assert restored.state_dict() == agent.state_dict()
     np.testing.assert_array_equal(restored.ctx.base.serve_zeta, agent.ctx.base.serve_zeta)
     i = ctx.serve.index_of(rid) if not is_generated(rid) else user.add_clip(
         [agent.rollout(rid).proxies[a] for a in ctx.serve.attribute_names])
+    np.testing.assert_array_equal(restored.inner.target, agent.inner.target)
     answer = user.respond(i)
     assert restored.update(answer) == agent.update(answer)
     assert restored.state_dict() == agent.state_dict()

@@ -406,7 +406,7 @@ class GeneratingGlobalAgent(Agent):
         heads = self.ctx.features.heads(self.answered,
                                         lambda: refit_heads(self.ctx.ranker, self.answered, self._features))
         self.ctx = self.ctx.with_heads(*heads)
-        self.inner.ctx = self.ctx.base
+        self.inner.use_context(self.ctx.base)
 
     def _features(self, rollout_id: str) -> Features:
         made = self.generated.get(rollout_id) or self.pool.get(rollout_id)

@@ -165,6 +165,13 @@ class GlobalAgent(Agent):
             out[name] = (lo, hi)
         return out
 
+    def use_context(self, ctx: GlobalContext) -> None:
+        """Read everything under ``ctx`` from now on (ζσ re-fitted, ``rba.interact.refit``): the beliefs too, whose
+        prior may lie where ``ctx`` reads the serve clips."""
+        self.ctx = ctx
+        self._beliefs.clear()
+        self.target = self._medians()
+
     def reread(self, answers: list[tuple[int, float, int]]) -> None:
         """The same answers placed again, at where ζσ reads their clips now (``rba.interact.refit``)."""
         if [(a, h) for a, _, h in answers] != [(a, h) for a, _, h in self.answers]:
