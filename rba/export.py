@@ -49,11 +49,17 @@ SIMULATORS = ("mujoco", "dm-control", "highway-env", "gymnasium")  # package ver
 PICKLE_PROTOCOL_MARK = b"\x80"  # every pickle of protocol 2+ starts with the PROTO opcode
 DOMAIN_REFIT = "domain"  # ExportSource.refit: as the domain chooses
 REPLAY_RTOL, REPLAY_ATOL = 1e-6, 1e-9  # a replayed proxy "matches" within these (same packages: bit-exact)
+MAX_MEMBER_BYTES = 64 << 20  # a member's size, unpacked: a clip is a few MB, a reward's weights under one
+MAX_EXPORT_BYTES = 256 << 20  # all members, unpacked: read into memory, so a small zip may not unpack to GBs
 SEED_BITS = 32  # a profile's seed is below 2**SEED_BITS: every domain's generator takes it (library seeds < 4e6)
 
 
 class ExportError(ValueError):
     """An export that cannot be made or read; the message is one line naming what is wrong."""
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
 
 
 @dataclass(frozen=True)
@@ -97,6 +103,9 @@ class Profile:
             raise ExportError(f"{PROFILE} fields do not match format {FORMAT_VERSION}: missing {missing}, "
                               f"unknown {unknown}")
         profile = cls(**obj)
+        for name, values in (("proxies", profile.proxies), ("zeta", profile.zeta or {})):
+            if not isinstance(values, dict) or not all(_is_number(v) for v in values.values()):
+                raise ExportError(f"{PROFILE} {name} must map attribute names to numbers")
         profile.check_domain()
         return profile
 
@@ -109,7 +118,7 @@ class Profile:
             given = sorted(self.params) if isinstance(self.params, dict) else self.params
             raise ExportError(f"params {given} do not match domain {self.domain!r}'s param_names "
                               f"{list(domain.param_names)}")
-        if not all(isinstance(v, int | float) and not isinstance(v, bool) for v in self.params.values()):
+        if not all(_is_number(v) for v in self.params.values()):
             raise ExportError("params must be numbers")
         if not isinstance(self.seed, int) or isinstance(self.seed, bool) or not 0 <= self.seed < 2**SEED_BITS:
             raise ExportError(f"seed must be an integer in [0, 2**{SEED_BITS}), got {self.seed!r}")
@@ -349,7 +358,19 @@ class Export:
     reward: ExportedRewardModel | None
 
 
+def _check_listing(infos: list[zipfile.ZipInfo]) -> None:
+    """Each member once, and sizes an export has, before anything is unpacked."""
+    names = [info.filename for info in infos]
+    if twice := sorted({n for n in names if names.count(n) > 1}):
+        raise ExportError(f"member {twice[0]} appears more than once; an export holds each member once")
+    if big := [i.filename for i in infos if i.file_size > MAX_MEMBER_BYTES]:
+        raise ExportError(f"member {big[0]} unpacks to more than {MAX_MEMBER_BYTES >> 20} MiB; not an RBA export")
+    if sum(i.file_size for i in infos) > MAX_EXPORT_BYTES:
+        raise ExportError(f"the members unpack to more than {MAX_EXPORT_BYTES >> 20} MiB; not an RBA export")
+
+
 def _members(zf: zipfile.ZipFile) -> dict[str, bytes]:
+    _check_listing(zf.infolist())
     try:
         data = {info.filename: zf.read(info) for info in zf.infolist()}
     except (zipfile.BadZipFile, EOFError, OSError) as exc:
@@ -370,6 +391,8 @@ def _profile(data: dict[str, bytes]) -> Profile:
     profile = Profile.from_json(obj)
     if not isinstance(profile.members, dict):
         raise ExportError(f"{PROFILE} members must map names to sha256")
+    if unlisted := sorted(set(data) - set(profile.members) - {PROFILE}):
+        raise ExportError(f"member {unlisted[0]} is not listed in {PROFILE}'s members, so nothing checks it")
     for name, sha in profile.members.items():
         if name not in data:
             raise ExportError(f"missing member {name}")
@@ -404,8 +427,36 @@ def _reward(profile: Profile, data: dict[str, bytes]) -> ExportedRewardModel | N
     except Exception as exc:  # any failure to rebuild the model is the file's, named in one line
         raise ExportError(f"member {REWARD_WEIGHTS} does not load as a {spec['kind']} "
                           f"({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''})") from None
-    arrays = {name: _array(data, member) for name, member in spec.get("arrays", {}).items()}
+    listed = spec.get("arrays", {})
+    if not isinstance(listed, dict) or not all(isinstance(m, str) and m in profile.members for m in listed.values()):
+        raise ExportError(f"{PROFILE} reward arrays must map names to members listed in its members")
+    arrays = {name: _array(data, member) for name, member in listed.items()}
+    CONDITION_CHECKS[spec["kind"]](spec["condition"], [a.get("name") for a in card.get("attributes", [])], arrays)
     return ExportedRewardModel(spec["kind"], model, card, spec["condition"], arrays)
+
+
+def _check_global(condition: dict, names: list[str], arrays: dict[str, np.ndarray]) -> None:
+    v = condition.get("v_star")
+    if not (isinstance(v, list) and len(v) == len(names) and all(_is_number(x) for x in v)):
+        raise ExportError(f"reward condition v_star must be {len(names)} numbers, one per attribute "
+                          f"({', '.join(map(str, names))})")
+
+
+def _check_local(condition: dict, names: list[str], arrays: dict[str, np.ndarray]) -> None:
+    changes = condition.get("changes")
+    if not (isinstance(changes, list) and changes and all(
+            isinstance(c, dict) and c.get("attribute") in names and c.get("direction") in (1, -1) for c in changes)):
+        raise ExportError(f"reward condition changes must be a list of {{attribute, direction: 1 or -1}} over "
+                          f"{', '.join(map(str, names))}")
+    if "anchor" not in arrays:
+        raise ExportError("a local reward's arrays must hold its anchor")
+
+
+# reward kind -> a check of its condition (and arrays) against the attributes its card names, as ``rewards`` reads them
+CONDITION_CHECKS: dict[str, Callable[[dict, list[str], dict[str, np.ndarray]], None]] = {
+    "global_reward": _check_global,
+    "local_reward": _check_local,
+}
 
 
 def read_export(path: Path) -> Export:

@@ -10,8 +10,9 @@ from pathlib import Path
 
 import pytest
 
+import rba.export as export_module
 from rba.cli import main
-from rba.export import FORMAT_VERSION, read_export
+from rba.export import FORMAT_VERSION, ExportError, read_export
 from rba.library import SkillLibrary
 from rba.storage import load_json
 
@@ -136,13 +137,21 @@ def _bad_cases(exported: Path, tmp_path: Path) -> dict[str, tuple[Path, str]]:
         path.write_bytes(data)
         out[name] = (path, message)
     out["foreign"] = (foreign, "missing member profile.json: not an RBA export")
+    twice = tmp_path / "twice.zip"  # a second clip.mp4 before the real one: unzip and the reader would differ
+    with zipfile.ZipFile(exported) as src, zipfile.ZipFile(twice, "w") as zf:
+        zf.writestr("clip.mp4", b"\0\0\0\x20ftypisom-other")
+        with pytest.warns(UserWarning, match="Duplicate name: 'clip.mp4'"):
+            for name in src.namelist():
+                zf.writestr(name, src.read(name))
+    out["duplicate member"] = (twice, "member clip.mp4 appears more than once; an export holds each member once")
     return out
 
 
 @pytest.mark.parametrize("case", [
     "truncated", "not a zip", "foreign", "missing clip", "missing reward", "wrong version", "unknown domain",
     "wrong params", "nan param", "param out of range", "negative seed", "huge seed",
-    "pickled reward", "pickled profile", "tampered clip", "unknown field",
+    "pickled reward", "pickled profile", "tampered clip", "unknown field", "duplicate member", "unlisted member",
+    "text proxy", "arrays not a mapping", "array not a member", "no v_star", "short v_star",
 ])
 def test_bad_zips_exit_2_with_a_message(exported, tmp_path, case, capsys):
     edits = {
@@ -167,6 +176,18 @@ def test_bad_zips_exit_2_with_a_message(exported, tmp_path, case, capsys):
         "tampered clip": ({"replace": {"clip.mp4": b"\0\0\0\x20ftypisom-other"}},
                           "member clip.mp4 does not match its sha256 in profile.json: the zip was changed"),
         "unknown field": ({"profile": lambda p: {**p, "extra": 1}}, "unknown ['extra']"),
+        "unlisted member": ({"replace": {"notes.txt": b"hi"}},
+                            "member notes.txt is not listed in profile.json's members, so nothing checks it"),
+        "text proxy": ({"profile": lambda p: {**p, "proxies": {**p["proxies"], "pace": "fast"}}},
+                       "profile.json proxies must map attribute names to numbers"),
+        "arrays not a mapping": ({"profile": lambda p: {**p, "reward": {**p["reward"], "arrays": ["a.npy"]}}},
+                                 "profile.json reward arrays must map names to members listed in its members"),
+        "array not a member": ({"profile": lambda p: {**p, "reward": {**p["reward"], "arrays": {"a": "a.npy"}}}},
+                               "profile.json reward arrays must map names to members listed in its members"),
+        "no v_star": ({"profile": lambda p: {**p, "reward": {**p["reward"], "condition": {}}}},
+                      "reward condition v_star must be 2 numbers, one per attribute (amplitude, pace)"),
+        "short v_star": ({"profile": lambda p: {**p, "reward": {**p["reward"], "condition": {"v_star": [0.1]}}}},
+                         "reward condition v_star must be 2 numbers, one per attribute (amplitude, pace)"),
     }
     if case in edits:
         kwargs, message = edits[case]
@@ -176,6 +197,17 @@ def test_bad_zips_exit_2_with_a_message(exported, tmp_path, case, capsys):
     assert main(["replay", str(path)]) == 2
     err = capsys.readouterr().err
     assert err.startswith("rba: error: ") and message in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("cap, message", [
+    ("MAX_MEMBER_BYTES", "unpacks to more than 0 MiB; not an RBA export"),
+    ("MAX_EXPORT_BYTES", "the members unpack to more than 0 MiB; not an RBA export"),
+])
+def test_an_export_unpacking_beyond_its_caps_is_refused_before_unpacking(exported, monkeypatch, cap, message):
+    monkeypatch.setattr(export_module, cap, 1000)
+    monkeypatch.setattr(zipfile.ZipFile, "read", lambda *args: pytest.fail("a member was unpacked"))
+    with pytest.raises(ExportError, match=message):
+        read_export(exported)
 
 
 def test_reading_an_export_calls_no_pickle_loader(exported, monkeypatch):
