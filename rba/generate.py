@@ -192,11 +192,13 @@ def search(domain: str, starts: list[dict[str, float]], objective: Objective, si
         seeds = [config.sim_seed + (done + j if vary else 0) for j in range(len(params))]
         rollouts = _simulate_until(simulate, [SimJob(target, p, s) for p, s in zip(params, seeds, strict=True)],
                                    deadline, took)
-        f = np.where([r.success for r in rollouts], objective(rollouts), FAILED)
+        scores = np.asarray(objective(rollouts), dtype=np.float64)
+        ok = np.array([r.success for r in rollouts], dtype=bool) & np.isfinite(scores)  # NaN would break the ranking
+        f = np.where(ok, scores, FAILED)
         cut = len(rollouts) < len(units)  # out of time within the generation: CMA-ES is told nothing more
         if not cut:
             es.tell(units, f.tolist())
-        finished += [(float(fj), done + j, r) for j, (fj, r) in enumerate(zip(f, rollouts, strict=True)) if r.success]
+        finished += [(float(f[j]), done + j, r) for j, r in enumerate(rollouts) if ok[j]]
         done += len(rollouts)
         best_f = min((x[0] for x in finished), default=math.inf)
         if on_progress:

@@ -102,6 +102,26 @@ def test_a_generated_id_replays_to_identical_states(ctx, gap_roots):
     assert generated_id("toy", {**r.params, "pace": r.params["pace"] + 1e-12}, r.seed) != r.id
 
 
+def test_a_candidate_scored_nan_is_never_the_best(ctx, gap_roots):
+    """An objective that gives NaN for a candidate (a reward on states it never saw) counts it as failed: sorted
+    among the others NaN would put any of them first, with another candidate's objective reported."""
+    start = dict(zip(ctx.serve.param_names, map(float, ctx.serve.params[0]), strict=True))
+    dist = _gen(ctx, gap_roots).distance(ctx.serve_zeta[0] + 0.1)
+    scored: list[float] = []
+
+    def every_third_nan(rollouts):
+        f = dist(rollouts)
+        f[:: 3] = np.nan
+        scored.extend(f)
+        return f
+
+    found = search("toy", [start], every_third_nan, config=SearchConfig(budget=16, popsize=8))
+    ranked = [found.rollout, *found.runners_up]
+    assert len(ranked) == np.isfinite(scored).sum() == 10  # the NaN-scored candidates are dropped
+    assert found.objective == np.nanmin(scored) == dist([found.rollout])[0]
+    assert np.all(np.diff(dist(ranked)) >= 0)
+
+
 def test_the_time_bound_predicts_the_next_generation_from_the_mean_of_those_before():
     assert not _out_of_time(1.0, 2, 1.6) and _out_of_time(1.0, 2, 1.4)  # two took 1 s: a third ends at 1.5 s
     assert not _out_of_time(9.0, 1, None)  # no bound: the budget alone
