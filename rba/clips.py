@@ -75,6 +75,13 @@ class _Render:
     error: BaseException | None = None  # storing it failed
 
 
+def render_job(key: ClipKey, source: Source) -> RenderJob:
+    """What renders ``key``'s clip: a generated one in ``CLIP_PARTS`` parts (someone waits for it), others whole.
+    The parts' joined MP4 differs in bytes from one encoded whole, so whatever caches under a key renders this."""
+    rollout = source if isinstance(source, Rollout) else source.rollout(source.index_of(key.rollout_id))
+    return RenderJob.of(key.domain, rollout, key.width, key.height, split=CLIP_PARTS if key.version == GENERATED else 1)
+
+
 class ClipCache:
     """Rendered clips in a ``ClipStore``; ``request`` renders what is missing on ``compute``."""
 
@@ -159,10 +166,7 @@ class ClipCache:
             return render.done
 
     def _submit(self, key: ClipKey, source: Source, urgent: bool) -> _Render:
-        rollout = source if isinstance(source, Rollout) else source.rollout(source.index_of(key.rollout_id))
-        job = RenderJob.of(key.domain, rollout, key.width, key.height,  # someone waits for a generated clip
-                           split=CLIP_PARTS if key.version == GENERATED else 1)
-        render = _Render(self.compute.render(job, urgent), urgent)
+        render = _Render(self.compute.render(render_job(key, source), urgent), urgent)
         self._inflight[key] = render
         render.task.future.add_done_callback(lambda f: self._finish(key, render, f))
         return render

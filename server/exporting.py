@@ -17,8 +17,8 @@ from pathlib import Path
 from sqlalchemy.engine import make_url
 from sqlmodel import Session, select
 
-from rba.clips import GENERATED, ClipKey, Source
-from rba.domains import Rollout, domain_target
+from rba.clips import GENERATED, ClipKey, Source, render_job
+from rba.domains import Rollout
 from rba.export import ExportError, ExportSource, Profile, build_export, export_bytes, write_export
 from rba.generate import is_generated
 from server import generation
@@ -82,7 +82,7 @@ def export_to_file(session_id: str, out: Path, settings: Settings | None = None)
     """
     from fastapi import HTTPException
 
-    from rba.compute.tasks import render_clip
+    from rba.compute.tasks import render_here
     from server.db import make_engine
 
     settings = settings or Settings()
@@ -92,9 +92,8 @@ def export_to_file(session_id: str, out: Path, settings: Settings | None = None)
     def clip(source: Source, rollout_id: str) -> bytes:
         version = GENERATED if isinstance(source, Rollout) else source.version
         key = ClipKey(source.domain, version, rollout_id, settings.clip_width, settings.clip_height)
-        if not store.exists(key):
-            rollout = source if isinstance(source, Rollout) else source.rollout(source.index_of(rollout_id))
-            data = render_clip(domain_target(source.domain), rollout, key.width, key.height)
+        if not store.exists(key):  # the bytes the app would cache under this key
+            data = render_here(render_job(key, source))
             store.write(key, lambda tmp: tmp.write_bytes(data))
         with store.open(key) as f:
             return f.read()

@@ -14,9 +14,13 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from rba.domains import Rollout, load_domain
 from rba.domains.base import ALL_FRAMES, Domain
+
+if TYPE_CHECKING:
+    from rba.compute.base import RenderJob
 
 TEMP_PREFIX = "rba-clip-"
 STALE_TEMP_SECONDS = 600  # a render takes seconds: older temporaries were left by a killed worker
@@ -102,6 +106,12 @@ def join_clips(*parts: bytes) -> bytes:
 
     _prepare()
     return concat_mp4(list(parts))
+
+
+def render_here(job: RenderJob) -> bytes:
+    """A whole job in this process, part after part, joined: the bytes a backend gives for it (``Compute.render``),
+    for a process that caches clips under the app's keys without a compute layer (``rba export``)."""
+    return join_clips(*(render_clip(p.target, p.rollout, p.width, p.height, p.rows) for p in job.parts()))
 
 
 def _encode(domain: Domain, rollout: Rollout, width: int, height: int, frames: slice) -> bytes:

@@ -15,6 +15,8 @@ from fastapi.testclient import TestClient
 from pydantic import ValidationError
 from sqlmodel import Session
 
+from rba import generate
+from rba.clips import GENERATED, ClipKey, render_job
 from rba.export import read_export, replay
 from rba.generate import generated_id, is_generated
 from rba.interact import AttributeFeedback, generating
@@ -71,7 +73,7 @@ def answer_generating(client: TestClient, s: dict, attribute: str = "amplitude",
     return now
 
 
-def test_a_generated_clip_is_served_listed_and_exported(gen_settings, tmp_path):
+def test_a_generated_clip_is_served_listed_and_exported(gen_settings, tmp_path, local_compute):
     compute = InProcessCompute()
     with TestClient(create_app(gen_settings, compute)) as client:
         s = client.post("/api/sessions", json={"domain": "toy"}).json()
@@ -109,7 +111,11 @@ def test_a_generated_clip_is_served_listed_and_exported(gen_settings, tmp_path):
     cli = export_to_file(s["id"], tmp_path / "cli.zip", gen_settings.model_copy(
         update={"cache_dir": tmp_path / "cli-clips"}))  # `rba export`: remade and rendered in this process
     assert cli.rollout_id == profile.rollout_id and cli.params == profile.params and cli.seed == profile.seed
-    assert read_export(tmp_path / "cli.zip").clip[4:8] == b"ftyp"  # a real MP4 this time
+    clip = read_export(tmp_path / "cli.zip").clip
+    assert clip[4:8] == b"ftyp"  # a real MP4 this time: the bytes the app's compute layer renders for that key
+    key = ClipKey("toy", GENERATED, profile.rollout_id, gen_settings.clip_width, gen_settings.clip_height)
+    made = generate.replay("toy", profile.params, profile.seed)  # the clip's rollout, remade
+    assert clip == local_compute.render(render_job(key, made)).future.result(SEARCH_SECONDS)
 
 
 def test_a_search_on_the_surface_makes_its_clip_in_one_generation(gen_settings, monkeypatch):
