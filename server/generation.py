@@ -94,8 +94,8 @@ def step_context(svc: Services, key: tuple[str, str, str, str], search: Search |
             log.warning("session search: the fallback clip %s of %s could not be requested", fallback, key[0],
                         exc_info=True)
 
-    return replace(gctx, simulate=simulate, on_progress=None if search is None else search.progress,
-                   on_search=before_search)
+    return replace(gctx, simulate=simulate, remake=svc.compute.simulate,  # a clip made again is no search
+                   on_progress=None if search is None else search.progress, on_search=before_search)
 
 
 class WouldSearch(Exception):

@@ -194,6 +194,8 @@ class GenerationContext:
     base: GlobalContext
     ranker: AttributeRanker
     simulate: Simulate = in_process  # Compute.simulate on the local pools or Ray
+    # makes a clip already made again (its features, after a restart): not a search (None: ``simulate``)
+    remake: Simulate | None = None
     config: SearchConfig = field(default_factory=SearchConfig)
     threshold: float = THRESHOLD
     spread: float | None = None  # see THRESHOLD (None: the domain's ``Domain.generate_spread``)
@@ -320,7 +322,7 @@ class GenerationContext:
 
     def rollout(self, rollout_id: str, params: dict[str, float], seed: int) -> Rollout:
         """A generated rollout: from the store, else simulated again from its params and seed."""
-        return self.store.rollout(self.base.domain, rollout_id, params, seed, self.simulate)
+        return self.store.rollout(self.base.domain, rollout_id, params, seed, self.remake or self.simulate)
 
     def with_heads(self, weight: np.ndarray, bias: np.ndarray) -> GenerationContext:
         """This context with ζσ's last layers (weight, bias) per attribute: its ranker, and the serve library read

@@ -253,6 +253,29 @@ def test_a_session_showing_a_generated_clip_continues_after_a_restart(gen_settin
     assert bool(fits) == refit  # the heads were fitted on the answers, and only with the re-fit
 
 
+def test_a_restored_refit_session_remakes_its_clip_without_it_counting_as_a_search(gen_settings, tmp_path,
+                                                                                   monkeypatch):
+    """After a restart a re-fitting session's next step simulates its made clips again for ζσ's features: a guess
+    (no search allowed) may do that, and only a real search makes it ``WouldSearch``."""
+    monkeypatch.setattr(Toy, "session_refit", True)
+    monkeypatch.setattr(generating, "REFIT_AFTER", 1)
+    with TestClient(create_app(gen_settings, InProcessCompute())) as first:
+        s = first.post("/api/sessions", json={"domain": "toy"}).json()
+        answer_generating(first, s)
+    compute = InProcessCompute()
+    with TestClient(create_app(gen_settings.model_copy(update={"prerender": False}), compute)) as second:
+        svc = second.app.state.services
+        with Session(svc.engine) as db:
+            state = db.get(TuningSession, s["id"]).agent_state
+        guess = step_context(svc, ("toy", "global", "onehot", BUILTIN_VERSION), None)
+        try:
+            svc.transitions.advance(guess, "global", state, [AttributeFeedback("pace", 1)])
+        except WouldSearch as would:
+            assert would.fallback is not None  # a search the step would start, not the clip made again
+        made = state["generation"]
+        assert compute.batches == len(made["generated"]) + len(made["pool"]) > 1  # each made clip, for its features
+
+
 def fallback_of(client: TestClient, sid: str) -> str:
     """The serve clip the session's last step showed or, when it showed a made clip, would have fallen back to."""
     svc = client.app.state.services
