@@ -244,7 +244,7 @@ def build_export(src: ExportSource) -> tuple[Profile, RewardPart | None]:
         arts = {kind: load_model(src.domain, kind, src.rep, src.models_root) for kind in method.model_kinds}
     except ModelNotFoundError as exc:
         raise ExportError(f"the models of set {src.model_set!r} this session used are gone ({exc})") from None
-    stale = [k for k, a in arts.items() if a.card["weights_sha"] not in src.model_version]
+    stale = [k for k, a in arts.items() if a.card["weights_sha"] not in src.model_version.split("-")]
     if stale:
         raise ExportError(f"the {', '.join(stale)} model of set {src.model_set!r} is no longer the one session "
                           f"model {src.model_version} used; it cannot be exported")

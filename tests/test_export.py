@@ -362,3 +362,21 @@ def test_a_domain_that_keeps_its_trained_reward_exports_it_unless_the_source_ask
     assert "refit" not in kept.card and all(torch.equal(v, trained[k]) for k, v in kept.weights.items())
     _, asked = build_export(replace(src, refit=RefitConfig()))
     assert "refit" in asked.card
+
+
+@pytest.mark.parametrize("version", ["0123456789ab-{reward}", "{ranker}", "{ranker_part}-{reward_part}"],
+                         ids=["other ranker", "no reward", "shortened"])
+def test_an_export_refuses_models_that_are_not_the_sessions(app_env, toy_roots, version):
+    """The session's model version names each model's weights sha in full; models changed since (or a version that
+    only contains parts of their shas) are refused with the model set named."""
+    from rba.artifacts import load_model
+    from rba.export import ExportSource, build_export
+
+    sha = {k: load_model("toy", k, "onehot", toy_roots[1]).card["weights_sha"] for k in ("ranker", "global_reward")}
+    assert app_env["version"] == f"{sha['ranker']}-{sha['global_reward']}"
+    version = version.format(ranker=sha["ranker"], reward=sha["global_reward"], ranker_part=sha["ranker"][2:8],
+                             reward_part=sha["global_reward"][:4])
+    src = ExportSource("toy", "global", "onehot", version, "builtin", toy_roots[1], app_env["serve"],
+                       app_env["chosen"], [], clip=b"clip")
+    with pytest.raises(ExportError, match=rf"model of set 'builtin' is no longer the one session model {version} "):
+        build_export(src)
