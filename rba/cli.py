@@ -58,8 +58,8 @@ def _number(text: str) -> float:
 
 def _non_negative(text: str) -> float:
     value = _number(text)
-    if not value >= 0.0:
-        raise argparse.ArgumentTypeError(f"must be a number ≥ 0, got {text}")
+    if not 0.0 <= value < math.inf:  # an infinite threshold or spread would turn generation off without a word
+        raise argparse.ArgumentTypeError(f"must be a finite number ≥ 0, got {text}")
     return value
 
 

@@ -468,10 +468,11 @@ def test_cli_gen_spread_option(gap_roots, monkeypatch, capsys, tmp_path):
                      "--json", str(out), *extra]) == 0
         searches[spread] = json.loads(out.read_text())["generation"]["searches"]
     assert searches["0"] > searches[None]  # spread 0: every clip off by the threshold searches, however unsure
-    with pytest.raises(SystemExit) as exit_:
-        main(["eval", "--domain", "toy", "--gen-spread", "-1"])
-    assert exit_.value.code == 2
-    assert "argument --gen-spread: must be a number ≥ 0, got -1" in capsys.readouterr().err
+    for bad in ("-1", "inf"):  # inf would turn generation off without a word
+        with pytest.raises(SystemExit) as exit_:
+            main(["eval", "--domain", "toy", "--gen-spread", bad])
+        assert exit_.value.code == 2
+        assert f"argument --gen-spread: must be a finite number ≥ 0, got {bad}" in capsys.readouterr().err
 
 
 def test_cli_gen_seconds_option(gap_roots, monkeypatch, capsys, tmp_path):

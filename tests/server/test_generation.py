@@ -164,6 +164,9 @@ def test_a_search_stops_at_its_seconds(gen_settings):
     for bad in ("0", "inf", "nan"):
         with pytest.raises(ValidationError, match="generate_seconds"):
             Settings(generate_seconds=bad)
+    for bad in ("-1", "inf", "nan"):  # an infinite spread would turn generation off without a word
+        with pytest.raises(ValidationError, match="generate_spread"):
+            Settings(generate_spread=bad)
     bounded = gen_settings.model_copy(update={"generate_seconds": 0.2})
     assert bounded.search_seconds("walker") == bounded.search_seconds("snake") == 0.2  # one value bounds every domain
     progress = first_search(bounded)
