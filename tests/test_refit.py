@@ -133,8 +133,10 @@ def test_a_refitting_session_round_trips_through_json_and_continues_identically(
     must not keep beliefs it computed before its first re-fit."""
     agent = GeneratingGlobalAgent(_gen(ctx, gap_roots, threshold=0.0, spread=0.0, prior_width=prior_width))
     user, rid = _session(agent, ctx, 3)
+    agent_before = json.loads(json.dumps(agent.state_dict()))
     fresh = _gen(ctx, gap_roots, threshold=0.0, spread=0.0, prior_width=prior_width)  # a restarted process
-    restored = GeneratingGlobalAgent.from_state(json.loads(json.dumps(agent.state_dict())), fresh)
+    stored = json.loads(json.dumps(agent.state_dict()))
+    restored = GeneratingGlobalAgent.from_state(stored, fresh)
     assert restored.state_dict() == agent.state_dict()
     np.testing.assert_array_equal(restored.ctx.base.serve_zeta, agent.ctx.base.serve_zeta)
     i = ctx.serve.index_of(rid) if not is_generated(rid) else user.add_clip(
@@ -143,6 +145,7 @@ def test_a_refitting_session_round_trips_through_json_and_continues_identically(
     answer = user.respond(i)
     assert restored.update(answer) == agent.update(answer)
     assert restored.state_dict() == agent.state_dict()
+    assert stored == agent_before  # the stored state it came from did not move with it
 
 
 def test_a_session_restored_in_the_same_process_reads_its_fitted_heads_instead_of_fitting(ctx, gap_roots,

@@ -38,6 +38,7 @@ memory and re-simulates the rest, bit for bit. A restored agent never simulates 
 
 from __future__ import annotations
 
+import copy
 import threading
 from collections import OrderedDict
 from collections.abc import Callable
@@ -353,9 +354,10 @@ class GeneratingGlobalAgent(Agent):
                  answered: Answered | None = None) -> None:
         self.ctx = ctx
         self.inner = inner or GlobalAgent(ctx.base, zeta_noise=ctx.zeta_noise)
-        # id -> {"params", "seed", "zeta", "round" it was shown at, "pooled" if a runner-up shown without a search}
-        self.generated = dict(generated or {})
-        self.pool = dict(pool or {})  # id -> {"params", "seed", "zeta"}: searches' runners-up, not shown yet
+        # id -> {"params", "seed", "zeta", "round" it was shown at, "pooled" if a runner-up shown without a search};
+        # copied deep: a re-fit re-reads each clip's ζ in place, and the state given (a stored one) must not move
+        self.generated = copy.deepcopy(generated or {})
+        self.pool = copy.deepcopy(pool or {})  # id -> {"params", "seed", "zeta"}: searches' runners-up, not shown yet
         self.showing = showing  # the generated clip shown now (None: the inner agent's library clip)
         self.searches = list(searches or [])  # per search: simulations, whether its clip was shown
         # with ``ctx.refit``: per answer, the clip's id and the (attribute, ±1) said; ζσ's last layers are fitted on
