@@ -327,6 +327,17 @@ class ExportedRewardModel:
         self.kind, self.model, self.card = kind, model.eval(), card
         self.condition, self.arrays = condition, arrays
         self.state_dim = int(card["architecture"]["state_dim"])
+        self._conditions = self._local_conditions() if kind == "local_reward" else []
+
+    @torch.no_grad()
+    def _local_conditions(self) -> list[torch.Tensor]:
+        """A local reward's condition per asked change, encoded once (the anchor's φ): an env step then costs
+        one forward pass per change."""
+        anchor = np.asarray(self.arrays["anchor"], dtype=np.float32)
+        phi = self.model.encode(Ragged.from_numpy(anchor, np.array([0, len(anchor)])), torch.tensor([0]))
+        names = [a["name"] for a in self.card["attributes"]]
+        return [self.model.condition(phi, torch.tensor([names.index(c["attribute"])]), torch.tensor([c["direction"]]))
+                for c in self.condition["changes"]]
 
     @torch.no_grad()
     def rewards(self, states: np.ndarray) -> np.ndarray:
@@ -334,15 +345,8 @@ class ExportedRewardModel:
         if self.kind == "global_reward":
             v = torch.tensor(self.condition["v_star"], dtype=torch.float32).expand(len(s), -1)
             return self.model(s, v).double().numpy()
-        anchor = np.asarray(self.arrays["anchor"], dtype=np.float32)
-        phi = self.model.encode(Ragged.from_numpy(anchor, np.array([0, len(anchor)])), torch.tensor([0]))
-        names = [a["name"] for a in self.card["attributes"]]
-        out = torch.zeros(len(s))
-        for change in self.condition["changes"]:
-            cond = self.model.condition(phi, torch.tensor([names.index(change["attribute"])]),
-                                        torch.tensor([change["direction"]]))
-            out += self.model(s, cond, torch.zeros(len(s), dtype=torch.int64))
-        return (out / len(self.condition["changes"])).double().numpy()
+        out = sum(self.model(s, cond, torch.zeros(len(s), dtype=torch.int64)) for cond in self._conditions)
+        return (out / len(self._conditions)).double().numpy()
 
     def total(self, states: np.ndarray) -> float:
         """Σ_t rθ(s_t | condition): a rollout's return, the quantity the method ranks behaviours by."""
