@@ -27,6 +27,7 @@ const state = {
   domains: [],
   labels: {}, // method -> display name ("RBA-Global")
   generating: [], // methods whose sessions can make new behaviours
+  generateDefault: false, // the server's: ticked for them unless the person unticks it
   searching: false, // the agent is making a new behaviour for the current clip's answer
   session: null,
   busy: false,
@@ -129,6 +130,8 @@ function fillMethods() {
 /** The "make new behaviours" option: offered for the methods that can, the server's default ticked. */
 function fillGenerate() {
   const able = state.generating.includes(els.method.value.split("/")[0]);
+  if (!able) els.generate.checked = false;
+  else if (els.generate.disabled) els.generate.checked = state.generateDefault;
   els.generate.disabled = !able;
   els.generateField.classList.toggle("off", !able);
   els.generateField.title = able ? "When no stored clip is close to what you ask for, the agent makes a new one "
@@ -140,6 +143,7 @@ async function loadDomains() {
   const body = await api("/api/domains");
   state.domains = body.domains;
   state.generating = body.generating;
+  state.generateDefault = body.generate;
   els.generate.checked = body.generate;
   state.labels = Object.fromEntries(body.trainable.map((t) => [t.method, t.label]));
   els.domain.replaceChildren(...state.domains.map((d) => el("option", { value: d.name },
@@ -222,8 +226,8 @@ function searchProgress(g) {
   // a time-bounded search ends by its clock or its generations, whichever comes first
   const byTime = g.seconds_at_most ? g.elapsed_seconds / g.seconds_at_most : 0;
   const fraction = Math.min(1, Math.max(g.generations ? g.generation / g.generations : 0, byTime));
-  const bound = g.seconds_at_most ? ` of at most ${Number(g.seconds_at_most.toPrecision(2))} s` : " s";
-  progress(fraction, `search generation ${g.generation} of ${g.generations} · ${g.elapsed_seconds.toFixed(0)}${bound}`);
+  const bound = g.seconds_at_most ? ` of at most ${Number(g.seconds_at_most.toFixed(2))} s` : "";
+  progress(fraction, `search generation ${g.generation} (up to ${g.generations}) · ${g.elapsed_seconds.toFixed(1)} s${bound}`);
 }
 
 /** No stored clip fits: poll the agent's search until the session moves on (true) or the search fails. */
@@ -265,7 +269,8 @@ async function reloadSession() {
 
 function hashSessionId() {
   const m = /^#session=(.*)$/.exec(location.hash);
-  return m ? decodeURIComponent(m[1]) : null;
+  if (!m) return null;
+  try { return decodeURIComponent(m[1]); } catch { return m[1]; }  // badly encoded: refused as any bad id is
 }
 
 function restoreHash() {
@@ -407,6 +412,7 @@ function showSession(session, { fresh = false } = {}) {
     fillMethods();
     els.method.value = `${session.method}/${session.rep}`;
     fillGenerate();
+    if (!els.generate.disabled) els.generate.checked = session.generate;  // the form says what this session does
     buildControls(session);
     state.played.clear(); // another session: its clip must be watched again, even one seen before
     state.viewing = null;
@@ -428,7 +434,10 @@ function answerButton(a, n, dir) {
     "aria-keyshortcuts": n <= 9 ? (more ? `${n}` : `Shift+${n}`) : null, dataset: { attr: a.name, dir } },
   el("span", { "aria-hidden": "true" }, more ? "▲" : "▼"), more ? "More" : "Less",
   el("span", { class: "visually-hidden" }, ` ${name}`), n <= 9 ? el("kbd", { "aria-hidden": "true" }, key) : null);
-  b.addEventListener("click", () => feedback(a.name, dir, b));
+  b.addEventListener("click", (e) => {
+    if (e.detail > 0) b.blur();  // a pointer's click: Enter then means "This is it", not this answer again
+    feedback(a.name, dir, b);
+  });
   return b;
 }
 
@@ -501,6 +510,7 @@ function renderStatus(session) {
     + ` · model `, el("code", {}, session.model_version), ` (${session.model_set})`);
   els.satisfied.hidden = !active;
   els.words.hidden = !active;
+  els.attributes.hidden = !active;  // no dead buttons to tab through before the download
   els.done.hidden = active;
   els.exportLink.hidden = session.status !== "satisfied";
   els.exportLink.href = session.status === "satisfied" ? `/api/sessions/${encodeURIComponent(session.id)}/export` : "#";

@@ -8,6 +8,7 @@ the test's process a second a generation (``InProcessCompute``), clips rendered 
 from __future__ import annotations
 
 import json
+import re
 
 import pytest
 
@@ -45,7 +46,8 @@ def test_making_a_new_behaviour_shows_progress_and_locks_the_answers(url, browse
     page.wait_for_function("() => document.getElementById('progress-text').textContent.includes('generation')",
                            timeout=10_000)
     assert page.locator("#overlay-text").inner_text() == "Making a new behaviour for you…"
-    assert "of at most 60 s" in page.locator("#progress-text").inner_text()  # the server's time bound
+    text = page.locator("#progress-text").inner_text()
+    assert re.search(r"search generation \d \(up to 6\) · \d+\.\d s of at most 60 s", text), text  # the bound
     assert page.get_by_role("progressbar", name="Search progress").is_visible()
     assert less.get_attribute("aria-disabled") == "true" and less.is_disabled()
     assert "the agent is making a new behaviour" in page.locator("#controls-hint").inner_text()

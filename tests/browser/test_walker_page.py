@@ -129,6 +129,12 @@ def test_phone_keeps_the_clip_in_view_after_a_tap(url, browser):
     button_box = button.bounding_box()  # and the button is still there to tap again, not under the clip
     assert button_box["y"] >= box["y"] + box["height"] and button_box["y"] + button_box["height"] <= 844
     assert page.evaluate("document.documentElement.scrollWidth") <= 390  # nothing overflows sideways
+    assert page.locator("#satisfied kbd").is_hidden()  # no key hints on a phone
+    page.get_by_label("Domain").select_option("snake")  # long units ("fraction of body length") wrap
+    page.get_by_role("button", name="New session").click()
+    page.wait_for_function("() => document.querySelector('#measured').textContent.includes('fraction of body')",
+                           timeout=90_000)
+    assert page.evaluate("document.documentElement.scrollWidth") <= 390
     assert not errors, errors
     page.close()
 
@@ -170,12 +176,13 @@ def test_the_address_bar_and_the_finished_screen(url, browser, tmp_path):
     page.wait_for_function(PLAYING, arg="", timeout=60_000)
     page.wait_for_function(PLAYED, timeout=30_000)
     assert page.eval_on_selector("#video", "v => v.dataset.rollout") == first
-    page.get_by_role("button", name="less step size").click()
+    page.get_by_role("button", name="less step size").click()  # with the mouse: the button lets go of the focus
     page.wait_for_function(PLAYING, arg=first, timeout=90_000)
     page.wait_for_function(PLAYED, timeout=30_000)
-    page.get_by_role("button", name="This is it").click()
+    page.keyboard.press("Enter")  # so Enter is "This is it" (the green button's hint), not "less step size" again
     page.wait_for_selector("#done:not([hidden])")
     assert page.locator("#done-text").inner_text() == "You chose clip 2 after 1 round of feedback."
+    assert page.locator("#attributes").is_hidden()  # no dead answer buttons to tab through before the download
     assert page.locator("#step-badge").inner_text() == "✓ Chosen after 1 round"
     assert page.locator("#history-count").inner_text() == "1 round of feedback · chosen"
     link = page.get_by_role("link", name="Download this behaviour (.zip)")  # the finished screen's export
@@ -188,6 +195,31 @@ def test_the_address_bar_and_the_finished_screen(url, browser, tmp_path):
     profile = read_export(tmp_path / "export.zip").profile
     assert profile.rollout_id == page.eval_on_selector("#video", "v => v.dataset.rollout") != first
     assert page.request.get(f"{url}/favicon.ico").status == 200
+    assert not errors, errors
+    page.close()
+
+
+def test_a_badly_encoded_address_falls_back_to_the_welcome(url, browser):
+    page = browser.new_page(viewport={"width": 1280, "height": 800})
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(f"{url}/#session=%E0%A4%A")  # not valid percent-encoding: decodeURIComponent throws
+    page.wait_for_function("() => document.body.dataset.state === 'idle'")
+    assert page.locator("#welcome").is_visible() and page.get_by_role("button", name="Start tuning").is_visible()
+    assert "“%E0%A4%A” in the address is not a session id" in page.locator("#toast-text").inner_text()
+    assert not errors, errors
+    page.close()
+
+
+def test_the_make_new_behaviours_box_is_off_for_a_method_that_cannot(url, browser):
+    page, errors = new_page(browser, url)
+    box = page.get_by_label("Make new behaviours")
+    page.get_by_label("Method").select_option(label="RBA-Global")
+    box.check()
+    page.get_by_label("Method").select_option(label="RBA-Local")
+    assert box.is_disabled() and not box.is_checked()  # not ticked while it cannot apply
+    page.get_by_label("Method").select_option(label="RBA-Global")
+    assert box.is_enabled() and not box.is_checked()  # the server's default again (RBA_GENERATE is off here)
     assert not errors, errors
     page.close()
 
