@@ -168,7 +168,8 @@ async function startSession(event) {
     const generate = els.generate.disabled ? undefined : els.generate.checked;
     const session = await api("/api/sessions", { method: "POST",
       body: JSON.stringify({ domain: d.name, method, rep, generate }) });
-    history.replaceState(null, "", `#session=${session.id}`);
+    // after another session, a history entry of its own: Back returns to the one left (the hash names it)
+    history[state.session ? "pushState" : "replaceState"](null, "", `#session=${session.id}`);
     showSession(session, { fresh: true });
     els.controlsTitle.focus();
   } catch (err) {

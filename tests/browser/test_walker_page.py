@@ -199,6 +199,22 @@ def test_the_address_bar_and_the_finished_screen(url, browser, tmp_path):
     page.close()
 
 
+def test_back_returns_to_the_session_a_new_one_replaced(url, browser):
+    page, errors = new_page(browser, url)
+    start(page)
+    sessions = [page.evaluate("location.hash")]
+    for _ in range(2):  # "New session" twice, as "Tune another" would
+        page.get_by_role("button", name="New session").click()
+        page.wait_for_function("h => location.hash !== h", arg=sessions[-1])
+        sessions.append(page.evaluate("location.hash"))
+    page.go_back()
+    session_id = sessions[1].removeprefix("#session=")
+    page.wait_for_function("id => document.querySelector('#session-meta').textContent.includes(id)", arg=session_id)
+    assert page.evaluate("location.hash") == sessions[1]
+    assert not errors, errors
+    page.close()
+
+
 def test_a_badly_encoded_address_falls_back_to_the_welcome(url, browser):
     page = browser.new_page(viewport={"width": 1280, "height": 800})
     errors: list[str] = []
