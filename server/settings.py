@@ -48,7 +48,8 @@ class Settings(LibrarySettings):
                            "search on the compute layer) when no serve clip is near the agent's target; a session "
                            "may ask otherwise at creation (`generate`). Off by default: a search makes the person wait "
                            "(p95 1.3-3.0 s on 2 cores where it searches, benchmarks/results/generation_latency.md)")
-    generate_spread: float | None = Field(default=None, ge=0, allow_inf_nan=False, description="a generating session searches only "
+    generate_spread: float | None = Field(default=None, ge=0, allow_inf_nan=False,
+                                          description="a generating session searches only "
                                           "where the serve clip misses the agent's target by more than this share of "
                                           "its belief's half interquartile range (and the threshold): early answers, "
                                           "while the belief is wide, show serve clips at once; 0: search whenever the "
