@@ -26,6 +26,7 @@ import importlib.metadata
 import io
 import json
 import zipfile
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -364,8 +365,7 @@ class Export:
 
 def _check_listing(infos: list[zipfile.ZipInfo]) -> None:
     """Each member once, and sizes an export has, before anything is unpacked."""
-    names = [info.filename for info in infos]
-    if twice := sorted({n for n in names if names.count(n) > 1}):
+    if twice := sorted(n for n, k in Counter(info.filename for info in infos).items() if k > 1):
         raise ExportError(f"member {twice[0]} appears more than once; an export holds each member once")
     if big := [i.filename for i in infos if i.file_size > MAX_MEMBER_BYTES]:
         raise ExportError(f"member {big[0]} unpacks to more than {MAX_MEMBER_BYTES >> 20} MiB; not an RBA export")
@@ -428,6 +428,7 @@ def _reward(profile: Profile, data: dict[str, bytes]) -> ExportedRewardModel | N
         weights = torch.load(io.BytesIO(data[REWARD_WEIGHTS]), map_location="cpu", weights_only=True)
         model = BUILDERS[spec["kind"]](card)
         model.load_state_dict(weights)
+        names = [a["name"] for a in card["attributes"]]
     except Exception as exc:  # any failure to rebuild the model is the file's, named in one line
         raise ExportError(f"member {REWARD_WEIGHTS} does not load as a {spec['kind']} "
                           f"({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''})") from None
@@ -435,7 +436,7 @@ def _reward(profile: Profile, data: dict[str, bytes]) -> ExportedRewardModel | N
     if not isinstance(listed, dict) or not all(isinstance(m, str) and m in profile.members for m in listed.values()):
         raise ExportError(f"{PROFILE} reward arrays must map names to members listed in its members")
     arrays = {name: _array(data, member) for name, member in listed.items()}
-    CONDITION_CHECKS[spec["kind"]](spec["condition"], [a.get("name") for a in card.get("attributes", [])], arrays)
+    CONDITION_CHECKS[spec["kind"]](spec["condition"], names, arrays)
     return ExportedRewardModel(spec["kind"], model, card, spec["condition"], arrays)
 
 
