@@ -146,9 +146,12 @@ async function loadDomains() {
   state.generateDefault = body.generate;
   els.generate.checked = body.generate;
   state.labels = Object.fromEntries(body.trainable.map((t) => [t.method, t.label]));
-  els.domain.replaceChildren(...state.domains.map((d) => el("option", { value: d.name },
-    pretty(d.name) + (d.available.length ? "" : " (not built)"))));
-  const first = state.domains.find((d) => d.available.length) || state.domains[0];
+  const option = (d) => el("option", { value: d.name }, pretty(d.name) + (d.available.length ? "" : " (not built)"));
+  const views = state.domains.filter((d) => d.states !== "features");  // the same scenes, other states for the models
+  els.domain.replaceChildren(...state.domains.filter((d) => d.states === "features").map(option),
+    ...(views.length ? [el("optgroup", { label: "Research views: raw or image states" }, ...views.map(option))] : []));
+  const first = state.domains.find((d) => d.available.length && d.states === "features")
+    || state.domains.find((d) => d.available.length) || state.domains[0];
   if (first) els.domain.value = first.name;
   fillMethods();
 }

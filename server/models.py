@@ -219,6 +219,9 @@ class DomainPublic(BaseModel):
     frame_rate: float
     available: list[MethodPublic] = Field(description="method/rep pairs whose models and serve library exist")
     missing: str | None = Field(default=None, description="why nothing is available, if so")
+    states: Literal["features", "raw", "image"] = Field(
+        default="features", description="what the agent's models see: the domain's own features, or a research "
+        "view of the same scene: the simulator's raw positions and velocities, or a model of its rendered frames")
 
 
 class DomainsPublic(BaseModel):

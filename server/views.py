@@ -192,7 +192,7 @@ def domains_public(svc: Services, db: Session) -> DomainsPublic:
             specs = svc.catalog.card_attributes(name, *served[0], active)
         available = [MethodPublic(method=m, rep=r) for m, r in pairs]
         domains.append(DomainPublic(name=name, attributes=attributes_public(domain, specs=specs),
-                                    frame_rate=domain.frame_rate,
+                                    frame_rate=domain.frame_rate, states=domain.states_view,
                                     available=available, missing=svc.catalog.missing_reason(name)))
     return DomainsPublic(domains=domains, methods=list(attribute_methods()), reps=list(REPRESENTATIONS),
                          trainable=[TrainablePublic(method=m.name, label=m.label, presets=list(m.presets))

@@ -235,6 +235,12 @@ class Domain(ABC):
     # attribute name -> FeedbackPhrases: free-text feedback's anchors (an attribute without any is matched by name)
     feedback_phrases: Mapping[str, FeedbackPhrases] = MappingProxyType({})
 
+    @property
+    def states_view(self) -> str:
+        """What the models see as states: "features" (the domain's own), "raw" (``raw_states``) or "image" (a
+        model of its rendered frames, ``state_encoder``); the last two are research views of the same scene."""
+        return "raw" if self.raw_states else "image" if self.state_encoder else "features"
+
     @abstractmethod
     def sample_params(self, rng: np.random.Generator) -> dict[str, float]:
         """Draw skill parameters that cover the attribute space."""

@@ -234,6 +234,8 @@ def test_the_make_new_behaviours_box_is_off_for_a_method_that_cannot(url, browse
     box.check()
     page.get_by_label("Method").select_option(label="RBA-Local")
     assert box.is_disabled() and not box.is_checked()  # not ticked while it cannot apply
+    views = page.locator("#domain optgroup[label='Research views: raw or image states'] option")
+    assert "walker raw" in views.all_inner_texts() and "walker" not in views.all_inner_texts()  # listed apart
     page.get_by_label("Method").select_option(label="RBA-Global")
     assert box.is_enabled() and not box.is_checked()  # the server's default again (RBA_GENERATE is off here)
     assert not errors, errors

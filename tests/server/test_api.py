@@ -23,6 +23,9 @@ def test_domains_lists_attributes_and_available_models(client):
     assert toy["missing"] is None
     walker = next(d for d in body["domains"] if d["name"] == "walker")
     assert walker["available"] == [] and "run `rba build walker`" in walker["missing"]
+    views = {d["name"]: d["states"] for d in body["domains"]}  # the page lists the research views apart
+    assert (views["toy"], views["walker"], views["walker_raw"], views["lane_change_image"]) == (
+        "features", "features", "raw", "image")
     assert body["methods"] == list(attribute_methods()) and body["reps"] == list(REPRESENTATIONS)
     assert body["trainable"] == [{"method": m.name, "label": m.label, "presets": list(m.presets)} for m in trainable()]
     assert [m["method"] for m in body["trainable"]] == ["global", "local"]  # PbRL learns online: nothing to train
