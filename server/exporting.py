@@ -51,6 +51,9 @@ def export_source(catalog: Catalog, db: Session, session_id: str, clip: ClipByte
     rounds = [{"step": e.step, "feedback": e.feedback, "rollout_before": e.rollout_before,
                "rollout_after": e.rollout_after} for e in events]
     library, rid = catalog.library(s.domain), s.current_rollout_id
+    if s.library_version is not None and s.library_version != library.version:
+        raise conflict(f"session {s.id} showed clips of {s.domain}'s serve library {s.library_version}; it is "
+                       f"{library.version} now (rebuilt), so its clip ids name other behaviours: it cannot be exported")
     chosen = remake(generation.lookup(db, s.domain, rid)) if is_generated(rid) else None
     return ExportSource(domain=s.domain, method=s.method, rep=s.rep, model_version=s.model_version,
                         model_set=s.model_set, models_root=catalog.models(s.model_set).root, library=library,

@@ -110,6 +110,8 @@ class TuningSession(SessionBase, table=True):
     id: str = Field(default_factory=new_session_id, primary_key=True, max_length=32)
     model_version: str = Field(max_length=128)
     model_set: str = Field(default="builtin", max_length=64, description="models/versions/<model_set>, or builtin")
+    library_version: str | None = Field(default=None, max_length=64, description="content hash of the serve library "
+                                        "its clip ids name (null: a session from before migration 0006)")
     status: str = Field(default=SessionStatus.active.value, max_length=16, index=True)
     step: int = Field(default=0, ge=0)
     current_rollout_id: str = Field(max_length=128)

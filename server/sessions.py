@@ -71,7 +71,8 @@ def create_session(svc: Services, db: Session, body: SessionCreate) -> SessionPu
     step_ctx = svc.catalog.generation(body.domain, body.method, body.rep, version) if generate else ctx
     rollout_id, state = svc.transitions.first(step_ctx, body.method)
     s = TuningSession(domain=body.domain, method=body.method, rep=body.rep, model_version=ctx.model_version,
-                      model_set=version, current_rollout_id=rollout_id, agent_state=state, generate=generate)
+                      model_set=version, library_version=svc.catalog.library(body.domain).version,
+                      current_rollout_id=rollout_id, agent_state=state, generate=generate)
     db.add(s)
     db.commit()
     db.refresh(s)

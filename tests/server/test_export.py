@@ -68,3 +68,32 @@ def test_export_of_an_active_or_abandoned_session_is_409(client, session):
     assert client.post(f"/api/sessions/{sid}/abandon").status_code == 200
     r = client.get(f"/api/sessions/{sid}/export")
     assert r.status_code == 409 and f"session {sid} is abandoned: only" in r.json()["detail"]
+
+
+def test_a_session_whose_serve_library_was_rebuilt_is_not_exported(client, session):
+    """A session names the serve library its clip ids come from; one rebuilt since (another content hash) is
+    refused, a session from before migration 0006 (no library named) is exported as before."""
+    from sqlmodel import Session
+
+    from server.models import TuningSession
+
+    _finish(client, session)
+    svc = client.app.state.services
+    sid = session["id"]
+    with Session(svc.engine) as db:
+        row = db.get(TuningSession, sid)
+        current = svc.catalog.library("toy").version
+        assert row.library_version == current
+        row.library_version = "0123456789ab"  # as if the library had been rebuilt since
+        db.add(row)
+        db.commit()
+    r = client.get(f"/api/sessions/{sid}/export")
+    assert r.status_code == 409
+    assert r.json()["detail"] == (f"session {sid} showed clips of toy's serve library 0123456789ab; it is {current} "
+                                  "now (rebuilt), so its clip ids name other behaviours: it cannot be exported")
+    with Session(svc.engine) as db:
+        row = db.get(TuningSession, sid)
+        row.library_version = None
+        db.add(row)
+        db.commit()
+    assert client.get(f"/api/sessions/{sid}/export").status_code == 200

@@ -70,12 +70,14 @@ Table("rba_feedback", FIRST_RELEASE, Column("id", Integer, primary_key=True),
 
 def _pre_migrations() -> MetaData:
     """The tables of the last release without migrations (revision 0004): today's models, less what later
-    revisions added (0005: ``rba_generated_clip`` and ``rba_session.generate``)."""
+    revisions added (0005: ``rba_generated_clip`` and ``rba_session.generate``; 0006:
+    ``rba_session.library_version``)."""
     old = MetaData()
     for table in SQLModel.metadata.tables.values():
         if table.name == "rba_session":
             Table(table.name, old, *(Column(c.name, c.type, primary_key=c.primary_key, nullable=c.nullable,
-                                            index=c.index) for c in table.columns if c.name != "generate"))
+                                            index=c.index) for c in table.columns
+                                  if c.name not in ("generate", "library_version")))
         elif table.name != "rba_generated_clip":
             table.to_metadata(old)
     return old
