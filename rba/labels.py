@@ -455,13 +455,16 @@ class LabelSet(_Strict):
         """What is wrong given the attributes that exist and the clips that can be referred to."""
         out = []
         builtin = set(builtin_attributes)
+        declared = [a.name for a in self.new_attributes]
         for a in self.new_attributes:
             if a.name in builtin:
                 out.append(f"new attribute {a.name!r} is already an attribute of the domain")
+        out += [f"new attribute {name!r} is declared {declared.count(name)} times; declare each once"
+                for name in sorted({n for n in declared if declared.count(n) > 1})]
         valid = set(known_attributes) | builtin | {a.name for a in self.new_attributes}
         for name in sorted(self.attributes_used() - valid):
             out.append(f"unknown attribute {name!r}; valid: {', '.join(sorted(valid))} "
-                       "(declare a new one under new_attributes)")
+                       "(declare a new one: new_attributes in an upload, or POST /api/admin/attributes)")
         missing = sorted(self.references() - set(known_clips))
         if missing:
             shown = ", ".join(repr(m) for m in missing[:10]) + (f" and {len(missing) - 10} more" if len(missing) > 10

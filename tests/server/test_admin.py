@@ -192,6 +192,12 @@ BAD_UPLOADS = {
     "unknown label field": (lambda: npz_bytes(**good_trajectories(2)), labels_bytes({"orderz": []}), 422,
                             "labels.orderz: Extra inputs are not permitted"),
     "oversized upload": (lambda: b"\0" * (300 * 1024), None, 413, "upload too large"),
+    "a new attribute declared twice": (  # was a 500 (the database's unique constraint) and a stray file
+        lambda: npz_bytes(**good_trajectories(2)),
+        labels_bytes({"new_attributes": [{"name": "x1", "description": "First one here."},
+                                         {"name": "x1", "description": "Second one here."}],
+                      "orderings": [{"attribute": "x1", "clips": ["mine_0", "mine_1"]}]}),
+        422, "new attribute 'x1' is declared 2 times; declare each once"),
 }
 
 
@@ -244,6 +250,7 @@ def test_page_labels_are_saved_as_made_and_checked(admin):
     r = admin.post("/api/admin/labels", headers=AUTH,
                    json={"domain": "toy", "comparison": {"attribute": "nope", "more": a, "less": b}})
     assert r.status_code == 422 and "unknown attribute 'nope'" in r.json()["detail"]
+    assert "or POST /api/admin/attributes" in r.json()["detail"]  # this route takes no new_attributes
     r = admin.post("/api/admin/labels", headers=AUTH,
                    json={"domain": "toy", "comparison": {"attribute": "amplitude", "more": a, "less": "test-00001"}})
     assert r.status_code == 422 and "'test-00001'" in r.json()["detail"]  # held-out clips cannot be labelled
