@@ -13,13 +13,14 @@ import enum
 import uuid
 from typing import Annotated, Any
 
-from pydantic import BaseModel, WithJsonSchema, field_validator
+from pydantic import BaseModel, WithJsonSchema, field_validator, model_validator
 from pydantic import Field as BodyField  # sqlmodel's Field is for tables
+from pydantic_core import PydanticCustomError
 from sqlalchemy import JSON, Column, DateTime, Text, UniqueConstraint
 from sqlmodel import Field, SQLModel
 
 from rba.labels import Comparison, LocalChange, NewAttribute, Ordering
-from rba.methods import train_presets, trainable
+from rba.methods import get_method, train_presets, trainable
 from server.models import STRICT_BODY, DomainName, OneOf, RepName, as_utc, utcnow
 
 BUILTIN_VERSION = "builtin"  # the models shipped under models/<domain>/
@@ -270,6 +271,15 @@ class TrainCreate(BaseModel):
     rep: RepName = "onehot"
     preset: Annotated[str, OneOf("preset", train_presets)] = "default"
     include_page_labels: bool = True
+
+    @model_validator(mode="after")
+    def _methods_preset(self) -> TrainCreate:
+        """The preset must be the method's own (any method's passed before and failed the job minutes later)."""
+        own = tuple(get_method(self.method).presets)
+        if self.preset not in own:
+            raise PydanticCustomError("enum", "unknown preset {given} for method {method}; valid: {valid}",
+                                      {"given": repr(self.preset), "method": self.method, "valid": ", ".join(own)})
+        return self
 
 
 class JobPublic(TrainJobBase):

@@ -127,6 +127,9 @@ def activate_version(svc: Services, db: Session, version: str, domain: str | Non
     if row is None:
         have = db.exec(select(ModelVersion.version)).all()
         raise not_found(f"no model version {version!r}; versions: {', '.join(have) or 'none yet'}, builtin")
+    if domain is not None and domain != row.domain:
+        raise invalid(f"version {version} is {row.domain}'s, not {domain}'s; leave domain out (a version names its "
+                      "own) or give its own")
     if (row.method, row.rep) not in svc.catalog.available(row.domain, row.version):
         raise conflict(f"the files of version {version} are missing under {svc.catalog.models(version).root}; "
                        "it cannot be served")

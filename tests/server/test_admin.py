@@ -300,7 +300,11 @@ def test_train_activate_and_sessions_keep_their_version(admin, settings):
     assert (settings.models_dir / "versions" / version / "toy" / "ranker-onehot.json").exists()
     assert not list((settings.models_dir / "versions").glob(".tmp-*"))
 
-    r = admin.post(f"/api/admin/models/{version}/activate", headers=AUTH)
+    r = admin.post(f"/api/admin/models/{version}/activate", params={"domain": "walker"}, headers=AUTH)
+    assert r.status_code == 422  # another domain's version: refused, not activated for its own silently
+    assert r.json()["detail"] == (f"version {version} is toy's, not walker's; leave domain out (a version names its "
+                                  "own) or give its own")
+    r = admin.post(f"/api/admin/models/{version}/activate", params={"domain": "toy"}, headers=AUTH)
     assert r.status_code == 200 and r.json()["active"] is True
     assert r.json()["attributes"] == ["amplitude", "pace", "wobble"]
     new = admin.post("/api/sessions", json={"domain": "toy", "method": "global", "rep": "onehot"}).json()
@@ -340,6 +344,9 @@ def test_train_request_errors(admin):
     assert r.status_code == 422 and "no dataset 'missing' for toy; uploaded: none" in r.json()["detail"]
     r = admin.post("/api/admin/train", headers=AUTH, json={"domain": "toy", "method": "magic"})
     assert r.status_code == 422 and "method: unknown method 'magic'; valid: global, local" in r.json()["detail"]
+    r = admin.post("/api/admin/train", headers=AUTH, json={"domain": "toy", "method": "local", "preset": "pairwise"})
+    assert r.status_code == 422, r.text  # another method's preset: refused now, not failed in the job later
+    assert "unknown preset 'pairwise' for method local; valid: default, quick, tiny" in r.json()["detail"]
     r = admin.get("/api/admin/jobs/nope", headers=AUTH)
     assert r.status_code == 404 and "no training job 'nope'" in r.json()["detail"]
     assert admin.get("/api/admin/jobs", headers=AUTH).json() == []
