@@ -180,6 +180,8 @@ async function addAttribute(event) {
     $("new-attribute").open = false;
     await loadAttributes();
     $("attribute").value = name;
+    toast(`Added the attribute “${name}”: label it below.`, "info");  // replaces an earlier refusal's message
+    $("attribute").focus();
     await nextClips();
   } catch (e) {
     toast(e.message);
@@ -276,8 +278,11 @@ function showJob(job) {
   const loss = job.loss == null ? "" : `, loss ${job.loss.toFixed(4)}`;
   const where = job.total && running(job) ? ` · ${job.stage} step ${job.step}/${job.total}${loss}` : "";
   $("job-detail").textContent = running(job) || job.state === "succeeded" ? `${pct} % done${eta}${where}` : "";
-  $("job-log").hidden = !job.log_tail;
-  $("job-log").textContent = job.log_tail;
+  const log = $("job-log");
+  const following = log.hidden || log.scrollTop + log.clientHeight >= log.scrollHeight - 4;  // at its end
+  log.hidden = !job.log_tail;
+  log.textContent = job.log_tail;
+  if (following) log.scrollTop = log.scrollHeight;  // the newest lines, unless the admin scrolled up to read
 }
 
 async function pollJob() {
@@ -391,7 +396,8 @@ $("skip").addEventListener("click", skip);
 $("train").addEventListener("click", train);
 $("cancel").addEventListener("click", cancel);
 document.addEventListener("keydown", (e) => {
-  if ($("admin").hidden || $("confirm").open || e.target.closest("input, select, textarea, summary")) return;
+  // keys of their own: form fields, a video's controls (← → seek), the training log (↓ scrolls)
+  if ($("admin").hidden || $("confirm").open || e.target.closest("input, select, textarea, summary, video, pre")) return;
   const act = { ArrowLeft: () => answer("left"), ArrowRight: () => answer("right"), ArrowDown: skip }[e.key];
   if (!act) return;
   e.preventDefault();  // ↓ would scroll the page away from the clips

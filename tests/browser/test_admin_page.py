@@ -113,6 +113,12 @@ def test_answers_wait_until_both_clips_played_and_focus_stays(url, page, tmp_pat
     page.keyboard.press("ArrowLeft")
     page.wait_for_function("() => document.getElementById('label-count').textContent.includes('2 saved')")
     assert len(labels(url)) == 2
+    page.wait_for_function(BOTH_SEEN, timeout=90_000)
+    page.locator("#pair video").first.focus()  # a video's controls take ← and → (they seek): no label from them
+    assert page.evaluate("() => document.activeElement.tagName") == "VIDEO"
+    page.keyboard.press("ArrowLeft")
+    page.wait_for_timeout(500)
+    assert len(labels(url)) == 2
     assert "serving new sessions" in page.locator("#versions").inner_text()
     page.screenshot(path=str(tmp_path / "admin.png"), full_page=True)
 
