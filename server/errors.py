@@ -17,6 +17,7 @@ from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel, Field
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.requests import ClientDisconnect
+from starlette.routing import Match
 
 from rba.library import LibraryNotFoundError
 
@@ -103,9 +104,18 @@ def _unmatched(request: Request, exc: StarletteHTTPException) -> str | None:
         where = "API route" if path.startswith("/api/") else "page"
         return f"no {where} {path}; see /docs for the routes"
     if exc.status_code == 405:
-        allowed = (exc.headers or {}).get("Allow", "")
-        return f"{method} is not allowed on {path}; allowed: {allowed}"
+        return f"{method} is not allowed on {path}; allowed: {_allowed(request)}"
     return None
+
+
+METHODS = ("DELETE", "GET", "PATCH", "POST", "PUT")
+
+
+def _allowed(request: Request) -> str:
+    """Every method some route takes at this path (Starlette's 405 names only the first such route's): the
+    routes asked as the router asks them, one method at a time."""
+    return ", ".join(m for m in METHODS if any(route.matches({**request.scope, "method": m})[0] == Match.FULL
+                                               for route in request.app.router.routes))
 
 
 async def _http_error(request: Request, exc: StarletteHTTPException) -> Response:
@@ -118,7 +128,8 @@ async def _http_error(request: Request, exc: StarletteHTTPException) -> Response
         return error_response(422, _UNREADABLE[type(cause)], errors=[
             {"loc": ["body"], "msg": _UNREADABLE[type(cause)], "type": "json_invalid"}])
     detail = _unmatched(request, exc) or str(exc.detail)
-    return error_response(exc.status_code, detail, exc.headers)
+    headers = {**(exc.headers or {}), "Allow": _allowed(request)} if exc.status_code == 405 else exc.headers
+    return error_response(exc.status_code, detail, headers)
 
 
 async def _disconnected(request: Request, _exc: Exception) -> Response:

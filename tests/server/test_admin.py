@@ -337,6 +337,12 @@ def test_activate_missing_version_changes_nothing(admin):
     assert s["model_set"] == "builtin"
 
 
+def test_a_method_a_route_lacks_names_every_method_it_takes(admin):
+    r = admin.delete("/api/admin/labels", headers=AUTH)
+    assert r.status_code == 405 and r.headers["allow"] == "GET, POST"  # Starlette's named only the first route's
+    assert r.json()["detail"] == "DELETE is not allowed on /api/admin/labels; allowed: GET, POST"
+
+
 def test_train_request_errors(admin):
     r = admin.post("/api/admin/train", headers=AUTH, json={"domain": "nope"})
     assert r.status_code == 422 and "unknown domain 'nope'; valid: walker" in r.json()["detail"]
