@@ -7,6 +7,7 @@ Import direction: above ``server.services`` (its ``JobRunner`` runs the processe
 from __future__ import annotations
 
 import datetime as dt
+import logging
 import statistics
 
 from fastapi import HTTPException
@@ -20,6 +21,8 @@ from server.errors import conflict, invalid, not_found
 from server.labelling import check_datasets
 from server.models import as_utc, utcnow
 from server.services import Services
+
+log = logging.getLogger(__name__)
 
 JOBS_LISTED = 50  # newest first
 ETA_FROM = 0.02  # below this share done, elapsed time says too little to estimate the rest
@@ -121,5 +124,6 @@ def cancel_job(svc: Services, db: Session, job_id: str) -> JobPublic:
     if job.state in FINISHED:
         raise conflict(f"job {job_id} is {job.state} already")
     svc.jobs.cancel(job_id)
+    log.info("job %s (%s %s/%s) cancelled by an admin", job_id, job.domain, job.method, job.rep)
     db.refresh(job)
     return job_public(svc, job)

@@ -6,6 +6,7 @@ the admin routes import it, it imports neither.
 
 from __future__ import annotations
 
+import logging
 from typing import Any
 
 from sqlmodel import Session, select
@@ -16,6 +17,8 @@ from server.admin_models import BUILTIN_VERSION, ActiveModel, ModelVersion, Vers
 from server.errors import conflict, invalid, not_found
 from server.models import utcnow
 from server.services import Services
+
+log = logging.getLogger(__name__)
 
 
 def active_version(db: Session, domain: str) -> str:
@@ -116,6 +119,8 @@ def activate_builtin(svc: Services, db: Session, domain: str | None) -> VersionP
     if current is not None:
         db.delete(current)
         db.commit()
+    log.info("%s: new sessions get the built-in models again (was %s)", d.name,
+             current.version if current is not None else BUILTIN_VERSION)
     return _builtin_public(d, "global", "onehot", True)
 
 
@@ -133,8 +138,9 @@ def activate_version(svc: Services, db: Session, version: str, domain: str | Non
     if (row.method, row.rep) not in svc.catalog.available(row.domain, row.version):
         raise conflict(f"the files of version {version} are missing under {svc.catalog.models(version).root}; "
                        "it cannot be served")
-    current = db.get(ActiveModel, row.domain) or ActiveModel(domain=row.domain, version=version)
-    current.version, current.updated_at = version, utcnow()
+    current = db.get(ActiveModel, row.domain) or ActiveModel(domain=row.domain, version=BUILTIN_VERSION)
+    before, current.version, current.updated_at = current.version, version, utcnow()
     db.add(current)
     db.commit()
+    log.info("%s: new sessions get version %s (%s/%s; was %s)", row.domain, version, row.method, row.rep, before)
     return VersionPublic.model_validate(row, update={"active": True})

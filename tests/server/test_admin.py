@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import io
 import json
+import logging
 import pickle
 import time
 import zipfile
@@ -281,7 +282,8 @@ def wait_job(client, job_id: str, timeout: float = 300) -> dict:
     raise AssertionError(f"job {job_id} did not finish: {job}")
 
 
-def test_train_activate_and_sessions_keep_their_version(admin, settings):
+def test_train_activate_and_sessions_keep_their_version(admin, settings, caplog):
+    caplog.set_level(logging.INFO, logger="server.versions")
     first = admin.post("/api/sessions", json={"domain": "toy", "method": "global", "rep": "onehot"}).json()
     assert first["model_set"] == "builtin"
     ids = serve_ids(admin, 8)
@@ -325,6 +327,8 @@ def test_train_activate_and_sessions_keep_their_version(admin, settings):
     assert r.status_code == 200
     back = admin.post("/api/sessions", json={"domain": "toy", "method": "global", "rep": "onehot"}).json()
     assert back["model_set"] == "builtin"
+    assert f"toy: new sessions get version {version} (global/onehot; was builtin)" in caplog.text  # who served what
+    assert f"toy: new sessions get the built-in models again (was {version})" in caplog.text
 
 
 def test_activate_missing_version_changes_nothing(admin):
