@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import logging
 import re
+from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Literal
@@ -455,12 +456,10 @@ class LabelSet(_Strict):
         """What is wrong given the attributes that exist and the clips that can be referred to."""
         out = []
         builtin = set(builtin_attributes)
-        declared = [a.name for a in self.new_attributes]
-        for a in self.new_attributes:
-            if a.name in builtin:
-                out.append(f"new attribute {a.name!r} is already an attribute of the domain")
-        out += [f"new attribute {name!r} is declared {declared.count(name)} times; declare each once"
-                for name in sorted({n for n in declared if declared.count(n) > 1})]
+        declared = Counter(a.name for a in self.new_attributes)
+        out += [f"new attribute {name!r} is already an attribute of the domain" for name in declared if name in builtin]
+        out += [f"new attribute {name!r} is declared {k} times; declare each once"
+                for name, k in sorted(declared.items()) if k > 1]
         valid = set(known_attributes) | builtin | {a.name for a in self.new_attributes}
         for name in sorted(self.attributes_used() - valid):
             out.append(f"unknown attribute {name!r}; valid: {', '.join(sorted(valid))} "
