@@ -224,6 +224,22 @@ class Store:
     def publish(self, job_id: str, version: str) -> None:
         os.replace(self.staging(job_id), self.versions_dir / version)
 
+    def carry_over(self, job_id: str, domain: str, version: str | None) -> list[str]:
+        """Into a job's staging folder, the files of ``domain``'s models in ``version`` (None: the shipped ones) that
+        the job did not train, hard-linked (copied where links cannot be made): a version is then a whole model
+        set, and serving it keeps the other methods' models. The names carried over."""
+        source, target = self.models(version).root / domain, self.staging(job_id) / domain
+        carried = []
+        for path in sorted(source.iterdir()) if source.is_dir() else []:
+            if path.is_file() and not (target / path.name).exists():
+                target.mkdir(parents=True, exist_ok=True)
+                try:
+                    os.link(path, target / path.name)
+                except OSError:
+                    shutil.copy2(path, target / path.name)
+                carried.append(path.name)
+        return carried
+
     def unpublish(self, version: str) -> None:
         """Remove a version whose job could not record it (nothing refers to it)."""
         shutil.rmtree(self.versions_dir / version, ignore_errors=True)

@@ -38,7 +38,7 @@ from sqlalchemy.exc import SQLAlchemyError
 from sqlmodel import Session, select
 
 from rba.store import Store
-from server.admin_models import FINISHED, JobState, ModelVersion, TrainJob
+from server.admin_models import FINISHED, ActiveModel, JobState, ModelVersion, TrainJob
 from server.models import as_utc, utcnow
 from server.processes import Launcher, ProcessRecord, tie_to_parent
 from server.settings import Settings
@@ -314,6 +314,11 @@ def _train_and_publish(engine, store: Store, settings: Settings, job_id: str, mi
                                                  models_root=store.staging(job_id), sources=sources,
                                                  on_progress=progress)
     version = f"{domain}-{dt.datetime.now(dt.UTC):%Y%m%d-%H%M%S}-{job_id[:6]}"  # matches JOB_VERSION
+    with Session(engine) as db:  # what serves the domain now: its other methods' models go along with the new ones
+        serving = db.get(ActiveModel, domain)
+    carried = store.carry_over(job_id, domain, serving.version if serving is not None else None)
+    log.info("the other models of %s carried over into %s: %s", serving.version if serving else "the built-in set",
+             version, ", ".join(carried) or "none")
     store.publish(job_id, version)
     try:
         _record_success(engine, settings, job_id, mine, version, metrics, "\n".join(tail.lines))

@@ -406,13 +406,33 @@ def test_local_job_learns_page_local_changes(admin):
     listed = admin.get("/api/domains").json()["domains"]
     toy = next(d for d in listed if d["name"] == "toy")
     assert {"method": "local", "rep": "onehot"} in toy["available"]
+    assert "carried over into" in job["log_tail"] and "ranker-onehot.pt" in job["log_tail"]
     s = admin.post("/api/sessions", json={"domain": "toy", "method": "local", "rep": "onehot"})
     assert s.status_code == 201, s.text
     assert s.json()["model_set"] == job["version"]
     assert [a["name"] for a in s.json()["attributes"]] == ["amplitude", "pace", "wobble"]
-    # global sessions fall back to the shipped models: the active version has no global models
+    # the global models that served when the job published came along: activating it kept them serving (the
+    # version is a whole model set; they know the attributes they were trained on)
     g = admin.post("/api/sessions", json={"domain": "toy", "method": "global", "rep": "onehot"}).json()
-    assert g["model_set"] == "builtin"
+    assert g["model_set"] == job["version"] and [a["name"] for a in g["attributes"]] == ["amplitude", "pace"]
+
+
+def test_a_version_trained_for_one_method_keeps_the_others_serving(admin, settings):
+    """Activating a version trained for RBA-Local sent RBA-Global's new sessions back to the shipped models when a
+    retrained global version served them: a version now carries over what served its other methods."""
+    r = admin.post("/api/admin/train", headers=AUTH, json={"domain": "toy", "preset": "tiny"})
+    first = wait_job(admin, r.json()["id"])["version"]
+    assert admin.post(f"/api/admin/models/{first}/activate", headers=AUTH).status_code == 200
+    r = admin.post("/api/admin/train", headers=AUTH, json={"domain": "toy", "method": "local", "preset": "tiny"})
+    job = wait_job(admin, r.json()["id"])
+    assert job["state"] == "succeeded", job
+    assert admin.post(f"/api/admin/models/{job['version']}/activate", headers=AUTH).status_code == 200
+    g = admin.post("/api/sessions", json={"domain": "toy", "method": "global", "rep": "onehot"}).json()
+    assert g["model_set"] == job["version"]
+    versions = settings.models_dir / "versions"
+    for name in ("ranker-onehot.pt", "global_reward-onehot.json"):  # the first version's global models, as they were
+        assert (versions / job["version"] / "toy" / name).read_bytes() == (versions / first / "toy" / name).read_bytes()
+    assert f"the other models of {first} carried over into {job['version']}" in job["log_tail"]
 
 
 def test_failed_job_changes_nothing_served(admin, settings):
