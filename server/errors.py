@@ -98,13 +98,11 @@ _UNREADABLE = {
 
 
 def _unmatched(request: Request, exc: StarletteHTTPException) -> str | None:
-    """Our words for Starlette's own 404 (no route) and 405 (no such method on a route), else None."""
-    path, method = request.url.path, request.method
+    """Our words for Starlette's own 404 (no route), else None (405: ``_not_allowed``)."""
+    path = request.url.path
     if exc.status_code == 404 and "endpoint" not in request.scope:
         where = "API route" if path.startswith("/api/") else "page"
         return f"no {where} {path}; see /docs for the routes"
-    if exc.status_code == 405:
-        return f"{method} is not allowed on {path}; allowed: {_allowed(request)}"
     return None
 
 
@@ -127,9 +125,11 @@ async def _http_error(request: Request, exc: StarletteHTTPException) -> Response
     if exc.status_code == 400 and type(cause) in _UNREADABLE:
         return error_response(422, _UNREADABLE[type(cause)], errors=[
             {"loc": ["body"], "msg": _UNREADABLE[type(cause)], "type": "json_invalid"}])
-    detail = _unmatched(request, exc) or str(exc.detail)
-    headers = {**(exc.headers or {}), "Allow": _allowed(request)} if exc.status_code == 405 else exc.headers
-    return error_response(exc.status_code, detail, headers)
+    if exc.status_code == 405:
+        allowed = _allowed(request)
+        return error_response(405, f"{request.method} is not allowed on {request.url.path}; allowed: {allowed}",
+                              {**(exc.headers or {}), "Allow": allowed})
+    return error_response(exc.status_code, _unmatched(request, exc) or str(exc.detail), exc.headers)
 
 
 async def _disconnected(request: Request, _exc: Exception) -> Response:

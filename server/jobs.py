@@ -316,9 +316,10 @@ def _train_and_publish(engine, store: Store, settings: Settings, job_id: str, mi
     version = f"{domain}-{dt.datetime.now(dt.UTC):%Y%m%d-%H%M%S}-{job_id[:6]}"  # matches JOB_VERSION
     with Session(engine) as db:  # what serves the domain now: its other methods' models go along with the new ones
         serving = db.get(ActiveModel, domain)
-    carried = store.carry_over(job_id, domain, serving.version if serving is not None else None)
-    log.info("the other models of %s carried over into %s: %s", serving.version if serving else "the built-in set",
-             version, ", ".join(carried) or "none")
+        source = serving.version if serving is not None else None  # None: the built-in set
+    carried = store.carry_over(job_id, domain, source)
+    log.info("the other models of %s carried over into %s: %s", source or "the built-in set", version,
+             ", ".join(carried) or "none")
     store.publish(job_id, version)
     try:
         _record_success(engine, settings, job_id, mine, version, metrics, "\n".join(tail.lines))

@@ -22,7 +22,7 @@ from rba.interact.generating import generating_methods
 from rba.library import LibraryNotFoundError
 from rba.methods import trainable
 from server import generation
-from server.admin_models import BUILTIN_VERSION
+from server.admin_models import BUILTIN_VERSION, ModelVersion
 from server.errors import not_found
 from server.models import (
     AttributeChoice,
@@ -186,10 +186,12 @@ def domains_public(svc: Services, db: Session) -> DomainsPublic:
         domain = svc.catalog.domain(name)
         pairs = dict.fromkeys(svc.catalog.available(name))  # the shipped models, then the active version's
         active = active_version(db, name)
-        specs = None  # the domain's own attributes, unless the active version's models learnt others
+        specs = None  # the domain's own attributes, unless the models the active version trained learnt others
         if active != BUILTIN_VERSION and (served := svc.catalog.available(name, active)):
             pairs |= dict.fromkeys(served)
-            specs = svc.catalog.card_attributes(name, *served[0], active)
+            row = db.get(ModelVersion, active)  # its other models were carried over (``Store.carry_over``)
+            trained = (row.method, row.rep) if row is not None else served[0]
+            specs = svc.catalog.card_attributes(name, *trained, active)
         available = [MethodPublic(method=m, rep=r) for m, r in pairs]
         domains.append(DomainPublic(name=name, attributes=attributes_public(domain, specs=specs),
                                     frame_rate=domain.frame_rate, states=domain.states_view,

@@ -406,7 +406,8 @@ def test_local_job_learns_page_local_changes(admin):
     listed = admin.get("/api/domains").json()["domains"]
     toy = next(d for d in listed if d["name"] == "toy")
     assert {"method": "local", "rep": "onehot"} in toy["available"]
-    assert "carried over into" in job["log_tail"] and "ranker-onehot.pt" in job["log_tail"]
+    assert [a["name"] for a in toy["attributes"]] == ["amplitude", "pace", "wobble"]  # the trained models', not
+    assert "carried over into" in job["log_tail"] and "ranker-onehot.pt" in job["log_tail"]  # the carried ones'
     s = admin.post("/api/sessions", json={"domain": "toy", "method": "local", "rep": "onehot"})
     assert s.status_code == 201, s.text
     assert s.json()["model_set"] == job["version"]
