@@ -1,0 +1,1 @@
+"""Clips: MP4 encoding for browsers and the content-addressed clip cache."""
