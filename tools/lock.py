@@ -111,7 +111,8 @@ def problems(pins: dict[str, str], installed: dict[str, str], requirements: list
     found = [f"{name} {version} is installed but not pinned" for name, version in sorted(installed.items())
              if name not in pins]
     found += [f"{name}=={pins[name]} is pinned but {version} is installed"
-              for name, version in sorted(installed.items()) if name in pins and Version(pins[name]) != Version(version)]
+              for name, version in sorted(installed.items())
+              if name in pins and Version(pins[name]) != Version(version)]
     found += [f"{name}=={pins[name]} is pinned but nothing needs it" for name in sorted(pins) if name not in installed]
     for req in requirements:
         name = canonicalize_name(req.name)
