@@ -34,7 +34,7 @@ p95 ≤ 100 ms at N = 50 while renders run.
 
     python benchmarks/api_load.py                      # walker, N = 1 10 50, prerender on and off
     python benchmarks/api_load.py --users 10 50 --prerender on --rounds 8 --warm-start --start-delay 120 \\
-        --out benchmarks/results/api_load_cold         # the issue's run, cold cache
+        --out benchmarks/results/api_load_cold         # cold cache
     python benchmarks/api_load.py --users 10 50 --prerender on --rounds 8 --warm-start --start-delay 120 \\
         --cache-dir /tmp/walker_clips --fill-cache --out benchmarks/results/api_load_warm
 """
@@ -63,7 +63,7 @@ from pathlib import Path
 
 import httpx
 
-from rba.storage import save_report
+from rba.core.fileio import save_report
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"

@@ -1,7 +1,7 @@
 """Targets outside the serve library's range: SR / AF of RBA-Global with and without generation.
 
 Targets are the proxies of rollouts the skill made up to ``--share`` of each proxy's serve range beyond it
-(``rba.evaluate.beyond_targets``: seeded, their own stream, so neither val nor test); the paper's user,
+(``rba.interact.evaluate.beyond_targets``: seeded, their own stream, so neither val nor test); the paper's user,
 ``--precision`` ε. Each domain is measured over the library alone and with generation (``rba eval``'s
 default, candidates simulated in this process or on ``--gen-workers`` local workers), the same targets for
 both. Rows of earlier runs in ``--out``'s .json are kept for domains this run does not measure (runs of one
@@ -22,11 +22,11 @@ from pathlib import Path
 
 from rba.cli import seconds_arg
 from rba.compute import simulation_pool
+from rba.core.fileio import report_to_extend, save_report
 from rba.domains import domain_names
-from rba.evaluate import EvalResult, af_cell, evaluate, searches_cell
-from rba.generate import SearchConfig, Simulate
+from rba.generate.cma import SearchConfig, Simulate
 from rba.interact import load_context
-from rba.storage import report_to_extend, save_report
+from rba.interact.evaluate import EvalResult, af_cell, evaluate, searches_cell
 
 log = logging.getLogger("beyond_range")
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -61,7 +61,7 @@ def markdown(report: dict) -> str:
     lines = ["# Targets beyond the serve range", "",
              f"RBA-Global one-hot, the paper's user, {report['precision']}-precision ε, targets up to "
              f"{report['share']:.0%} of each proxy's serve range beyond it (rollouts the skill made: "
-             "`rba.evaluate.beyond_targets`, seed "
+             "`rba.interact.evaluate.beyond_targets`, seed "
              f"{report['seed']}). *library*: serve clips only; *gen*: the agent also makes clips when none is near "
              "its target (`rba eval`'s default). SR / AF (std), AF over successful trials, 500-feedback budget.", "",
              "*search bound*: `--gen-seconds` (`SearchConfig.seconds`, as the app's `RBA_GENERATE_SECONDS`); –: the "

@@ -9,7 +9,7 @@ turns clip by clip so that a change in machine load hits them alike:
   reflection in every MuJoCo domain,
   the snake's floor drawn with quads 0.1 m apart, highway-env's column-major read-back, and
   ``imageio_ffmpeg.write_frames`` with x264 ``veryfast`` / crf 23 and x264's default threads;
-* ``after``: the production code (``rba.video.encode_mp4``, ``rba.domains.mujoco_render``, the
+* ``after``: the production code (``rba.media.video.encode_mp4``, ``rba.domains.mujoco_render``, the
   domains' render functions);
 * options not taken, measured for the report: ``no-sky`` (``after`` without the skybox) and
   ``ultrafast`` (``after`` with x264's ``ultrafast`` preset).
@@ -51,14 +51,14 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from rba import video
+from rba.core.fileio import report_path, save_markdown, save_text
+from rba.core.settings import LibrarySettings
+from rba.data.library import SkillLibrary
 from rba.domains import get_domain
 from rba.domains import lane_change as lane
 from rba.domains.base import Domain, Rollout
 from rba.domains.mujoco_render import Camera, Sky, ThreadRenderers, render_over_sky, sky_alone
-from rba.library import SkillLibrary
-from rba.settings import LibrarySettings
-from rba.storage import report_path, save_markdown, save_text
+from rba.media import video
 
 log = logging.getLogger("clip_cost")
 
@@ -70,7 +70,7 @@ Encoder = Callable[[Iterable[np.ndarray], Path, float], int]
 # ---------------------------------------------------------------- the configurations
 
 def encode_main(frames: Iterable[np.ndarray], path: Path, fps: float) -> int:
-    """``rba.video.encode_mp4`` as it was on main before this change (imageio-ffmpeg, x264's default threads)."""
+    """``rba.media.video.encode_mp4`` as it was on main before this change (imageio-ffmpeg, x264's default threads)."""
     import imageio_ffmpeg
 
     count, writer = 0, None
@@ -438,7 +438,7 @@ NOTES = """\
 
 Changed (the *after* configuration, now production):
 
-- **Encoding** (`rba/video.py`): ffmpeg is started directly. `imageio_ffmpeg.write_frames` forked the whole
+- **Encoding** (`rba/media/video.py`): ffmpeg is started directly. `imageio_ffmpeg.write_frames` forked the whole
   process (a `preexec_fn` rules out vfork) and polled for ffmpeg's exit every 10 ms: ~10 ms of every clip.
   x264 runs on **one thread** (`-threads 1`): its default follows the CPU count, and the thread count
   changes the bytes, so on main the same clip gave other bytes on a machine (or cgroup) with another
@@ -475,7 +475,7 @@ Left alone:
   walker *softness* is the foot's speed at touchdown, and at 1.4 m/s the last 5 cm take ~35 ms, one frame
   at 30 fps; at 15 fps a stomp and a soft landing would be one frame apart. The manipulator's *tremor* is
   held 40 ms (25 Hz), which 33 fps barely samples and half that would alias away. The snake (8-50 mm/s)
-  would survive 12.5 fps, but the encoder's rate comes from `domain.frame_rate`, which `rba/clips.py` and
+  would survive 12.5 fps, but the encoder's rate comes from `domain.frame_rate`, which `rba/media/clip_cache.py` and
   `rba/cli.py` pass on (not changed here); the lane change is at 15 fps already.
 - **Resolution**: 320x240, the settings' default.
 - **No skybox at all** (`no-sky` in `clip_cost_options.md`): MuJoCo then clears to black, a look change

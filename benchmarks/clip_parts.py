@@ -2,7 +2,7 @@
 
 The compute layer renders a generated clip (someone always waits for it) in ``CLIP_PARTS`` parts,
 one per worker of the pool, and joins them by stream copy (``rba.compute.base.RenderJob.parts``,
-``rba.video.concat_mp4``). This measures what that buys on this machine: for each domain,
+``rba.media.video.concat_mp4``). This measures what that buys on this machine: for each domain,
 ``--clips`` serve rollouts, each rendered both ways, taking turns clip by clip so that a change in
 machine load hits both alike, wall-clock from
 submission to the MP4's bytes:
@@ -37,9 +37,9 @@ from api_load import start_run
 from rba.compute import RenderJob, tasks
 from rba.compute.base import CLIP_PARTS
 from rba.compute.local import LocalCompute
-from rba.library import SkillLibrary
-from rba.settings import LibrarySettings
-from rba.storage import save_report
+from rba.core.fileio import save_report
+from rba.core.settings import LibrarySettings
+from rba.data.library import SkillLibrary
 
 RESULTS = Path(__file__).resolve().parents[1] / "benchmarks" / "results"
 DOMAINS = ("walker", "manipulator", "lane_change", "snake")

@@ -41,7 +41,7 @@ from pathlib import Path
 
 import httpx
 
-from rba.storage import save_report
+from rba.core.fileio import save_report
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"

@@ -29,12 +29,12 @@ import numpy as np
 from api_load import LiveServer, ServerOptions, pct, start_run
 
 from rba.cli import seconds_arg
+from rba.core.fileio import save_report
+from rba.data.library import SkillLibrary
 from rba.domains import get_domain
 from rba.interact import SATISFIED
 from rba.interact.users import parse_user
-from rba.library import SkillLibrary
-from rba.storage import save_report
-from server.settings import GENERATE_SECONDS, GENERATE_SECONDS_OTHERS
+from server.common.app_settings import GENERATE_SECONDS, GENERATE_SECONDS_OTHERS
 
 RESULTS = Path(__file__).resolve().parents[1] / "benchmarks" / "results"
 DOMAINS = ("walker", "manipulator", "lane_change", "snake")
@@ -171,7 +171,8 @@ def bound_text(bound: float | None) -> str:
     if bound is not None:
         return f"{bound:g} s (`RBA_GENERATE_SECONDS`)"
     named = ", ".join(f"{d} {s:g} s" for d, s in GENERATE_SECONDS.items())
-    return f"the default bounds ({named}, others {GENERATE_SECONDS_OTHERS:g} s: `server.settings.GENERATE_SECONDS`)"
+    return (f"the default bounds ({named}, others {GENERATE_SECONDS_OTHERS:g} s: "
+            "`server.common.app_settings.GENERATE_SECONDS`)")
 
 
 def bound_arg(text: str) -> float | None:
@@ -189,8 +190,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    "(the page unlocks the answers after 1 s of playing)")
     p.add_argument("--search-seconds", type=bound_arg, nargs="+", default=[None],
                    help="RBA_GENERATE_SECONDS for the server, one server (and table) each, in turn: seconds, or "
-                        "'default' for the server's own per domain (server.settings.GENERATE_SECONDS); default: "
-                        "default")
+                        "'default' for the server's own per domain (server.common.app_settings.GENERATE_SECONDS); "
+                        "default: default")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, default=RESULTS / "generation_latency", help="writes <out>.json and <out>.md")
     args = p.parse_args(argv)

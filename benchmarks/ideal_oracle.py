@@ -6,8 +6,8 @@ shows a clip with exactly the proxies it estimates, as if a generator could make
 agent read every clip perfectly, from a uniform belief or from where the serve library's behaviours lie (the
 prior). An agent that reads clips through ζσ and makes them by simulation has neither, so this measures what an AF
 goal asks (bisection is near the fewest answers ternary feedback allows, not proven the fewest). Same targets
-(``rba.evaluate.held_out_targets``), ε and user as ``rba eval``; nothing is simulated, so it takes seconds. Writes
-``benchmarks/results/ideal_oracle.md`` and ``.json``.
+(``rba.interact.evaluate.held_out_targets``), ε and user as ``rba eval``; nothing is simulated, so it takes seconds.
+Writes ``benchmarks/results/ideal_oracle.md`` and ``.json``.
 
     python benchmarks/ideal_oracle.py                       # every domain, both precisions, 20 test targets, seed 0
     python benchmarks/ideal_oracle.py --targets 120 --domains snake
@@ -23,13 +23,13 @@ from pathlib import Path
 
 import numpy as np
 
+from rba.core.fileio import machine, save_report
+from rba.data.library import HELD_OUT, SkillLibrary
 from rba.domains import domain_names, get_domain
-from rba.evaluate import MAX_FEEDBACK, af_cell, evaluate, held_out_targets, success_summary
 from rba.interact.bisection import kernel_prior, posterior, quantile
+from rba.interact.evaluate import MAX_FEEDBACK, af_cell, evaluate, held_out_targets, success_summary
 from rba.interact.reference import ERROR_RATE, ReferenceContext
 from rba.interact.users import SimulatedUser
-from rba.library import HELD_OUT, SkillLibrary
-from rba.storage import machine, save_report
 
 log = logging.getLogger("ideal_oracle")
 RESULTS = Path(__file__).resolve().parent / "results"

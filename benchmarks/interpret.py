@@ -1,4 +1,4 @@
-"""Free-text feedback: accuracy of ``rba.interpret`` per domain on hand-written phrasings.
+"""Free-text feedback: accuracy of ``rba.interact.free_text`` per domain on hand-written phrasings.
 
 A phrasing counts as right when the set of (attribute, direction) pairs it maps to equals the
 expected set exactly ("not understood" is the empty set). The phrasings are
@@ -28,7 +28,7 @@ log = logging.getLogger("interpret")
 def measure(split: str) -> dict[str, dict]:
     """Per domain: accuracy, phrasing count, misses (text, expected, got) and mean seconds per sentence."""
     from rba.domains import get_domain, register
-    from rba.interpret import Interpreter, understood
+    from rba.interact.free_text import Interpreter, understood
 
     register("toy", "tests.toy:Toy")
     cases = json.loads(PHRASINGS.read_text())[split]

@@ -1,6 +1,6 @@
 """What ζσ loses when its labels are what a person can give: noisy pairs instead of a perfect ordering.
 
-For each domain, ζσ (one-hot) is trained on a simulated annotator's answers (``rba.labels.
+For each domain, ζσ (one-hot) is trained on a simulated annotator's answers (``rba.data.labels.
 annotator_labels``: at most 200 train clips, N pairs, a share of the answers flipped, 10 %
 "can't tell" dropped) for every label noise × number of pairs, and once on the perfect ordering
 of the same 200 clips (every one of their 19,900 pairs). The score is the held-out pairwise
@@ -34,13 +34,13 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
+from rba.core.fileio import load_json, report_path, save_report
+from rba.data.labels import GlobalLabelConfig, annotator_labels, proxy_labels
+from rba.data.library import SkillLibrary
 from rba.domains import get_domain
-from rba.embed import attribute_embeddings
-from rba.labels import GlobalLabelConfig, annotator_labels, proxy_labels
 from rba.learn.common import Ragged
+from rba.learn.embed import attribute_embeddings
 from rba.learn.ranker import RankerConfig, ranking_metrics, train_ranker
-from rba.library import SkillLibrary
-from rba.storage import load_json, report_path, save_report
 
 RESULTS = Path(__file__).resolve().parent / "results"
 log = logging.getLogger("label_noise")

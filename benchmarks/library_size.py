@@ -22,12 +22,12 @@ import time
 from pathlib import Path
 
 from rba.compute import simulation_pool
+from rba.core.fileio import report_to_extend, save_report
 from rba.domains import domain_names
-from rba.evaluate import EvalResult, af_cell, evaluate, searches_cell
-from rba.generate import Simulate
+from rba.generate.cma import Simulate
 from rba.interact import load_context
+from rba.interact.evaluate import EvalResult, af_cell, evaluate, searches_cell
 from rba.interact.global_agent import GlobalContext
-from rba.storage import report_to_extend, save_report
 
 log = logging.getLogger("library_size")
 RESULTS = Path(__file__).resolve().parent / "results"

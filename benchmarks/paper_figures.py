@@ -26,12 +26,12 @@ import matplotlib.pyplot as plt
 import matplotlib.ticker
 import numpy as np
 
-from rba.artifacts import ModelNotFoundError, load_model
+from rba.core.artifacts import ModelNotFoundError, load_model
+from rba.core.fileio import save_json
+from rba.data.library import LibraryNotFoundError, SkillLibrary
 from rba.domains import domain_names, get_domain
 from rba.learn.ranker import RankerConfig
-from rba.library import LibraryNotFoundError, SkillLibrary
-from rba.storage import save_json
-from rba.training import GlobalTrainConfig, LocalTrainConfig, train_global, train_local
+from rba.learn.training import GlobalTrainConfig, LocalTrainConfig, train_global, train_local
 
 log = logging.getLogger("paper_figures")
 RESULTS = Path(__file__).resolve().parent / "results"

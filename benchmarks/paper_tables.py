@@ -5,7 +5,7 @@ representation it runs with (RBA-Global, RBA-Global-L, RBA-Local, RBA-Local-L, P
 reference rows, Random (the floor: random serve clips) and Oracle (the ceiling the library allows:
 bisection on the true proxies), 20 targets of the ``test`` split each (ARCHITECTURE §5), beside the paper's
 numbers, with the paper's user; ``RBA-Global+gen`` is RBA-Global making clips beyond the library
-(``rba.interact.generating``). ``--users KIND ...`` adds one table per teacher kind (RBA-Global and RBA-Local,
+(``rba.interact.generating_agent``). ``--users KIND ...`` adds one table per teacher kind (RBA-Global and RBA-Local,
 one-hot, normal precision, over the four hand-made domains); raw state views (``<domain>_raw``, just more
 ``--domains``) are shown beside their hand-made view; the label-noise report is linked when it exists.
 ε is a fraction of each proxy's robust range over the serve library (``Domain.epsilons``). Writes
@@ -35,17 +35,17 @@ import platform
 import sys
 from pathlib import Path
 
-from rba.artifacts import ModelNotFoundError
 from rba.compute import simulation_pool
+from rba.core.artifacts import ModelNotFoundError
+from rba.core.fileio import load_json, report_path, save_json, save_markdown
+from rba.core.methods import methods
+from rba.data.library import LibraryNotFoundError
 from rba.domains import domain_names
 from rba.domains.base import EPSILON_FRACTIONS, ROBUST_QUANTILES
-from rba.evaluate import EvalResult, evaluate
-from rba.generate import Simulate
+from rba.generate.cma import Simulate
 from rba.interact import load_context
+from rba.interact.evaluate import EvalResult, evaluate
 from rba.interact.users import USER_KINDS, UserSpec, parse_user
-from rba.library import LibraryNotFoundError
-from rba.methods import methods
-from rba.storage import load_json, report_path, save_json, save_markdown
 
 log = logging.getLogger("paper_tables")
 RESULTS = Path(__file__).resolve().parent / "results"

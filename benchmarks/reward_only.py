@@ -1,7 +1,7 @@
 """Is the exported reward usable on its own? A parameter search that sees only rθ(s | v*) of an export.
 
-Profiles come from simulated-user sessions (``rba.evaluate.simulate``, the paper's user at normal precision):
-each trial that ends satisfied within ε is exported (``rba.export.write_export``) and read back
+Profiles come from simulated-user sessions (``rba.interact.evaluate.simulate``, the paper's user at normal precision):
+each trial that ends satisfied within ε is exported (``rba.data.export_zip.write_export``) and read back
 (``read_export``). CMA-ES (the ``cma`` package) then searches the skill's parameters, with the profile's
 seed, for the largest return Σ_t rθ(s_t | v*) of the simulated rollout: no proxies, no library (the box it
 searches is the skill prior's, from ``Domain.sample_params``). A profile is reproduced when the best
@@ -37,17 +37,17 @@ import cma
 import numpy as np
 import torch
 
-from rba.artifacts import load_model
+from rba.core.artifacts import load_model
+from rba.core.fileio import save_report
+from rba.core.store import model_files
+from rba.data.export_zip import Export, ExportSource, read_export, write_export
+from rba.data.library import HELD_OUT, SkillLibrary
 from rba.domains import Domain, get_domain
-from rba.evaluate import simulate
-from rba.export import Export, ExportSource, read_export, write_export
 from rba.interact import load_context, new_agent
+from rba.interact.evaluate import simulate
 from rba.learn.common import Ragged
 from rba.learn.global_reward import GlobalReward, RefitConfig
 from rba.learn.ranker import AttributeRanker
-from rba.library import HELD_OUT, SkillLibrary
-from rba.storage import save_report
-from rba.store import model_files
 
 log = logging.getLogger("reward_only")
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -221,7 +221,7 @@ def _reward_kind(args: dict) -> str:
     if pull is None and "refit_pull" in args:  # no pull asked, in a domain that keeps its trained weights
         return "rθ's trained weights (the domain's choice, `Domain.export_refit`)"
     pull = RefitConfig().pull if pull is None else pull  # absent before the option: the default
-    return f"rθ with its last layer re-fitted for v* (`rba.export`; pull {pull})"
+    return f"rθ with its last layer re-fitted for v* (`rba.data.export_zip`; pull {pull})"
 
 
 def markdown(report: dict) -> str:

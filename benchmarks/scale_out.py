@@ -8,7 +8,7 @@ limits how many tasks a node runs, while software OpenGL and the H.264 encoder w
 After an untimed warm-up (a few simulations and renders, so every worker has imported the simulator
 and made its renderer), two things are timed on the same backend the app and ``rba build --ray`` use:
 
-a. a library build: ``rba.library.generate(domain, "serve", --rollouts, compute=ray)``;
+a. a library build: ``rba.data.library.generate(domain, "serve", --rollouts, compute=ray)``;
 b. a full render of that library's first ``--clips`` clips into a fresh ``ClipStore``
    (``ClipCache.fill``, as ``rba cache`` does).
 
@@ -42,11 +42,11 @@ import tempfile
 import time
 from pathlib import Path
 
-from rba.clips import ClipCache
 from rba.compute import Compute, make_compute
-from rba.library import SkillLibrary, generate
-from rba.storage import save_report
-from rba.store import ClipStore
+from rba.core.fileio import save_report
+from rba.core.store import ClipStore
+from rba.data.library import SkillLibrary, generate
+from rba.media.clip_cache import ClipCache
 
 RESULTS = Path(__file__).resolve().parent / "results"
 GOAL_SPEEDUP = 1.8

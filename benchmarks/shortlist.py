@@ -20,11 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
-from rba.artifacts import load_model
+from rba.core.artifacts import load_model
+from rba.core.fileio import save_markdown
+from rba.data.library import SkillLibrary
 from rba.domains import get_domain
 from rba.interact import load_context
-from rba.library import SkillLibrary
-from rba.storage import save_markdown
 
 RESULTS = Path(__file__).resolve().parent / "results"
 

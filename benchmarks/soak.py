@@ -37,7 +37,7 @@ from api_load import LiveServer, ServerOptions, UserLog, run_user, start_run, su
 from sqlalchemy import create_engine, text
 from sqlalchemy.engine import make_url
 
-from rba.storage import save_report
+from rba.core.fileio import save_report
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"

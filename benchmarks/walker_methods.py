@@ -23,13 +23,13 @@ from pathlib import Path
 from paper_tables import PAPER as PAPER_TABLES  # a sibling script, on sys.path when run as one
 from paper_tables import PAPER_LABELS
 
-from rba.artifacts import ModelNotFoundError, load_model
-from rba.evaluate import EvalResult, af_cell, evaluate
+from rba.core.artifacts import ModelNotFoundError, load_model
+from rba.core.fileio import report_path, save_json, save_markdown
+from rba.core.methods import get_method, method_names, methods
 from rba.interact import load_context
+from rba.interact.evaluate import EvalResult, af_cell, evaluate
 from rba.learn.pbrl import PbRLConfig
-from rba.methods import get_method, method_names, methods
-from rba.storage import report_path, save_json, save_markdown
-from rba.training import LocalTrainConfig, train_local
+from rba.learn.training import LocalTrainConfig, train_local
 
 log = logging.getLogger("walker_methods")
 

@@ -10,7 +10,7 @@ that stays near a shown clip could keep its residual (and so let bisection absor
 clips are re-simulated with their parameters moved a little (Gaussian steps in the unit parameter box, the
 clip's own seed), and the report gives how much of the residual survives the move. ``--generated N`` asks
 whether a clip *made* for a ζσ target satisfies as often as a library clip at that ζσ: for N val clips, the
-search the generating agent runs (``rba.generate.search`` from the nearest serve clips, ζσ distance, stopping
+search the generating agent runs (``rba.generate.cma.search`` from the nearest serve clips, ζσ distance, stopping
 within the threshold) for the clip's own ζσ, and the share of the clips it made within the threshold that are
 within ε of the val clip's proxies, against the serve clips within the threshold for the same targets (a search
 optimises ζσ, so it may find where ζσ errs). ``--seeds N`` asks how noisy the skill itself is: N val clips
@@ -35,13 +35,13 @@ from pathlib import Path
 import numpy as np
 from sklearn.isotonic import IsotonicRegression
 
-from rba.artifacts import load_model
+from rba.core.artifacts import load_model
+from rba.core.fileio import report_path, save_markdown, save_text
+from rba.data.library import SkillLibrary
 from rba.domains import domain_target, get_domain, load_domain
-from rba.generate import SearchConfig, ZetaDistance, search
+from rba.generate.cma import SearchConfig, ZetaDistance, search
 from rba.interact import load_context
-from rba.interact.generating import STARTS, THRESHOLD
-from rba.library import SkillLibrary
-from rba.storage import report_path, save_markdown, save_text
+from rba.interact.generating_agent import STARTS, THRESHOLD
 
 RESULTS = Path(__file__).resolve().parent / "results"
 STEPS = (0.01, 0.03, 0.1)  # std of the parameter moves, in units of each free parameter's range

@@ -110,9 +110,9 @@ def _user(text: str) -> UserSpec:
 
 def cmd_build(args) -> int:
     from rba.compute import make_compute
-    from rba.library import build_all
-    from rba.settings import LibrarySettings
-    from rba.training import prepare_states
+    from rba.core.settings import LibrarySettings
+    from rba.data.library import build_all
+    from rba.learn.training import prepare_states
 
     prepare_states(args.domain, args.seed)  # a learned state encoder the rollouts load, trained if missing
     sizes = {"train": args.train, "serve": args.serve, "val": args.val, "test": args.test}
@@ -127,11 +127,11 @@ def cmd_build(args) -> int:
 
 
 def cmd_train(args) -> int:
-    from rba.methods import get_method, trainable
+    from rba.core.methods import get_method, trainable
 
     if args.remeasure:
-        from rba.embed import REPRESENTATIONS
-        from rba.training import remeasure
+        from rba.learn.embed import REPRESENTATIONS
+        from rba.learn.training import remeasure
 
         for rep in REPRESENTATIONS if args.rep == "all" else (args.rep,):
             print(json.dumps({"domain": args.domain, "rep": rep, **remeasure(args.domain, rep)}, indent=2))
@@ -147,11 +147,11 @@ def cmd_train(args) -> int:
 
 
 def cmd_eval(args) -> int:
-    from rba.evaluate import can_generate, evaluate, format_table
-    from rba.storage import save_json
+    from rba.core.fileio import save_json
+    from rba.interact.evaluate import can_generate, evaluate, format_table
 
     if args.all_methods:
-        from rba.methods import methods
+        from rba.core.methods import methods
 
         if args.generate:
             raise ValueError("--generate compares one method with and without generation: give --method, "
@@ -191,7 +191,7 @@ def _generation(args) -> tuple[dict, Compute | None]:
     simulates the candidates: ``--gen-workers`` local processes or ``--ray``; one worker: this process."""
     if not args.generate:
         return {}, None
-    from rba.generate import SearchConfig
+    from rba.generate.cma import SearchConfig
 
     vary = None if args.gen_seeds is None else args.gen_seeds == "each"
     options: dict = {"config": SearchConfig(budget=args.gen_budget, seconds=args.gen_seconds, vary_seed=vary)}
@@ -210,7 +210,7 @@ def _generation(args) -> tuple[dict, Compute | None]:
     if not args.ray and args.gen_workers == 1:
         return options, None
     from rba.compute import make_compute
-    from rba.settings import LibrarySettings
+    from rba.core.settings import LibrarySettings
 
     compute = make_compute(LibrarySettings(compute_workers=args.gen_workers), args.ray)
     options["simulate"] = compute.simulate
@@ -218,9 +218,9 @@ def _generation(args) -> tuple[dict, Compute | None]:
 
 
 def cmd_render(args) -> int:
+    from rba.data.library import SPLITS, SkillLibrary
     from rba.domains import get_domain
-    from rba.library import SPLITS, SkillLibrary
-    from rba.video import write_mp4
+    from rba.media.video import write_mp4
 
     split = args.rollout_id.split("-", 1)[0]
     if split not in SPLITS:
@@ -240,11 +240,11 @@ def cmd_cache(args) -> int:
 
     from tqdm import tqdm
 
-    from rba.clips import ClipCache
     from rba.compute import make_compute
-    from rba.library import SkillLibrary
-    from rba.settings import LibrarySettings
-    from rba.store import Store
+    from rba.core.settings import LibrarySettings
+    from rba.core.store import Store
+    from rba.data.library import SkillLibrary
+    from rba.media.clip_cache import ClipCache
 
     settings = LibrarySettings()
     store = Store.from_settings(settings)
@@ -262,7 +262,8 @@ def cmd_cache(args) -> int:
 
 
 SERVER_ENTRY = "server.main:run"  # the web app, imported only by `rba serve`: the library never imports it
-EXPORT_ENTRY = "server.exporting:export_to_file"  # `rba export` reads the app's database with the app's settings
+# `rba export` reads the app's database with the app's settings
+EXPORT_ENTRY = "server.ops.session_export:export_to_file"
 
 
 def _server_function(entry: str):
@@ -279,7 +280,7 @@ def cmd_serve(args) -> int:
 
 
 def cmd_export(args) -> int:
-    """Write a satisfied session's export zip (``rba.export``) from the app's database and files."""
+    """Write a satisfied session's export zip (``rba.data.export_zip``) from the app's database and files."""
     profile = _server_function(EXPORT_ENTRY)(args.session_id, Path(args.out))
     reward = profile.reward["kind"] if profile.reward else f"none ({profile.reward_note})"
     print(f"wrote {args.out}: {profile.domain} {profile.rollout_id} (seed {profile.seed}), {profile.method}/"
@@ -289,7 +290,7 @@ def cmd_export(args) -> int:
 
 def cmd_replay(args) -> int:
     """Simulate an export's behaviour again from its params and seed: 0 if its attributes match, 1 if not."""
-    from rba.export import replay
+    from rba.data.export_zip import replay
 
     result = replay(Path(args.zip))
     p = result.profile
@@ -310,7 +311,7 @@ def _ray_option(parser: argparse.ArgumentParser) -> None:
 
 
 def _build_command(sub) -> argparse.ArgumentParser:
-    from rba.library import SPLITS
+    from rba.data.library import SPLITS
 
     b = sub.add_parser("build", help="simulate the train / serve / val / test skill libraries")
     b.add_argument("domain", type=_domain)
@@ -329,8 +330,8 @@ def _build_command(sub) -> argparse.ArgumentParser:
 
 
 def _train_command(sub) -> argparse.ArgumentParser:
-    from rba.embed import REPRESENTATIONS
-    from rba.methods import train_presets, trainable
+    from rba.core.methods import train_presets, trainable
+    from rba.learn.embed import REPRESENTATIONS
 
     t = sub.add_parser("train", help=f"train the models of {' and/or '.join(m.label for m in trainable())} "
                                      "and write model cards")
@@ -349,7 +350,7 @@ def _train_command(sub) -> argparse.ArgumentParser:
 
 
 def _cache_command(sub) -> argparse.ArgumentParser:
-    from rba.library import SPLITS
+    from rba.data.library import SPLITS
 
     c = sub.add_parser("cache", help="render every clip of a split into the app's clip cache (RBA_CACHE_DIR)")
     c.add_argument("domain", type=_domain)
@@ -362,10 +363,10 @@ def _cache_command(sub) -> argparse.ArgumentParser:
 
 
 def _eval_command(sub) -> argparse.ArgumentParser:
-    from rba.embed import REPRESENTATIONS
+    from rba.core.methods import method_names
+    from rba.data.library import HELD_OUT
     from rba.interact.users import USER_KINDS
-    from rba.library import HELD_OUT
-    from rba.methods import method_names
+    from rba.learn.embed import REPRESENTATIONS
 
     e = sub.add_parser("eval", help="run the paper's protocol with simulated users")
     e.add_argument("--domain", type=_domain, required=True)
@@ -407,7 +408,7 @@ def _generation_options(e: argparse.ArgumentParser) -> None:
                         "starts that would end later than this; default: the budget alone (deterministic)")
     e.add_argument("--gen-threshold", type=_non_negative, default=None,
                    help="ζσ distance (train range = 1) beyond which the agent generates; default: "
-                        "rba.interact.generating.THRESHOLD (0.02); tune it on --split val")
+                        "rba.interact.generating_agent.THRESHOLD (0.02); tune it on --split val")
     e.add_argument("--gen-spread", type=_non_negative, default=None,
                    help="generate only where the library clip is also off the target by more than this share of "
                         "the belief's half interquartile range (0: by the threshold alone); default: "

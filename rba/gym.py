@@ -26,10 +26,10 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from rba.core.registry import import_object
+from rba.data.export_zip import Export, ExportError, Profile, read_export
 from rba.domains import Domain, domain_names, domain_target, get_domain
 from rba.domains.base import SkillPolicy
-from rba.export import Export, ExportError, Profile, read_export
-from rba.registry import import_object
 
 NAMESPACE, VERSION = "rba", 0
 

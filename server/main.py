@@ -16,15 +16,15 @@ from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
 
 from rba.compute import Compute
-from server import errors
-from server.admin_models import DatasetUpload
-from server.auth import AdminGate, FailureLimiter
-from server.deps import known_query
-from server.limits import BodyLimit, Cap
-from server.prerender import warm_up
-from server.routes import admin_datasets, admin_labels, admin_training, clips, docs, domains, interpret, sessions
-from server.services import Services
-from server.settings import Settings
+from server.api.auth import AdminGate, FailureLimiter
+from server.api.deps import known_query
+from server.api.limits import BodyLimit, Cap
+from server.api.routes import admin_datasets, admin_labels, admin_training, clips, docs, domains, interpret, sessions
+from server.common import errors
+from server.common.app_settings import Settings
+from server.db.admin_tables import DatasetUpload
+from server.ops.prerender import warm_up
+from server.runtime.services import Services
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 log = logging.getLogger(__name__)

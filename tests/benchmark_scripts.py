@@ -4,7 +4,7 @@ import importlib.util
 import sys
 from types import ModuleType
 
-from rba.settings import REPO_ROOT
+from rba.core.settings import REPO_ROOT
 
 
 def load_benchmark(name: str) -> ModuleType:

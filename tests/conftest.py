@@ -26,10 +26,10 @@ def local_compute():
 @pytest.fixture(scope="session")
 def toy_roots(tmp_path_factory):
     """(data_root, models_root) with toy libraries and one-hot global models trained on them."""
+    from rba.data.library import build_all
     from rba.learn.global_reward import GlobalRewardConfig
     from rba.learn.ranker import RankerConfig
-    from rba.library import build_all
-    from rba.training import GlobalTrainConfig, train_global
+    from rba.learn.training import GlobalTrainConfig, train_global
 
     root = tmp_path_factory.mktemp("toy")
     data, models = root / "data", root / "models"
@@ -75,7 +75,7 @@ def serve_subset_roots(toy_roots, root: Path, keep) -> tuple[Path, Path]:
     ``keep(proxies) -> bool[N]`` selects."""
     import numpy as np
 
-    from rba.library import SkillLibrary
+    from rba.data.library import SkillLibrary
 
     data, models = own_copy(toy_roots, root)
     serve = SkillLibrary.load("toy", "serve", data)

@@ -7,7 +7,7 @@ import time
 from concurrent.futures import Future
 
 from rba.compute import Compute, RenderJob, SimJob, Task
-from rba.generate import in_process
+from rba.generate.cma import in_process
 
 
 class FakeCompute(Compute):
@@ -76,7 +76,7 @@ class InProcessCompute(InstantCompute):
         return super().render(job, urgent) if self.renders is None else self.renders.render(job, urgent)
 
     def simulate(self, jobs):
-        from rba.generate import in_process
+        from rba.generate.cma import in_process
 
         self.batches += 1
         time.sleep(self.delay)
@@ -84,7 +84,8 @@ class InProcessCompute(InstantCompute):
 
 
 def recording_simulator(jobs: list[SimJob]):
-    """A simulator (``rba.generate.Simulate``) that records every job it is given: what a search really asked for."""
+    """A simulator (``rba.generate.cma.Simulate``) that records every job it is given: what a search really asked
+    for."""
     def simulate(batch):
         batch = list(batch)
         jobs.extend(batch)

@@ -48,14 +48,48 @@ def test_functions_are_short_enough_to_read_at_once(package):
     assert not long, "\n".join(f"{f.file}:{f.line} {f.name}: {f.lines} lines" for f in long)
 
 
-# server/services.py's docstring: the modules below ``services`` (tables, rules and tools) import nothing above them.
-SERVER_LOW = ("settings", "errors", "feedback", "models", "admin_models", "db", "migrations", "migrations.env",
-              "uploads", "transitions", "background", "catalog", "labeldata", "processes", "jobs")
+# The server's layers are its folders, lowest first (server/runtime/services.py's docstring): a module imports only
+# from its own layer and those below it; ``server.main``, which builds the app, sits above them all.
+SERVER_LAYERS = ("server.common", "server.db", "server.runtime", "server.ops", "server.api")
+SERVER_TOP = ("server", "server.main")
 
 
-def test_low_server_modules_never_import_the_services_or_anything_above_them():
+def _layer(module: str) -> int:
+    """Where ``module`` sits: the index of its folder in ``SERVER_LAYERS``; ``server.main`` above them all."""
+    if module == "server.main":
+        return len(SERVER_LAYERS)
+    return next(i for i, layer in enumerate(SERVER_LAYERS) if module == layer or module.startswith(f"{layer}."))
+
+
+def test_every_server_module_sits_in_a_layer_folder():
     graph = code_shape.import_graph()
-    low = {f"server.{name}" for name in SERVER_LOW}
-    assert low <= set(graph), low - set(graph)
-    above = {name: sorted(m for m in graph[name] if m.startswith("server.") and m not in low) for name in sorted(low)}
-    assert not any(above.values()), above
+    loose = sorted(m for m in graph if m.split(".")[0] == "server" and m not in SERVER_TOP
+                   and not any(m == layer or m.startswith(f"{layer}.") for layer in SERVER_LAYERS))
+    assert not loose, loose
+
+
+def test_server_layers_never_import_a_layer_above_them():
+    graph = code_shape.import_graph()
+    server = [m for m in graph if m.split(".")[0] == "server" and m != "server"]
+    up = {m: sorted(t for t in graph[m] if t.split(".")[0] == "server" and t != "server" and _layer(t) > _layer(m))
+          for m in sorted(server)}
+    assert not any(up.values()), {m: t for m, t in up.items() if t}
+
+
+def test_the_runtime_parts_never_import_the_services_that_hold_them():
+    graph = code_shape.import_graph()
+    runtime = [m for m in graph if m.startswith("server.runtime.") and m != "server.runtime.services"]
+    assert runtime
+    assert not [m for m in runtime if "server.runtime.services" in graph[m]]
+
+
+def test_the_layer_check_sees_an_import_from_above(tmp_path):
+    root = _tree(tmp_path, {
+        "rba/__init__.py": "", "server/__init__.py": "", "server/main.py": "from server.api import deps\n",
+        "server/api/__init__.py": "", "server/api/deps.py": "from server.db import engine\n",
+        "server/db/__init__.py": "", "server/db/engine.py": "def f():\n    from server.ops import views\n",
+        "server/ops/__init__.py": "", "server/ops/views.py": "",
+    })
+    graph = code_shape.import_graph(root)
+    up = [(m, t) for m in graph for t in graph[m] if t.startswith("server.") and _layer(t) > _layer(m)]
+    assert up == [("server.db.engine", "server.ops.views")]

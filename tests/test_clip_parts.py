@@ -5,7 +5,7 @@ import sys
 
 import pytest
 
-from rba.settings import REPO_ROOT
+from rba.core.settings import REPO_ROOT
 from tests.benchmark_scripts import load_benchmark
 
 

@@ -17,13 +17,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rba.clips import ClipCache
 from rba.compute import RenderJob, SimJob, Task, make_compute
 from rba.compute.base import CLIP_PARTS, SIM_CHUNK, joined, sim_chunk
 from rba.compute.local import LocalCompute
+from rba.core.store import ClipStore
+from rba.data.library import SkillLibrary, build_all, generate
 from rba.domains import domain_target
-from rba.library import SkillLibrary, build_all, generate
-from rba.store import ClipStore
+from rba.media.clip_cache import ClipCache
 
 
 @pytest.fixture(scope="module")

@@ -2,7 +2,7 @@
 
 No container runs here (CI has no Docker engine): the files are parsed and every command in them is checked
 against the parser that will run it (``rba.cli.build_parser()``, Ray's own ``ray`` CLI, ``sh -n``), every
-``RBA_*`` variable against ``server.settings.Settings``, and ports, volumes, upstreams and paths against
+``RBA_*`` variable against ``server.common.app_settings.Settings``, and ports, volumes, upstreams and paths against
 each other. Break a file and a test here fails.
 """
 
@@ -23,7 +23,7 @@ import yaml
 from sqlalchemy.engine import make_url
 
 from rba.cli import build_parser
-from server.settings import Settings
+from server.common.app_settings import Settings
 
 ROOT = Path(__file__).resolve().parents[1]
 COMPOSE = yaml.safe_load((ROOT / "docker-compose.yml").read_text())

@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
-from rba.artifacts import load_model
+from rba.core.artifacts import load_model
+from rba.core.settings import REPO_ROOT
+from rba.data.library import SkillLibrary, build_all
 from rba.domains import domain_names, get_domain
-from rba.evaluate import evaluate
-from rba.library import SkillLibrary, build_all
-from rba.settings import REPO_ROOT
-from rba.training import GlobalTrainConfig, train_global
+from rba.interact.evaluate import evaluate
+from rba.learn.training import GlobalTrainConfig, train_global
 
 SHIPPED = [d for d in domain_names() if (REPO_ROOT / "models" / d / "ranker-onehot.pt").exists()]
 

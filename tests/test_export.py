@@ -10,11 +10,11 @@ from pathlib import Path
 
 import pytest
 
-import rba.export as export_module
+import rba.data.export_zip as export_module
 from rba.cli import main
-from rba.export import FORMAT_VERSION, ExportError, read_export
-from rba.library import SkillLibrary
-from rba.storage import load_json
+from rba.core.fileio import load_json
+from rba.data.export_zip import FORMAT_VERSION, ExportError, read_export
+from rba.data.library import SkillLibrary
 
 
 @pytest.fixture
@@ -22,8 +22,8 @@ def app_env(toy_roots, tmp_path, monkeypatch) -> dict:
     """The app's settings as `rba export` reads them (RBA_* variables) and a database holding toy sessions."""
     from sqlmodel import Session
 
-    from server.db import make_engine
-    from server.models import FeedbackEvent, TuningSession
+    from server.db.engine import make_engine
+    from server.db.tables import FeedbackEvent, TuningSession
 
     data, models, _ = toy_roots
     url = f"sqlite:///{tmp_path / 'rba.db'}"
@@ -226,8 +226,8 @@ def _local_source(toy_roots, tmp_path, rounds_of):
     """An RBA-Local export source over an untrained local reward saved under ``tmp_path`` (and the model)."""
     import torch
 
-    from rba.artifacts import save_model, weights_sha
-    from rba.export import ExportSource
+    from rba.core.artifacts import save_model, weights_sha
+    from rba.data.export_zip import ExportSource
     from rba.learn.local_reward import LocalReward
 
     torch.manual_seed(0)
@@ -247,7 +247,7 @@ def test_a_local_export_conditions_on_the_last_asked_change(toy_roots, tmp_path)
     import numpy as np
     import torch
 
-    from rba.export import write_export
+    from rba.data.export_zip import write_export
     from rba.learn.common import Ragged
 
     def rounds_of(ids):
@@ -273,7 +273,7 @@ def test_a_local_export_conditions_on_the_last_asked_change(toy_roots, tmp_path)
 
 
 def test_a_local_session_satisfied_at_once_exports_no_reward(toy_roots, tmp_path):
-    from rba.export import write_export
+    from rba.data.export_zip import write_export
 
     def rounds_of(ids):
         return [{"step": 0, "feedback": "satisfied", "rollout_before": ids[0], "rollout_after": ids[0]}], ids[0]
@@ -295,8 +295,8 @@ def test_a_global_export_refits_the_rewards_last_layer_for_the_chosen_clip(app_e
     import numpy as np
     import torch
 
-    from rba.artifacts import BUILDERS, load_model, weights_sha
-    from rba.export import ExportSource, build_export
+    from rba.core.artifacts import BUILDERS, load_model, weights_sha
+    from rba.data.export_zip import ExportSource, build_export
     from rba.learn.common import Ragged
     from rba.learn.global_reward import LibraryScorer, RefitConfig
 
@@ -346,9 +346,9 @@ def test_a_domain_that_keeps_its_trained_reward_exports_it_unless_the_source_ask
 
     import torch
 
-    from rba.artifacts import load_model
+    from rba.core.artifacts import load_model
+    from rba.data.export_zip import DOMAIN_REFIT, ExportSource, build_export
     from rba.domains import get_domain
-    from rba.export import DOMAIN_REFIT, ExportSource, build_export
     from rba.learn.global_reward import RefitConfig
 
     assert get_domain("walker").export_refit is False and get_domain("toy").export_refit is True
@@ -369,8 +369,8 @@ def test_a_domain_that_keeps_its_trained_reward_exports_it_unless_the_source_ask
 def test_an_export_refuses_models_that_are_not_the_sessions(app_env, toy_roots, version):
     """The session's model version names each model's weights sha, dash-separated; models changed since are refused
     with the model set named, and so is a version that merely contains their shas (a substring check passed it)."""
-    from rba.artifacts import load_model
-    from rba.export import ExportSource, build_export
+    from rba.core.artifacts import load_model
+    from rba.data.export_zip import ExportSource, build_export
 
     sha = {k: load_model("toy", k, "onehot", toy_roots[1]).card["weights_sha"] for k in ("ranker", "global_reward")}
     assert app_env["version"] == f"{sha['ranker']}-{sha['global_reward']}"

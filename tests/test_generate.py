@@ -1,4 +1,4 @@
-"""Behaviours beyond the library (rba.generate, rba.interact.generating) on the toy domain.
+"""Behaviours beyond the library (rba.generate.cma, rba.interact.generating_agent) on the toy domain.
 
 The toy serve library gets a gap: no clip within ε of a target inside it. RBA-Global over the library
 alone cannot succeed there; with generation it makes a clip that does, seeded and deterministically.
@@ -14,12 +14,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-import rba.evaluate as evaluate_module
+import rba.interact.evaluate as evaluate_module
 from rba.cli import main
 from rba.compute import SimJob
 from rba.domains import ParamSpace, domain_target, get_domain
-from rba.evaluate import beyond_targets, evaluate, simulate
-from rba.generate import (
+from rba.generate.cma import (
     SearchConfig,
     ZetaDistance,
     _out_of_time,
@@ -30,10 +29,11 @@ from rba.generate import (
     replay,
     search,
 )
-from rba.interact import generating, global_agent
+from rba.interact import generating_agent, global_agent
 from rba.interact.base import AttributeFeedback
 from rba.interact.bisection import posterior, quantile
-from rba.interact.generating import (
+from rba.interact.evaluate import beyond_targets, evaluate, simulate
+from rba.interact.generating_agent import (
     POOL_KEEP,
     RETRY_AFTER,
     GeneratingGlobalAgent,
@@ -326,7 +326,7 @@ def test_a_searchs_runners_up_are_shown_later_without_a_search(ctx, gap_roots):
 
 
 def test_the_pool_drops_the_oldest_search_s_clips_first(ctx, gap_roots, monkeypatch):
-    monkeypatch.setattr(generating, "POOL_SIZE", POOL_KEEP + 2)
+    monkeypatch.setattr(generating_agent, "POOL_SIZE", POOL_KEEP + 2)
     agent = GeneratingGlobalAgent(_gen(ctx, gap_roots, threshold=1e-9, spread=0.0))  # every search falls short
     agent.first_query()
     first = list(agent.pool)
@@ -431,7 +431,7 @@ def narrow_roots(toy_roots, tmp_path_factory):
 
 
 def test_beyond_targets_leave_the_serve_range_by_at_most_the_share(narrow_roots):
-    from rba.library import SkillLibrary
+    from rba.data.library import SkillLibrary
 
     serve = SkillLibrary.load("toy", "serve", narrow_roots[0])
     low, high = serve.proxies.min(0), serve.proxies.max(0)
@@ -504,7 +504,7 @@ def test_cli_beyond_option(narrow_roots, monkeypatch, capsys, tmp_path):
 
 
 def test_evaluate_over_the_first_serve_rollouts_only(gap_roots, monkeypatch, capsys):
-    from rba.library import SkillLibrary
+    from rba.data.library import SkillLibrary
 
     data, models = gap_roots
     small = evaluate("toy", "global", targets=3, data_root=data, models_root=models, serve_size=40)

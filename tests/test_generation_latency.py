@@ -1,11 +1,11 @@
 """benchmarks/generation_latency.py's options: ``--search-seconds default`` runs the server at its own per-domain
-bounds (server.settings.GENERATE_SECONDS), and the report says which bounds a table was measured at."""
+bounds (server.common.app_settings.GENERATE_SECONDS), and the report says which bounds a table was measured at."""
 
 import argparse
 
 import pytest
 
-from server.settings import GENERATE_SECONDS, GENERATE_SECONDS_OTHERS
+from server.common.app_settings import GENERATE_SECONDS, GENERATE_SECONDS_OTHERS
 from tests.benchmark_scripts import load_benchmark
 
 load_benchmark("api_load")  # the script imports it as a sibling module

@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 import torch
 
-from rba.artifacts import ModelNotFoundError, load_model
-from rba.evaluate import evaluate
+from rba.core.artifacts import ModelNotFoundError, load_model
+from rba.data.library import SkillLibrary
 from rba.interact import AttributeFeedback, load_context, new_agent, restore_agent
 from rba.interact.bisection import quantile
+from rba.interact.evaluate import evaluate
 from rba.interact.global_agent import GlobalAgent
-from rba.library import SkillLibrary
 
 
 def test_ranker_orders_held_out_clips(toy_roots):
@@ -125,7 +125,7 @@ def test_simulated_users_reach_targets(toy_roots):
 
 def test_default_preset_takes_a_domains_ranker_steps():
     from rba.learn.ranker import RankerConfig
-    from rba.training import GlobalTrainConfig
+    from rba.learn.training import GlobalTrainConfig
 
     assert GlobalTrainConfig.preset("default", 3, "lane_change_image").ranker.steps == 3200
     walker = GlobalTrainConfig.preset("default", 3, "walker").ranker

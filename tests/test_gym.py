@@ -8,8 +8,8 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import rba.gym
+from rba.data.export_zip import ExportError
 from rba.domains import domain_names, get_domain
-from rba.export import ExportError
 from rba.gym import ExportedReward, SkillEnv, env_id, has_simulator, run_policy, skill_policy
 
 rba.gym.register_envs()  # the tests' toy domain was registered after rba.gym may have been imported
@@ -68,9 +68,9 @@ def test_exported_reward_pays_the_return_of_the_recorded_states(exported_toy):
 @pytest.fixture
 def exported_toy(toy_roots, tmp_path):
     """An export of a toy serve rollout chosen after one "less pace" round (written without the app)."""
-    from rba.export import ExportSource, write_export
-    from rba.library import SkillLibrary
-    from rba.storage import load_json
+    from rba.core.fileio import load_json
+    from rba.data.export_zip import ExportSource, write_export
+    from rba.data.library import SkillLibrary
 
     data, models, _ = toy_roots
     serve = SkillLibrary.load("toy", "serve", data)

@@ -1,4 +1,4 @@
-"""rba.interpret: free-text feedback on every domain, with the shipped sentence model (loaded once)."""
+"""rba.interact.free_text: free-text feedback on every domain, with the shipped sentence model (loaded once)."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
+from rba.core.registry import import_object
 from rba.domains import domain_names, domain_target, get_domain
-from rba.interpret import FLIPS, KEEPS, Interpreter, NotUnderstood, clauses, stem, understood
-from rba.registry import import_object
+from rba.interact.free_text import FLIPS, KEEPS, Interpreter, NotUnderstood, clauses, stem, understood
 
 PHRASINGS = json.loads((Path(__file__).parent / "data" / "interpret_phrasings.json").read_text())
 TEST = PHRASINGS["test"]
@@ -111,7 +111,7 @@ def test_nothing_close_enough_says_so_and_names_the_attributes(interpreters):
 
 def test_an_attribute_without_anchors_is_still_matched_by_name(interpreters):
     from rba.domains.base import FeedbackPhrases
-    from rba.embed import sentence_embeddings
+    from rba.learn.embed import sentence_embeddings
 
     plain = Interpreter([("step_size", FeedbackPhrases((), ())), ("softness", FeedbackPhrases((), ()))],
                         sentence_embeddings)
@@ -120,7 +120,7 @@ def test_an_attribute_without_anchors_is_still_matched_by_name(interpreters):
 
 
 def test_one_encode_per_sentence_and_anchors_encoded_once(interpreters):
-    from rba.embed import sentence_embeddings
+    from rba.learn.embed import sentence_embeddings
 
     calls: list[list[str]] = []
 

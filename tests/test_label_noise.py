@@ -1,8 +1,8 @@
 """benchmarks/label_noise.py: the full-preset ζσ cards listed beside the grid (pairwise only, first folder wins)."""
 
 
+from rba.core.fileio import save_json
 from rba.domains import get_domain
-from rba.storage import save_json
 from tests.benchmark_scripts import load_benchmark
 
 label_noise = load_benchmark("label_noise")

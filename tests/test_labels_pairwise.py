@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 from scipy.special import expit
 
-from rba.labels import (
+from rba.core.fileio import load_json
+from rba.core.methods import get_method
+from rba.data.labels import (
     GlobalLabelConfig,
     annotate_pairs,
     annotator_labels,
@@ -16,9 +18,7 @@ from rba.labels import (
     labelled_subset,
     sample_pairs,
 )
-from rba.methods import get_method
-from rba.storage import load_json
-from rba.training import GlobalTrainConfig, train_global
+from rba.learn.training import GlobalTrainConfig, train_global
 
 
 class _Lib:

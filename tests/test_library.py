@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from rba.library import LibraryNotFoundError, SkillLibrary, build_all, generate
+from rba.data.library import LibraryNotFoundError, SkillLibrary, build_all, generate
 
 
 def test_generate_is_seeded_and_ids_are_split_prefixed():

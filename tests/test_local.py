@@ -6,14 +6,14 @@ import numpy as np
 import pytest
 import torch
 
-from rba.artifacts import load_model
+from rba.core.artifacts import load_model
+from rba.data.labels import LocalLabelConfig, local_pairs, validate_local_records
+from rba.data.library import SkillLibrary
 from rba.domains import get_domain
-from rba.evaluate import evaluate
 from rba.interact import AttributeFeedback, load_context, new_agent, restore_agent
-from rba.labels import LocalLabelConfig, local_pairs, validate_local_records
+from rba.interact.evaluate import evaluate
 from rba.learn.local_reward import LocalRewardConfig
-from rba.library import SkillLibrary
-from rba.training import LocalTrainConfig, train_local
+from rba.learn.training import LocalTrainConfig, train_local
 
 TINY = LocalTrainConfig(LocalLabelConfig(), LocalRewardConfig(steps=150, hidden=64, lstm_hidden=32))
 

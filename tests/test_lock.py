@@ -7,7 +7,7 @@ import sys
 import pytest
 from packaging.requirements import Requirement
 
-from rba.settings import REPO_ROOT
+from rba.core.settings import REPO_ROOT
 
 
 def _load_lock_tool():

@@ -10,15 +10,15 @@ from dataclasses import replace
 
 import pytest
 
-from rba import methods
 from rba.cli import build_parser
+from rba.core import methods
+from rba.core.methods import Method, UnknownMethodError, get_method, method_names
+from rba.core.store import ModelFiles
+from rba.data.library import SkillLibrary
 from rba.domains import get_domain
-from rba.evaluate import TRIAL_LOOPS, evaluate, simulate
 from rba.interact import AttributeFeedback, Preference, new_agent, restore_agent
+from rba.interact.evaluate import TRIAL_LOOPS, evaluate, simulate
 from rba.interact.local_agent import LocalAgent
-from rba.library import SkillLibrary
-from rba.methods import Method, UnknownMethodError, get_method, method_names
-from rba.store import ModelFiles
 
 BUILTIN = method_names()
 
@@ -120,8 +120,8 @@ def twin(monkeypatch):
 
 
 def test_a_method_registered_at_run_time_appears_everywhere(twin):
-    from server.admin_models import TrainCreate
-    from server.catalog import attribute_methods
+    from server.db.admin_tables import TrainCreate
+    from server.runtime.catalog import attribute_methods
 
     assert method_names() == (*BUILTIN, "local_twin") and get_method("local_twin") is TWIN
     assert TWIN.label_for("language") == "RBA-Twin-L"

@@ -20,11 +20,11 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
+from rba.core.settings import REPO_ROOT
+from rba.data.library import SkillLibrary
 from rba.interact.users import SimulatedUser
-from rba.library import SkillLibrary
-from rba.settings import REPO_ROOT
+from server.common.app_settings import Settings
 from server.main import create_app
-from server.settings import Settings
 
 TOKEN = "new-attribute-test"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}

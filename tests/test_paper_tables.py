@@ -5,9 +5,9 @@ import json
 
 import pytest
 
-from rba.evaluate import EvalResult
-from rba.settings import REPO_ROOT
-from rba.storage import NOTES, save_json
+from rba.core.fileio import NOTES, save_json
+from rba.core.settings import REPO_ROOT
+from rba.interact.evaluate import EvalResult
 from tests.benchmark_scripts import load_benchmark
 
 paper_tables = load_benchmark("paper_tables")

@@ -8,8 +8,8 @@ import pytest
 import torch
 
 from rba.domains import get_domain
-from rba.evaluate import evaluate, run_preference_trial
 from rba.interact import Preference, load_context, new_agent, restore_agent
+from rba.interact.evaluate import evaluate, run_preference_trial
 from rba.interact.pbrl_agent import PbRLContext, stride_states
 from rba.interact.users import PreferenceTeacher
 from rba.learn.pbrl import PbRLConfig, RewardEnsemble, choose_pair, fit_preferences, returns
@@ -122,9 +122,9 @@ def test_noisy_teacher_path_is_seeded(ctx):
 
 
 def test_cli_evaluates_pbrl_and_all_methods(toy_roots, tmp_path, monkeypatch, capsys):
-    from rba import methods
     from rba.cli import main
-    from rba.training import LocalTrainConfig, train_local
+    from rba.core import methods
+    from rba.learn.training import LocalTrainConfig, train_local
 
     data, models, _ = toy_roots
     local_models = tmp_path / "models"

@@ -5,14 +5,14 @@ import json
 import numpy as np
 import pytest
 
+from rba.core.methods import get_method, methods
+from rba.data.library import SkillLibrary
 from rba.domains import get_domain
-from rba.evaluate import MAX_ROUNDS, run_trial, simulate
 from rba.interact import AttributeFeedback, new_agent, restore_agent
 from rba.interact.base import REJECT_MEMORY
+from rba.interact.evaluate import MAX_ROUNDS, run_trial, simulate
 from rba.interact.reference import OracleAgent, RandomAgent, ReferenceContext
 from rba.interact.users import SKIP, MyopicUser, SimulatedUser
-from rba.library import SkillLibrary
-from rba.methods import get_method, methods
 from tests.benchmark_scripts import load_benchmark
 from tests.toy import Toy
 

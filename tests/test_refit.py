@@ -7,12 +7,12 @@ import json
 import numpy as np
 import pytest
 
-from rba.artifacts import load_model
 from rba.cli import main
-from rba.generate import is_generated
-from rba.interact import generating
+from rba.core.artifacts import load_model
+from rba.generate.cma import is_generated
+from rba.interact import generating_agent
 from rba.interact.base import AttributeFeedback
-from rba.interact.generating import GeneratingGlobalAgent, GenerationContext
+from rba.interact.generating_agent import GeneratingGlobalAgent, GenerationContext
 from rba.interact.global_agent import GlobalContext
 from rba.interact.refit import fit_head, ordered_pairs, refit_heads
 from rba.interact.users import parse_user
@@ -157,7 +157,7 @@ def test_a_session_restored_in_the_same_process_reads_its_fitted_heads_instead_o
     def no_fit(*args, **kwargs):
         raise AssertionError("fitted again")
 
-    monkeypatch.setattr(generating, "refit_heads", no_fit)
+    monkeypatch.setattr(generating_agent, "refit_heads", no_fit)
     restored = GeneratingGlobalAgent.from_state(json.loads(json.dumps(agent.state_dict())), gen)
     np.testing.assert_array_equal(restored.ctx.base.serve_zeta, agent.ctx.base.serve_zeta)
 

@@ -17,9 +17,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from rba.core.store import Store
+from rba.data.library import SPLITS, SkillLibrary
 from rba.domains import domain_names, get_domain
-from rba.library import SPLITS, SkillLibrary
-from rba.store import Store
 
 PER_SPLIT = 4  # rollouts re-simulated per split: first, last and two in between (~2 s per domain)
 PROXY_RTOL = 1e-9  # proxies: float64, equal but for the last bits across machines (the module docstring)

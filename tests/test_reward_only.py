@@ -27,9 +27,9 @@ def test_reports_every_profile_and_searches_each_chosen_rollout_once(toy_env, tm
 def test_ceiling_searches_by_zeta_distance_to_the_profiles_target(toy_env, tmp_path):
     """The ceiling's objective is zero at the profile's own rollout (v* is its ζσ) and positive elsewhere; each
     profile reports the ceiling's find, and the report its share."""
-    from rba.artifacts import load_model
+    from rba.core.artifacts import load_model
+    from rba.data.export_zip import read_export
     from rba.domains import get_domain
-    from rba.export import read_export
 
     out = tmp_path / "r"
     assert reward_only.main(["--domain", "toy", "--profiles", "3", "--budget", "12", "--ceiling",
@@ -87,8 +87,8 @@ def test_draws_of_the_skill_prior_start_the_search_from_their_best(toy_env, tmp_
     best of them, and the budget still bounds it. More draws than the budget is refused."""
     import pytest
 
+    from rba.data.export_zip import read_export
     from rba.domains import get_domain
-    from rba.export import read_export
 
     args = reward_only.parse_args(["--domain", "toy", "--profiles", "1", "--budget", "16", "--draws", "8"])
     (path,) = reward_only.profiles(args, tmp_path)

@@ -7,11 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from rba.core.fileio import load_json
+from rba.core.store import Store
+from rba.data.library import HELD_OUT, SPLIT_CODES, SPLITS, SkillLibrary, build_all
 from rba.domains import domain_names
-from rba.library import HELD_OUT, SPLIT_CODES, SPLITS, SkillLibrary, build_all
-from rba.storage import load_json
-from rba.store import Store
-from rba.training import TUNED, tuning_record
+from rba.learn.training import TUNED, tuning_record
 
 FIRST_TEST_CODE = 2  # the first release's test split: tuned on, so it became val
 

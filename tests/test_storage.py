@@ -1,10 +1,10 @@
-"""rba.storage's reports: a regenerated Markdown report keeps the notes written by hand below its ``NOTES`` line."""
+"""rba.core.fileio's reports: a regenerated Markdown report keeps the notes written by hand below its ``NOTES`` line."""
 
 from __future__ import annotations
 
 import json
 
-from rba.storage import NOTES, save_markdown, save_report
+from rba.core.fileio import NOTES, save_markdown, save_report
 
 
 def test_a_regenerated_report_keeps_the_notes_below_the_marker(tmp_path):

@@ -9,11 +9,11 @@ from pathlib import Path
 
 import pytest
 
-from rba.clips import STALE_TMP_SECONDS, ClipCache, ClipKey
-from rba.library import SkillLibrary
-from rba.settings import REPO_ROOT, LibrarySettings
-from rba.store import ClipStore, Store
-from server.settings import Settings
+from rba.core.settings import REPO_ROOT, LibrarySettings
+from rba.core.store import ClipStore, Store
+from rba.data.library import SkillLibrary
+from rba.media.clip_cache import STALE_TMP_SECONDS, ClipCache, ClipKey
+from server.common.app_settings import Settings
 from tests.fakes import FakeCompute
 
 KEY = ClipKey("toy", "abc123", "serve-00001", 64, 48)
@@ -135,7 +135,7 @@ def test_what_a_crash_leaves_is_swept_at_start_up(tmp_path):
 
 
 def test_replicas_sharing_a_store_split_the_guesses(toy_roots, tmp_path):
-    from rba.library import SkillLibrary
+    from rba.data.library import SkillLibrary
 
     lib = SkillLibrary.load("toy", "serve", toy_roots[0])
     a, b = FakeCompute(), FakeCompute()
@@ -162,17 +162,17 @@ def test_the_library_never_imports_the_server():
 
 
 def test_a_new_renderer_version_gives_every_clip_a_new_name(monkeypatch):
-    from rba import clips
+    from rba.media import clip_cache
 
     before = KEY.digest
-    monkeypatch.setattr(clips, "RENDERER_VERSION", clips.RENDERER_VERSION + 1)
+    monkeypatch.setattr(clip_cache, "RENDERER_VERSION", clip_cache.RENDERER_VERSION + 1)
     assert KEY.digest != before  # a cache filled by the old renderer is never served as the new one's
 
 
 def test_a_dot_in_a_reports_name_is_part_of_it(tmp_path):
     """Two runs written to ``--out runs/pull0.001`` and ``--out runs/pull0.003`` keep two reports (``with_suffix``
     made both ``runs/pull0.json``); a name given with its ``.json`` or ``.md`` suffix still names that report."""
-    from rba.storage import load_json, report_path, save_report
+    from rba.core.fileio import load_json, report_path, save_report
 
     for pull in ("0.001", "0.003"):
         save_report(tmp_path / f"pull{pull}", {"pull": pull}, f"# pull {pull}\n")

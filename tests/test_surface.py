@@ -1,4 +1,4 @@
-"""ζσ over the skill's parameters (rba.surface) and the generating agent that reads and makes clips on it."""
+"""ζσ over the skill's parameters (rba.generate.surface) and the generating agent that reads and makes clips on it."""
 
 from __future__ import annotations
 
@@ -7,11 +7,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from rba.generate import SearchConfig, is_generated, surface_search
-from rba.interact import generating
-from rba.interact.generating import REPEAT, GeneratingGlobalAgent
+from rba.generate.cma import SearchConfig, is_generated, surface_search
+from rba.generate.surface import ZetaSurface
+from rba.interact import generating_agent
+from rba.interact.generating_agent import REPEAT, GeneratingGlobalAgent
 from rba.interact.global_agent import GlobalContext
-from rba.surface import ZetaSurface
 from tests.fakes import recording_simulator
 from tests.test_generate import BUDGET, TARGET, _eps, _gen, cli_context_option, cli_refuses
 from tests.toy import Toy
@@ -73,7 +73,7 @@ def test_a_clip_made_on_the_surface_costs_one_simulation(ctx, gap_roots):
 
 def test_generation_on_the_surface_reaches_the_target_the_library_lacks(ctx, gap_roots):
     agent = GeneratingGlobalAgent(_gen(ctx, gap_roots, surface=16))
-    from rba.evaluate import simulate
+    from rba.interact.evaluate import simulate
 
     trial = simulate(agent, TARGET, _eps(ctx), ctx.serve, seed=0, max_feedback=BUDGET)
     assert trial.success and any(is_generated(r) for r in trial.shown_ids)
@@ -85,7 +85,7 @@ def test_generation_on_the_surface_reaches_the_target_the_library_lacks(ctx, gap
 def test_on_the_surface_the_clip_made_last_starts_the_search(ctx, gap_roots):
     """Made clips stay in one region of the parameters: the last one shown (by round, then as stored) starts the next
     search, the nearest clips follow; without a surface the nearest clip starts, as before."""
-    from rba.generate import ZetaDistance
+    from rba.generate.cma import ZetaDistance
 
     target = ctx.serve_zeta[5]
     made = {"gen-a": {"params": {"amplitude": 0.9, "pace": 0.9}, "seed": 0, "zeta": list(target), "round": 4},
@@ -129,15 +129,16 @@ def test_the_zeta_search_after_a_repeated_clip_gets_what_is_left_of_the_bound(ct
     gen, starts, target = _on_the_surface(ctx, gap_roots, config=SearchConfig(seconds=1.0))
     first, _, _ = gen.generate(target, starts, 0)
     bounds = []
-    real = generating.search
-    monkeypatch.setattr(generating, "search", lambda *a, **k: bounds.append(a[4].seconds) or real(*a, **k))
+    real = generating_agent.search
+    monkeypatch.setattr(generating_agent, "search", lambda *a, **k: bounds.append(a[4].seconds) or real(*a, **k))
     slow = dataclasses.replace(first, seconds=0.4)  # the surface's clip took 0.4 s ...
-    monkeypatch.setattr(generating, "surface_search", lambda *a, **k: slow)
+    monkeypatch.setattr(generating_agent, "surface_search", lambda *a, **k: slow)
     again, _, _ = gen.generate(target, starts, 0, judged=[first.rollout.params])
     assert bounds == [pytest.approx(0.6)] and again.seconds >= 0.4  # ... so the ζσ search gets 0.6 s of the 1 s
-    monkeypatch.setattr(generating, "surface_search", lambda *a, **k: dataclasses.replace(first, seconds=5.0))
+    monkeypatch.setattr(generating_agent, "surface_search", lambda *a, **k: dataclasses.replace(first, seconds=5.0))
     late, _, _ = gen.generate(target, starts, 0, judged=[first.rollout.params])
-    assert bounds[-1] == generating.MIN_SECONDS and late.rollout is not None  # nothing left: it still makes a clip
+    # nothing left: it still makes a clip
+    assert bounds[-1] == generating_agent.MIN_SECONDS and late.rollout is not None
 
 
 def test_the_surface_is_the_domains_unless_asked(ctx, gap_roots, monkeypatch):

@@ -7,9 +7,9 @@ import pytest
 import torch
 from torch.nn import functional as F
 
-from rba.labels import AttributeLabels, LocalPairs
+from rba.data.labels import AttributeLabels, LocalPairs
 from rba.learn.common import StepLoop, bradley_terry_loss
-from rba.training import ENCODER_TRAINERS, PRESETS, GlobalTrainConfig, LocalTrainConfig, prepare_states
+from rba.learn.training import ENCODER_TRAINERS, PRESETS, GlobalTrainConfig, LocalTrainConfig, prepare_states
 
 
 def test_an_unknown_preset_names_the_valid_ones():
@@ -83,7 +83,7 @@ def test_prepare_states_trains_a_missing_encoder_once(monkeypatch, tmp_path):
 
 
 def test_lane_change_image_only_loads_its_vae_and_says_how_to_make_it(monkeypatch):
-    from rba import artifacts
+    from rba.core import artifacts
     from rba.domains.lane_change_image import LaneChangeImage
 
     def missing(*a, **k):

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rba.video import concat_mp4, encode_mp4, ffmpeg_command, write_mp4
+from rba.media.video import concat_mp4, encode_mp4, ffmpeg_command, write_mp4
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
@@ -114,7 +114,7 @@ from pathlib import Path
 import numpy as np
 from rba.domains.base import Rollout
 from rba.domains.walker import Walker
-from rba.video import encode_mp4
+from rba.media.video import encode_mp4
 walker = Walker()
 q0 = walker.physics().model.qpos0.copy()
 t = np.linspace(0, 1, 15)[:, None]

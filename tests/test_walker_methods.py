@@ -2,7 +2,7 @@
 
 import json
 
-from rba.settings import REPO_ROOT
+from rba.core.settings import REPO_ROOT
 from tests.benchmark_scripts import load_benchmark
 
 

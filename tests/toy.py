@@ -16,7 +16,7 @@ T = 24  # states per rollout
 PARAM_RANGES = {"amplitude": (0.2, 2.0), "pace": (0.5, 3.0)}
 
 
-# free-text feedback's anchors (rba.interpret): both sides written with the same nouns
+# free-text feedback's anchors (rba.interact.free_text): both sides written with the same nouns
 FEEDBACK_PHRASES = MappingProxyType({
     "amplitude": FeedbackPhrases(
         more=("wide swings", "swing far", "big movements", "large sway", "go far out to the sides", "broad arc"),

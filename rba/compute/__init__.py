@@ -18,7 +18,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
 from rba.compute.base import Compute, RenderJob, SimJob, Task, for_render
-from rba.settings import LibrarySettings
+from rba.core.settings import LibrarySettings
 
 __all__ = ["Compute", "RenderJob", "SimJob", "Task", "for_render", "make_compute", "simulation_pool"]
 

@@ -24,10 +24,11 @@ class SimJob:
 
 
 # A generated clip is rendered and encoded in this many parts, each on its own worker, then joined
-# (``rba.video.concat_mp4``): someone always waits for it (right after its search), and so it renders on both cores
-# of a 2-core machine. A library clip renders whole: most are rendered ahead as guesses, where parts cost throughput
-# (a second encoder and the join: with ten users fewer clips were ready in time, ``api_load_cold.md``). Fixed per
-# kind of clip, never by the machine or the urgency: the parts decide the bytes, and a clip's ETag promises them.
+# (``rba.media.video.concat_mp4``): someone always waits for it (right after its search), and so it renders on both
+# cores of a 2-core machine. A library clip renders whole: most are rendered ahead as guesses, where parts cost
+# throughput (a second encoder and the join: with ten users fewer clips were ready in time, ``api_load_cold.md``).
+# Fixed per kind of clip, never by the machine or the urgency: the parts decide the bytes, and a clip's ETag promises
+# them.
 CLIP_PARTS = 2
 SIM_CHUNK = 4  # rollouts per task at most when simulating a library
 

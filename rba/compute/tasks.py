@@ -35,7 +35,7 @@ def init_worker(nice: int = 0, render_threads: int = 1) -> None:
     Ray tasks run one worker per CPU, so more threads would only fight over the cores; the pool for the
     clip a person waits for shares the cores among its workers (a clip's parts render on all of them).
     Rendered pixels do not depend on the rasteriser's thread count, and the encoder's is fixed
-    (``rba.video``), so clips are identical whatever the machine.
+    (``rba.media.video``), so clips are identical whatever the machine.
     """
     os.environ.setdefault("MUJOCO_GL", "egl")
     os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
@@ -95,14 +95,14 @@ def simulate_many(targets: list[str], params: list[dict[str, float]], seeds: lis
 
 def render_clip(target: str, rollout: Rollout, width: int, height: int, rows: tuple[int, int] | None = None) -> bytes:
     """The MP4 of ``rollout`` (or of its replay rows [start, stop): a part, ``RenderJob.parts``), as bytes (H.264,
-    see ``rba.video``): the caller stores it where it belongs."""
+    see ``rba.media.video``): the caller stores it where it belongs."""
     _prepare()
     return _encode(load_domain(target), rollout, width, height, ALL_FRAMES if rows is None else slice(*rows))
 
 
 def join_clips(*parts: bytes) -> bytes:
-    """One clip of its parts' MP4s, in order (``rba.video.concat_mp4``)."""
-    from rba.video import concat_mp4
+    """One clip of its parts' MP4s, in order (``rba.media.video.concat_mp4``)."""
+    from rba.media.video import concat_mp4
 
     _prepare()
     return concat_mp4(list(parts))
@@ -115,7 +115,7 @@ def render_here(job: RenderJob) -> bytes:
 
 
 def _encode(domain: Domain, rollout: Rollout, width: int, height: int, frames: slice) -> bytes:
-    from rba.video import encode_mp4
+    from rba.media.video import encode_mp4
 
     folder = Path(tempfile.mkdtemp(prefix=TEMP_PREFIX))
     try:

@@ -1,4 +1,4 @@
-"""Model artifacts: a state_dict (``.pt``) + a card (``.json``), where ``rba.store.ModelFiles`` says.
+"""Model artifacts: a state_dict (``.pt``) + a card (``.json``), where ``rba.core.store.ModelFiles`` says.
 
 The card says how to rebuild the module (architecture), what it was trained on (data
 hashes), and how well it did on held-out data. Weights load with ``weights_only=True``.
@@ -15,12 +15,12 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from rba.core.fileio import load_json, load_torch, save_json, save_torch
+from rba.core.store import model_files
 from rba.learn.global_reward import GlobalReward
 from rba.learn.local_reward import LocalReward
 from rba.learn.ranker import AttributeRanker
 from rba.learn.vae import FrameVAE
-from rba.storage import load_json, load_torch, save_json, save_torch
-from rba.store import model_files
 
 
 class ModelNotFoundError(FileNotFoundError):

@@ -18,11 +18,11 @@ from functools import cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, Protocol
 
-from rba.registry import Registry, import_object
+from rba.core.registry import Registry, import_object
 
 if TYPE_CHECKING:
     from rba.interact.base import Agent, FeedbackKind
-    from rba.training import LabelSource, StageProgress
+    from rba.learn.training import LabelSource, StageProgress
 
 __all__ = ["Method", "Trainer", "UnknownMethodError", "get_method", "method_names", "method_target", "method_targets",
            "methods", "register", "train_presets", "trainable"]

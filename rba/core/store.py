@@ -30,11 +30,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, BinaryIO, TypeVar
 
-from rba.settings import LibrarySettings
-from rba.storage import write_atomic
+from rba.core.fileio import write_atomic
+from rba.core.settings import LibrarySettings
 
 if TYPE_CHECKING:
-    from rba.clips import ClipKey
+    from rba.media.clip_cache import ClipKey
 
 T = TypeVar("T")
 _SAFE = re.compile(r"^[a-z0-9_]{1,64}$")
@@ -248,7 +248,7 @@ class Store:
         shutil.rmtree(self.staging(job_id), ignore_errors=True)
 
     def job_record(self, job_id: str) -> Path:
-        """Which process runs the job (``server.processes.ProcessRecord``), while it runs."""
+        """Which process runs the job (``server.runtime.processes.ProcessRecord``), while it runs."""
         return self.data_dir / "jobs" / f"{job_id}.json"
 
     def recorded_jobs(self) -> list[str]:

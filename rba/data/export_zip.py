@@ -35,13 +35,13 @@ from typing import Any, Literal
 import numpy as np
 import torch
 
-from rba.artifacts import BUILDERS, ModelNotFoundError, load_model, weights_sha
+from rba.core.artifacts import BUILDERS, ModelNotFoundError, load_model, weights_sha
+from rba.core.fileio import write_atomic
+from rba.core.methods import get_method
+from rba.data.library import SkillLibrary
 from rba.domains import Domain, Rollout, domain_names, get_domain
 from rba.learn.common import Ragged
 from rba.learn.global_reward import RefitConfig, refit_for_target
-from rba.library import SkillLibrary
-from rba.methods import get_method
-from rba.storage import write_atomic
 
 FORMAT = "rba-export"
 FORMAT_VERSION = 1
@@ -135,7 +135,7 @@ class Profile:
 
 @dataclass(frozen=True)
 class ExportSource:
-    """What a finished session gives: the app (``server.exporting``) or a script fills it in."""
+    """What a finished session gives: the app (``server.ops.session_export``) or a script fills it in."""
 
     domain: str
     method: str

@@ -44,7 +44,7 @@ from scipy.optimize import brentq
 from scipy.special import expit
 
 if TYPE_CHECKING:
-    from rba.library import SkillLibrary
+    from rba.data.library import SkillLibrary
 
 log = logging.getLogger(__name__)
 

@@ -1,6 +1,6 @@
 """SkillLibrary: many rollouts of a domain's skill, stored as ragged arrays (npz + JSON).
 
-On disk (where ``rba.store.LibraryFiles`` says): ``<split>.npz`` holds only numeric arrays
+On disk (where ``rba.core.store.LibraryFiles`` says): ``<split>.npz`` holds only numeric arrays
 (states and replay concatenated over rollouts with offsets), ``<split>.json`` the metadata.
 Loading never unpickles.
 """
@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 
 from rba.compute import Compute, SimJob
+from rba.core.fileio import load_json, load_npz, save_json, save_npz
+from rba.core.store import library_files
 from rba.domains import Rollout, domain_target, get_domain, load_domain
-from rba.storage import load_json, load_npz, save_json, save_npz
-from rba.store import library_files
 
 log = logging.getLogger(__name__)
 

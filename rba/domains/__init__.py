@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from functools import cache
 
+from rba.core.registry import Registry, import_object
 from rba.domains.base import AttributeSpec, Domain, ParamSpace, Rollout
-from rba.registry import Registry, import_object
 
 __all__ = ["AttributeSpec", "Domain", "ParamSpace", "Rollout", "domain_names", "domain_target", "domain_targets",
            "get_domain", "load_domain", "register"]

@@ -51,7 +51,7 @@ ROBUST_QUANTILES = (1.0, 99.0)  # percentiles of the serve library's proxies tha
 
 @dataclass(frozen=True)
 class FeedbackPhrases:
-    """How people say more or less of one attribute in their own words (``rba.interpret``'s anchors).
+    """How people say more or less of one attribute in their own words (``rba.interact.free_text``'s anchors).
 
     ``more`` / ``less`` are short phrases that mean more / less of the attribute, written without
     direction words ("more", "less", "not", "too": the interpreter reads those itself); words found on
@@ -71,7 +71,7 @@ class ParamSpace:
 
     ``low`` / ``high`` are the honest range of ``sample_params`` (the conformance test draws inside it);
     a ``fixed`` parameter is kept at the starting clip's value (e.g. a discrete one a continuous search
-    would only round). ``rba.generate`` searches the free ones, scaled to [0, 1].
+    would only round). ``rba.generate.cma`` searches the free ones, scaled to [0, 1].
     """
 
     low: Mapping[str, float]
@@ -205,9 +205,9 @@ class Domain(ABC):
     # train range, ``GlobalContext.prior_width``) rather than uniform over it (0): targets are behaviours of the
     # same skill. Chosen on val (belief_prior_val.md: the manipulator's 0.05)
     belief_prior: float = 0.0
-    # neighbours of the ζσ surface over the skill's parameters (rba.surface) the generating agent reads clips on and
-    # makes them from: where the proxies move smoothly with the parameters it orders nearby clips better than ζσ of
-    # their states. 0: each clip's own ζσ. Chosen on val (generation_surface_val.md)
+    # neighbours of the ζσ surface over the skill's parameters (rba.generate.surface) the generating agent reads clips
+    # on and makes them from: where the proxies move smoothly with the parameters it orders nearby clips better than ζσ
+    # of their states. 0: each clip's own ζσ. Chosen on val (generation_surface_val.md)
     zeta_surface: int = 0
     # the generating agent re-fits ζσ's last layers near the target on the session's answers (rba.interact.refit):
     # where ζσ's labels leave it least precise. Not with a surface. On for the snake (session_refit_val.md: its val
@@ -219,14 +219,14 @@ class Domain(ABC):
     # the manipulator's 0.5 too; the walker's with its surface, generation_surface_val.md)
     generate_spread: float = 1.0
     # the skill's outcome depends on its seed beyond the parameters (the manipulator's tremor is drawn from it): a
-    # search then simulates each candidate with a seed of its own (``rba.generate.search``), so the noise is part of
+    # search then simulates each candidate with a seed of its own (``rba.generate.cma.search``), so the noise is part of
     # what it chooses among, as the library's seeds are. Chosen on val (generation_seeds_val.md)
     noisy_skill: bool = False
-    # an export re-fits its global reward's last layer for the chosen v* (``rba.export``; False: the trained weights).
-    # Chosen on val with the reward-only search (reward_refit_val.md)
+    # an export re-fits its global reward's last layer for the chosen v* (``rba.data.export_zip``; False: the trained
+    # weights). Chosen on val with the reward-only search (reward_refit_val.md)
     export_refit: bool = True
     # (kind, rep) of a learned model the states come from (models/<name>/<kind>-<rep>.pt): loaded, never trained
-    # here; `rba build` makes it when missing (rba.training.prepare_states)
+    # here; `rba build` makes it when missing (rba.learn.training.prepare_states)
     state_encoder: tuple[str, str] | None = None
     # the raw view (`<domain>_raw`, `--states raw`): states are the simulator's own positions and velocities,
     # sampled at the domain's raw rate and stacked (``stack_samples``); nothing computed from them. The
@@ -266,7 +266,7 @@ class Domain(ABC):
         raise NotImplementedError(f"domain {self.name!r} has no step interface for rba.gym yet")
 
     def param_space(self) -> ParamSpace:
-        """The skill's parameter space (bounds, what is fixed): what ``rba.generate`` may search."""
+        """The skill's parameter space (bounds, what is fixed): what ``rba.generate.cma`` may search."""
         raise NotImplementedError(f"domain {self.name!r} declares no parameter space: behaviours cannot be "
                                   "generated for it (define param_space())")
 

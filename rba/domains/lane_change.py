@@ -207,7 +207,7 @@ def _draw(env) -> np.ndarray:
     return np.frombuffer(pygame.image.tobytes(surface, "RGB"), np.uint8).reshape(height, width, 3)
 
 
-# free-text feedback's anchors (rba.interpret): both sides written with the same nouns
+# free-text feedback's anchors (rba.interact.free_text): both sides written with the same nouns
 FEEDBACK_PHRASES = MappingProxyType({
     "sharpness": FeedbackPhrases(
         more=("sharp turn", "swerve abruptly", "quick lane change", "snap into the lane", "jerk the wheel",

@@ -6,7 +6,7 @@ across, the ego car 70 % of the way across so that a follower up to 35 m behind 
 the change starts); that frame and the two from the previous state times, stacked as channels,
 go through a small convolutional VAE (``rba.learn.vae``) and the latent mean is the state.
 The domain only loads that VAE (``models/lane_change_image/vae-frames.pt`` and its card);
-``rba.training.train_frame_vae`` makes it, which ``rba build lane_change --states image`` does
+``rba.learn.training.train_frame_vae`` makes it, which ``rba build lane_change --states image`` does
 when it is missing. No ``rba.gym`` env: a policy cannot steer from latents (``rba.domains.lane_change``).
 """
 
@@ -53,8 +53,8 @@ class LaneChangeImage(LaneChange):
     def _vae(self):
         with self._vae_lock:
             if self._vae_model is None:
-                from rba.artifacts import ModelNotFoundError, load_model
-                from rba.store import model_files
+                from rba.core.artifacts import ModelNotFoundError, load_model
+                from rba.core.store import model_files
 
                 try:
                     vae = load_model(self.name, *self.state_encoder)

@@ -236,7 +236,7 @@ def measure(raw: np.ndarray, states: np.ndarray) -> tuple[dict[str, float], bool
     return lift_proxies(raw[:, HAND]), success, {"ball_rise_m": float(ball_rise), "climb_m": float(climb)}
 
 
-# free-text feedback's anchors (rba.interpret): both sides written with the same nouns
+# free-text feedback's anchors (rba.interact.free_text): both sides written with the same nouns
 FEEDBACK_PHRASES = MappingProxyType({
     "speed": FeedbackPhrases(
         more=("fast lift", "lift quickly", "hurry", "rapid motion", "quick arm", "swift lift", "speedy", "brisk"),

@@ -293,7 +293,7 @@ def measure(rec: SnakeRecording, period: float, data: mujoco.MjData,
     return proxies, bool(success), {"forward_m": forward, "heading_rad": float(heading)}
 
 
-# free-text feedback's anchors (rba.interpret): both sides written with the same nouns
+# free-text feedback's anchors (rba.interact.free_text): both sides written with the same nouns
 FEEDBACK_PHRASES = MappingProxyType({
     "bend_width": FeedbackPhrases(
         more=("wide bends", "big sideways curves", "swing the body out wide", "broad waves", "large wiggles",

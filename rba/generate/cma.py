@@ -30,10 +30,10 @@ import torch
 
 from rba.compute import SimJob
 from rba.domains import ParamSpace, Rollout, domain_target, load_domain
+from rba.generate.surface import ZetaSurface
 from rba.learn.common import Ragged
 from rba.learn.global_reward import GlobalReward, LibraryScorer
 from rba.learn.ranker import AttributeRanker
-from rba.surface import ZetaSurface
 
 log = logging.getLogger(__name__)
 

@@ -15,8 +15,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
+    from rba.data.library import SkillLibrary
     from rba.domains.base import ParamSpace
-    from rba.library import SkillLibrary
 
 CHUNK = 256  # points fitted at once: a CHUNK × N distance matrix
 RIDGE = 1e-9  # keeps a plane through clips on a line solvable

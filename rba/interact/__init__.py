@@ -1,6 +1,6 @@
 """Agents (one per method, each beside its ``Method`` record) and simulated users.
 
-The functions here go through the method registry (``rba.methods``), so they work for every
+The functions here go through the method registry (``rba.core.methods``), so they work for every
 registered method, plugins included.
 """
 
@@ -9,6 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from rba.core.methods import get_method
 from rba.interact.base import (
     SATISFIED,
     Agent,
@@ -18,7 +19,6 @@ from rba.interact.base import (
     Preference,
     validate_feedback,
 )
-from rba.methods import get_method
 
 __all__ = ["SATISFIED", "Agent", "AttributeFeedback", "Feedback", "FeedbackKind", "Preference",
            "load_context", "new_agent", "restore_agent", "validate_feedback"]

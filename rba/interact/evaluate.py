@@ -14,10 +14,10 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from rba.data.library import HELD_OUT, SkillLibrary
 from rba.domains import domain_target, get_domain, load_domain
 from rba.interact import SATISFIED, Agent, FeedbackKind, Preference, load_context, new_agent
 from rba.interact.users import SKIP, USER_KINDS, PreferenceTeacher, SimulatedUser, UserSpec, parse_user
-from rba.library import HELD_OUT, SkillLibrary
 
 log = logging.getLogger(__name__)
 
@@ -55,7 +55,7 @@ class EvalResult:
     split: str = "test"  # where the targets came from: "val" while tuning, "test" for reports
     beyond: float | None = None  # targets from beyond the serve range by up to this share of it (not a split)
     serve_size: int | None = None  # serve rollouts the agent chose from
-    generate: bool = False  # the agent made clips beyond the serve library (rba.interact.generating)
+    generate: bool = False  # the agent made clips beyond the serve library (rba.interact.generating_agent)
     generation: dict | None = None  # what generating cost and gave (``generation_summary``)
 
     def to_json(self) -> dict:
@@ -210,7 +210,7 @@ def evaluate(domain_name: str, method: str, rep: str = "onehot", targets: int = 
     """SR / AF over ``targets`` targets drawn from ``split``: ``val`` for tuning and model selection,
     ``test`` (the default) only for reported numbers; with ``beyond``, instead from beyond the serve range
     (``beyond_targets``). ``generate``: the agent may make clips beyond the serve library
-    (``rba.interact.generating``; ``generate_options`` go to its ``GenerationContext``). ``serve_size``: the
+    (``rba.interact.generating_agent``; ``generate_options`` go to its ``GenerationContext``). ``serve_size``: the
     agent sees only the serve library's first rollouts (contexts with ``first``: RBA-Global)."""
     if split not in HELD_OUT:
         raise ValueError(f"targets come from a held-out split; got {split!r}, valid: {', '.join(HELD_OUT)}")
@@ -252,7 +252,7 @@ def _judges_generated(spec: UserSpec) -> bool:
 def can_generate(method: str, user: str | UserSpec) -> bool:
     """Whether ``evaluate(..., generate=True)`` works: the method has a generating agent and the user can judge
     new clips (``rba eval``'s default for ``--generate``)."""
-    from rba.interact.generating import generating_methods
+    from rba.interact.generating_agent import generating_methods
 
     return method in generating_methods() and _judges_generated(parse_user(user))
 
@@ -262,7 +262,7 @@ def _agents(method: str, context, spec: UserSpec, models_root, generate: bool,
     """A maker of fresh agents for the trials: generating ones if asked (and the user can judge their clips)."""
     if not generate:
         return lambda: new_agent(method, context)
-    from rba.interact.generating import generating_agents
+    from rba.interact.generating_agent import generating_agents
 
     if not _judges_generated(spec):
         able = [k for k, kind in USER_KINDS.items() if kind.cls.judges_generated]

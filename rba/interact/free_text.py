@@ -23,7 +23,7 @@ from functools import cache
 import numpy as np
 
 from rba.domains.base import Domain, FeedbackPhrases
-from rba.embed import sentence_embeddings
+from rba.learn.embed import sentence_embeddings
 
 MAX_TEXT = 200  # characters: a sentence or two, not an essay
 # tuned on tests/data/interpret_phrasings.json's "val" set only (never on "test"): the lowest clause

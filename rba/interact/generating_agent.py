@@ -1,4 +1,4 @@
-"""RBA-Global that makes a clip when the serve library has none close to its target (``rba.generate``).
+"""RBA-Global that makes a clip when the serve library has none close to its target (``rba.generate.cma``).
 
 ``GeneratingGlobalAgent`` wraps a ``GlobalAgent``: the inner agent keeps the belief and picks a library
 clip as always; when that clip's ζσ (the agent's own models, never proxies) is farther than ``threshold``
@@ -11,10 +11,11 @@ takes every answer as a soft step of the domain's ``zeta_noise`` (``rba.interact
 ζσ puts the target, where it orders clips a few high-precision ε apart only by chance, so answers there contradict
 each other in ζσ.
 Where the proxies move smoothly with the skill's parameters (``Domain.zeta_surface``, the walker) the agent reads
-every clip on ζ̃, a fit of the serve library's ζσ over the parameters (``rba.surface``), not on ζσ of the clip's own
-states, and makes a clip by solving ζ̃ for its target (``rba.generate.surface_search``: one simulation), starting
-from the clip it made last, so its clips stay in one region of the parameters; a clip it would make again (within
-``REPEAT`` of one the user judged) is made by the ζσ search instead, in what is left of the time bound.
+every clip on ζ̃, a fit of the serve library's ζσ over the parameters (``rba.generate.surface``), not on ζσ of the
+clip's own states, and makes a clip by solving ζ̃ for its target (``rba.generate.cma.surface_search``: one
+simulation), starting from the clip it made last, so its clips stay in one region of the parameters; a clip it
+would make again (within ``REPEAT`` of one the user judged) is made by the ζσ search instead, in what is left of the
+time bound.
 A search whose best clip stayed farther than ``threshold`` from its target is not run again for a target
 within ``threshold`` of that one for ``RETRY_AFTER`` rounds: the same starts and budget would fail again;
 later it may, with the session's new clips as starts and another seed.
@@ -47,9 +48,11 @@ from typing import Generic, TypeVar
 
 import numpy as np
 
-from rba.artifacts import load_model
+from rba.core.artifacts import load_model
+from rba.core.methods import get_method, methods
+from rba.data.library import SkillLibrary
 from rba.domains import Rollout, get_domain
-from rba.generate import (
+from rba.generate.cma import (
     Generation,
     Progress,
     RewardObjective,
@@ -63,14 +66,12 @@ from rba.generate import (
     search,
     surface_search,
 )
+from rba.generate.surface import ZetaSurface
 from rba.interact.base import SATISFIED, Agent, Feedback, validate_feedback
 from rba.interact.global_agent import GlobalAgent, GlobalContext
 from rba.interact.refit import REFIT_AFTER, Answered, refit_heads
 from rba.learn.common import Ragged
 from rba.learn.ranker import AttributeRanker
-from rba.library import SkillLibrary
-from rba.methods import get_method, methods
-from rba.surface import ZetaSurface
 
 # ζσ distance (max over attributes, train range = 1) above which the agent generates: about the high-precision ε
 # (1/42 of a range); so far checked on walker val targets only

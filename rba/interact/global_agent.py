@@ -27,18 +27,18 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from rba.artifacts import load_model
-from rba.embed import REPRESENTATIONS
+from rba.core.artifacts import load_model
+from rba.core.methods import Method
+from rba.data.library import SkillLibrary
 from rba.interact.base import REJECT_MEMORY, Agent, Feedback
 from rba.interact.bisection import kernel_prior, posterior, quantile
 from rba.learn.common import Ragged
+from rba.learn.embed import REPRESENTATIONS
 from rba.learn.global_reward import LibraryScorer
-from rba.library import SkillLibrary
-from rba.methods import Method
-from rba.training import PRESETS, GlobalTrainConfig, train_global
+from rba.learn.training import PRESETS, GlobalTrainConfig, train_global
 
 if TYPE_CHECKING:
-    from rba.training import LabelSource, StageProgress
+    from rba.learn.training import LabelSource, StageProgress
 
 MAX_PUSHES = 8  # doublings of the push step before giving up on a move
 GRID = 401  # belief grid points per attribute
@@ -129,7 +129,7 @@ class GlobalAgent(Agent):
         self.target = self._medians()  # a function of the answers: kept up to date by update, never stored
         self.shown = shown
         self.rejected = list(rejected or [])
-        # set by rba.interact.generating for one update: the ζσ of the clip shown when it is a generated one
+        # set by rba.interact.generating_agent for one update: the ζσ of the clip shown when it is a generated one
         self.shown_zeta: np.ndarray | None = None
 
     def belief(self, a: int) -> np.ndarray:

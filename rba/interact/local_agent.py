@@ -32,17 +32,17 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
-from rba.artifacts import load_model
-from rba.embed import REPRESENTATIONS
+from rba.core.artifacts import load_model
+from rba.core.methods import Method
+from rba.data.library import SkillLibrary
 from rba.interact.base import REJECT_MEMORY, Agent, Feedback
 from rba.learn.common import Ragged
+from rba.learn.embed import REPRESENTATIONS
 from rba.learn.local_reward import LocalLibraryScorer
-from rba.library import SkillLibrary
-from rba.methods import Method
-from rba.training import LOCAL_PRESETS, LocalTrainConfig, train_local
+from rba.learn.training import LOCAL_PRESETS, LocalTrainConfig, train_local
 
 if TYPE_CHECKING:
-    from rba.training import LabelSource, StageProgress
+    from rba.learn.training import LabelSource, StageProgress
 
 
 @dataclass

@@ -19,12 +19,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 import torch
 
-from rba.embed import check_rep
+from rba.core.methods import Method
+from rba.data.library import SkillLibrary
 from rba.interact.base import Agent, Feedback
 from rba.learn.common import Normalizer, Ragged, torch_threads
+from rba.learn.embed import check_rep
 from rba.learn.pbrl import PbRLConfig, RewardEnsemble, choose_pair, fit_preferences, returns
-from rba.library import SkillLibrary
-from rba.methods import Method
 
 
 @dataclass

@@ -20,11 +20,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rba.embed import check_rep
+from rba.core.methods import Method
+from rba.data.library import SkillLibrary
 from rba.interact.base import REJECT_MEMORY, Agent, AttributeFeedback, Feedback
 from rba.interact.bisection import posterior, quantile
-from rba.library import SkillLibrary
-from rba.methods import Method
+from rba.learn.embed import check_rep
 
 RANDOM_SEED = 0
 GRID = 401  # belief grid points per attribute

@@ -37,7 +37,7 @@ import numpy as np
 from rba.interact.base import SATISFIED, AttributeFeedback, Feedback
 
 if TYPE_CHECKING:
-    from rba.library import SkillLibrary
+    from rba.data.library import SkillLibrary
 
 DRIFT_KEEP = 0.95  # inconsistent: share of the target's offset from its start kept a round (mean reversion)
 SKIP: Literal["skip"] = "skip"  # a user's "no answer this round": the agent is not updated, the clip shown again

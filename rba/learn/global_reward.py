@@ -19,6 +19,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from rba.core.settings import LibrarySettings
 from rba.learn.common import (
     Normalizer,
     Progress,
@@ -30,7 +31,6 @@ from rba.learn.common import (
     seed_everything,
     segment_sum,
 )
-from rba.settings import LibrarySettings
 
 
 @dataclass

@@ -16,7 +16,7 @@ import torch
 from torch import nn
 from torch.nn.utils.rnn import pack_padded_sequence
 
-from rba.labels import LocalPairs
+from rba.data.labels import LocalPairs
 from rba.learn.common import (
     Normalizer,
     Progress,

@@ -8,7 +8,7 @@ Trained with the Bradley-Terry loss (paper §4.2, eq. 3) on ``AttributeLabels``:
 attribute, which labelled trajectory shows more of it than which. By default they are the
 orderings by proxy of at most ``max_labelled`` ``train`` clips (the stand-in for an agent
 designer's labels); ``RankerConfig.labels`` can ask for a simulated annotator's noisy pairwise
-answers instead; admins add orderings and comparisons of their own (``rba.labels``).
+answers instead; admins add orderings and comparisons of their own (``rba.data.labels``).
 """
 
 from __future__ import annotations
@@ -21,7 +21,9 @@ import torch
 from scipy.stats import kendalltau
 from torch import nn
 
-from rba.labels import AttributeLabels, GlobalLabelConfig
+from rba.core.settings import LibrarySettings
+from rba.data.labels import AttributeLabels, GlobalLabelConfig
+from rba.data.library import SkillLibrary
 from rba.learn.common import (
     Normalizer,
     Progress,
@@ -33,8 +35,6 @@ from rba.learn.common import (
     seed_everything,
     segment_sum,
 )
-from rba.library import SkillLibrary
-from rba.settings import LibrarySettings
 
 
 @dataclass

@@ -16,10 +16,10 @@ from typing import TypeVar
 import numpy as np
 import torch
 
-from rba.artifacts import ModelNotFoundError, load_model, save_model, weights_sha
-from rba.domains import Domain, get_domain
-from rba.embed import attribute_embeddings, check_rep
-from rba.labels import (
+from rba.core.artifacts import ModelNotFoundError, load_model, save_model, weights_sha
+from rba.core.fileio import save_json
+from rba.core.store import model_files
+from rba.data.labels import (
     AttributeLabels,
     GlobalLabelConfig,
     LabelSet,
@@ -32,7 +32,10 @@ from rba.labels import (
     pair_counts,
     proxy_labels,
 )
+from rba.data.library import SkillLibrary
+from rba.domains import Domain, get_domain
 from rba.learn.common import Progress, Ragged
+from rba.learn.embed import attribute_embeddings, check_rep
 from rba.learn.global_reward import GlobalRewardConfig, LibraryScorer, train_global_reward
 from rba.learn.local_reward import (
     LocalLibraryScorer,
@@ -44,9 +47,6 @@ from rba.learn.local_reward import (
 )
 from rba.learn.ranker import AttributeRanker, RankerConfig, ranking_metrics, train_ranker
 from rba.learn.vae import SIZE, STACK, VAEConfig, train_vae
-from rba.library import SkillLibrary
-from rba.storage import save_json
-from rba.store import model_files
 
 log = logging.getLogger(__name__)
 

@@ -1,7 +1,7 @@
 """A small convolutional VAE: 64x64 grayscale frames, 3 stacked as channels -> a latent state.
 
 The paper's lane-change states were images encoded this way; ``rba.domains.lane_change_image``
-uses the latent mean as the state the RBA models see (``rba.training.train_frame_vae`` makes it).
+uses the latent mean as the state the RBA models see (``rba.learn.training.train_frame_vae`` makes it).
 """
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from rba.core.settings import LibrarySettings
 from rba.learn.common import Progress, StepLoop, check_shape, seed_everything
-from rba.settings import LibrarySettings
 
 SIZE = 64  # frame side, pixels
 STACK = 3  # frames per input

@@ -19,9 +19,9 @@ from pathlib import Path
 
 from rba.compute import Compute, RenderJob, Task
 from rba.compute.base import CLIP_PARTS
+from rba.core.store import ClipStore
+from rba.data.library import SkillLibrary
 from rba.domains import Rollout
-from rba.library import SkillLibrary
-from rba.store import ClipStore
 
 log = logging.getLogger(__name__)
 

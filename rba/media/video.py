@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rba.storage import write_atomic
+from rba.core.fileio import write_atomic
 
 # x264 at crf 23 / veryfast: ~20-60 kB a clip. ultrafast encodes 10-40 ms a clip faster but gives
 # 2-5x larger files (no mb-tree), over 150 kB for the walker's starry sky; superfast is bigger and hardly faster

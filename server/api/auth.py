@@ -20,7 +20,7 @@ from starlette.datastructures import Headers
 from starlette.responses import Response
 from starlette.types import ASGIApp, Receive, Scope, Send
 
-from server.errors import error_response
+from server.common.errors import error_response
 
 ADMIN_PREFIX = "/api/admin"
 CHECKED = "rba.admin_checked"  # scope key: the gate let this request through

@@ -9,8 +9,8 @@ from fastapi import Depends, Request
 from fastapi.dependencies.models import Dependant
 from sqlmodel import Session
 
-from server.errors import invalid
-from server.services import Services
+from server.common.errors import invalid
+from server.runtime.services import Services
 
 
 def get_services(request: Request) -> Services:

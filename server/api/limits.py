@@ -14,7 +14,7 @@ from fastapi import HTTPException
 from starlette.datastructures import Headers
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from server.errors import error_response
+from server.common.errors import error_response
 
 
 class Cap(NamedTuple):

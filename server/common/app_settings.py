@@ -6,8 +6,8 @@ import socket
 
 from pydantic import Field, model_validator
 
-from rba.settings import LibrarySettings
-from rba.store import Store
+from rba.core.settings import LibrarySettings
+from rba.core.store import Store
 
 # a search's time bound (s) per domain, chosen on val (generation_seconds_val.md): the walker and the manipulator keep
 # SR (and AF) at 1 s; the snake 1.25 s: at 1.5 s its clips were playable within 2 s (p95) in two of three runs
@@ -57,10 +57,10 @@ class Settings(LibrarySettings):
     generate_seconds: float | None = Field(
         default=None, gt=0, allow_inf_nan=False, description="a search stops before a CMA-ES generation that would "
         "end later than this many seconds after the search began, and one running past it ends with the candidates "
-        "simulated by then (rba.generate.SearchConfig); default: per domain, chosen on val (walker and "
-        "manipulator 1 s, snake 1.25 s, the others 2 s: server.settings.GENERATE_SECONDS); a value here bounds "
-        "every domain's searches, a large one leaves the 48-simulation budget alone to bound them. How long people "
-        "then wait: benchmarks/results/generation_latency.md")
+        "simulated by then (rba.generate.cma.SearchConfig); default: per domain, chosen on val (walker and "
+        "manipulator 1 s, snake 1.25 s, the others 2 s: server.common.app_settings.GENERATE_SECONDS); a value here "
+        "bounds every domain's searches, a large one leaves the 48-simulation budget alone to bound them. How long "
+        "people then wait: benchmarks/results/generation_latency.md")
     warm_start: bool = Field(default=True, description="load models and render first clips after start-up")
     replica: str | None = Field(default=None, max_length=120, description="this server's name among the API "
                                 "replicas on one database; default <hostname>:<port>. A restarted replica fails "

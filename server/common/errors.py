@@ -19,7 +19,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.requests import ClientDisconnect
 from starlette.routing import Match
 
-from rba.library import LibraryNotFoundError
+from rba.data.library import LibraryNotFoundError
 
 log = logging.getLogger(__name__)
 

@@ -5,7 +5,7 @@ One place: ``FeedbackCreate`` asks ``check_kind`` while parsing the body (so a m
 session's attributes. The agents still run ``rba.interact.validate_feedback`` on what they get;
 what passes here always passes there, so the server never relies on its ValueError.
 
-Import direction: low; it imports only the library and ``server.errors``.
+Import direction: low; it imports only the library and ``server.common.errors``.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from rba.interact import SATISFIED, AttributeFeedback, Feedback
-from server.errors import invalid
+from server.common.errors import invalid
 
 DIRECTIONS = {"more": 1, "less": -1}
 """The API's words for a direction -> the library's sign."""

@@ -19,9 +19,9 @@ from pydantic_core import PydanticCustomError
 from sqlalchemy import JSON, Column, DateTime, Text, UniqueConstraint
 from sqlmodel import Field, SQLModel
 
-from rba.labels import Comparison, LocalChange, NewAttribute, Ordering
-from rba.methods import get_method, train_presets, trainable
-from server.models import STRICT_BODY, DomainName, OneOf, RepName, as_utc, utcnow
+from rba.core.methods import get_method, train_presets, trainable
+from rba.data.labels import Comparison, LocalChange, NewAttribute, Ordering
+from server.db.tables import STRICT_BODY, DomainName, OneOf, RepName, as_utc, utcnow
 
 BUILTIN_VERSION = "builtin"  # the models shipped under models/<domain>/
 

@@ -1,6 +1,6 @@
 """The SQL engine: SQLite (default, WAL, usable from many threads) or PostgreSQL via psycopg 3.
 
-Sits low: it imports only ``server.migrations`` (the schema's history) and ``server.errors``.
+Sits low: it imports only ``server.db.migrations`` (the schema's history) and ``server.common.errors``.
 """
 
 from __future__ import annotations
@@ -16,8 +16,8 @@ from sqlalchemy.engine import Engine, make_url
 from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session, create_engine
 
-from server import migrations
-from server.errors import conflict
+from server.common.errors import conflict
+from server.db import migrations
 
 log = logging.getLogger(__name__)
 

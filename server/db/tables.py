@@ -5,7 +5,7 @@ restart (the agent's JSON state included); the Public classes are what the API r
 Request bodies are strict (``"step": "0"`` or ``"satisfied": "yes"`` are refused, not coerced) and refuse
 unknown fields. Names that come from a registry (domains, methods, reps) are ``OneOf`` strings: checked
 against the registry as it is now, and listed as an enum in the OpenAPI document.
-Imports only ``server.feedback`` (the body's feedback rule), so every other module may import it.
+Imports only ``server.common.feedback`` (the body's feedback rule), so every other module may import it.
 """
 
 from __future__ import annotations
@@ -22,10 +22,10 @@ from pydantic_core import PydanticCustomError, core_schema
 from sqlalchemy import JSON, Boolean, Column, DateTime, UniqueConstraint, false
 from sqlmodel import Field, SQLModel
 
+from rba.core.methods import methods
 from rba.domains import domain_names
-from rba.embed import REPRESENTATIONS
-from rba.methods import methods
-from server.feedback import check_kind
+from rba.learn.embed import REPRESENTATIONS
+from server.common.feedback import check_kind
 
 STRICT_BODY = ConfigDict(strict=True, extra="forbid")
 """Request bodies: no type coercion, no unknown fields."""
@@ -117,7 +117,8 @@ class TuningSession(SessionBase, table=True):
     current_rollout_id: str = Field(max_length=128)
     agent_state: dict[str, Any] = Field(sa_column=Column(JSON, nullable=False))
     generate: bool = Field(default=False, sa_column=Column(Boolean, nullable=False, server_default=false()),
-                           description="its agent is rba.interact.generating's: agent_state holds generated clips")
+                           description="its agent is rba.interact.generating_agent's: agent_state holds generated "
+                                       "clips")
     created_at: dt.datetime = Field(default_factory=utcnow, sa_column=Column(DateTime(timezone=True), nullable=False))
     updated_at: dt.datetime = Field(default_factory=utcnow, sa_column=Column(DateTime(timezone=True), nullable=False))
 

@@ -4,12 +4,12 @@ Uploads are checked completely (in a workspace folder) before anything is writte
 the dataset's lock, the two files are stored atomically under
 ``data/uploads/<domain>/<content hash>.{npz,json}`` and recorded in one transaction, last: a
 crash at any point leaves the whole dataset or leftovers that start-up removes
-(``server.labeldata.sweep_uploads``, ``server.uploads.sweep_workspaces``). The uploader's file
+(``server.runtime.stored_labels.sweep_uploads``, ``server.runtime.uploads.sweep_workspaces``). The uploader's file
 name is kept for display only: paths come from the hash.
 
-Import direction: above ``server.services``, ``server.labeldata`` (the stored label data it shares
-with training jobs), ``server.views`` and ``server.uploads`` (the checks); only routes and
-``server.training`` import it.
+Import direction: above ``server.runtime.services``, ``server.runtime.stored_labels`` (the stored label data it shares
+with training jobs), ``server.ops.views`` and ``server.runtime.uploads`` (the checks); only routes and
+``server.ops.training_jobs`` import it.
 """
 
 from __future__ import annotations
@@ -29,12 +29,14 @@ from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import UploadFile
 from starlette.formparsers import MultiPartException, MultiPartParser
 
+from rba.core.fileio import save_npz, save_text
+from rba.core.store import UploadFiles
+from rba.data.labels import LabelSet
+from rba.data.library import SkillLibrary
 from rba.domains import Domain
-from rba.labels import LabelSet
-from rba.library import SkillLibrary
-from rba.storage import save_npz, save_text
-from rba.store import UploadFiles
-from server.admin_models import (
+from server.common.app_settings import Settings
+from server.common.errors import conflict, invalid
+from server.db.admin_tables import (
     AttributeAddedPublic,
     AttributeDef,
     AttributeDefPublic,
@@ -46,13 +48,11 @@ from server.admin_models import (
     LabelCreate,
     LabelRecord,
 )
-from server.db import commit_or_conflict
-from server.errors import conflict, invalid
-from server.labeldata import LABEL_GROUPS, declared_attributes
-from server.services import Services
-from server.settings import Settings
-from server.uploads import UploadLimits, check_labels, check_npz, claimed, workspace
-from server.views import clip_url
+from server.db.engine import commit_or_conflict
+from server.ops.views import clip_url
+from server.runtime.services import Services
+from server.runtime.stored_labels import LABEL_GROUPS, declared_attributes
+from server.runtime.uploads import UploadLimits, check_labels, check_npz, claimed, workspace
 
 log = logging.getLogger(__name__)
 
@@ -151,7 +151,8 @@ def clips_to_label(svc: Services, db: Session, domain: str, size: int, anchor: b
 # -- uploads --------------------------------------------------------------------------------------
 
 async def read_upload_form(request: Request) -> dict[str, UploadFile | str]:
-    """The multipart form; its size is capped as it streams by ``server.limits.BodyLimit`` (RBA_UPLOAD_MAX_BYTES)."""
+    """The multipart form; its size is capped as it streams by ``server.api.limits.BodyLimit``
+    (RBA_UPLOAD_MAX_BYTES)."""
     if not request.headers.get("content-type", "").startswith("multipart/form-data"):
         raise invalid("send multipart/form-data with fields: domain, labels (a JSON file), "
                       "trajectories (an .npz file, optional)")
@@ -279,7 +280,7 @@ def _save_files(uploads: UploadFiles, dataset_id: str, upload: CheckedUpload) ->
 def _store(svc: Services, db: Session, domain: str, dataset_id: str,
            upload: CheckedUpload) -> tuple[DatasetPublic, bool]:
     """Files first, the row last, under the dataset's lock: until the row is committed nothing refers to
-    the files, and what a crash leaves the start-up sweep removes (``server.labeldata.sweep_uploads``)."""
+    the files, and what a crash leaves the start-up sweep removes (``server.runtime.stored_labels.sweep_uploads``)."""
     uploads = svc.store.uploads(domain)
     with claimed(uploads.lock(dataset_id)):  # waits while another request stores the same dataset
         db.rollback()  # a fresh snapshot: see the twin that may have been stored while we waited

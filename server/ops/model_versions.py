@@ -1,6 +1,6 @@
 """Which model version serves what: new sessions get the domain's active version, running ones keep theirs.
 
-Import direction: above ``server.services`` (it reads the catalog through it); the sessions and
+Import direction: above ``server.runtime.services`` (it reads the catalog through it); the sessions and
 the admin routes import it, it imports neither.
 """
 
@@ -11,12 +11,12 @@ from typing import Any
 
 from sqlmodel import Session, select
 
+from rba.core.methods import UnknownMethodError, get_method
 from rba.domains import Domain
-from rba.methods import UnknownMethodError, get_method
-from server.admin_models import BUILTIN_VERSION, ActiveModel, ModelVersion, VersionPublic
-from server.errors import conflict, invalid, not_found
-from server.models import utcnow
-from server.services import Services
+from server.common.errors import conflict, invalid, not_found
+from server.db.admin_tables import BUILTIN_VERSION, ActiveModel, ModelVersion, VersionPublic
+from server.db.tables import utcnow
+from server.runtime.services import Services
 
 log = logging.getLogger(__name__)
 

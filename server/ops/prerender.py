@@ -11,8 +11,8 @@ short and always takes from the highest tier first):
    plus one per answer, so an unvisited tree is walked breadth-first);
 3. the rest of each serve library.
 
-Import direction: above ``server.services`` (its transitions, catalog, clip cache and prefetcher),
-below ``server.sessions`` and ``server.main``; it never imports either.
+Import direction: above ``server.runtime.services`` (its transitions, catalog, clip cache and prefetcher),
+below ``server.ops.session_steps`` and ``server.main``; it never imports either.
 """
 
 from __future__ import annotations
@@ -28,13 +28,13 @@ from dataclasses import dataclass
 from sqlmodel import Session, select
 
 from rba.domains import domain_names, domain_target
-from rba.generate import is_generated
+from rba.generate.cma import is_generated
 from rba.interact import SATISFIED, AttributeFeedback, Feedback
-from server import generation
-from server.admin_models import BUILTIN_VERSION
-from server.models import FeedbackEvent, SessionStatus, TuningSession
-from server.services import ClipRef, Services
-from server.transitions import FeedbackKey, feedback_key
+from server.db.admin_tables import BUILTIN_VERSION
+from server.db.tables import FeedbackEvent, SessionStatus, TuningSession
+from server.ops import session_searches
+from server.runtime.services import ClipRef, Services
+from server.runtime.transitions import FeedbackKey, feedback_key
 
 log = logging.getLogger(__name__)
 
@@ -66,18 +66,18 @@ def next_clips(svc: Services, key: ContextKey, generate: bool, state: dict, last
     A generating session's answer that would start a search gives the serve clip that search falls back to: a
     guess never spends the compute layer on a search (the step renders what it made), but the fallback is the clip
     a person waits longest for when the search falls short. An answer that shows a made clip without a search (a
-    runner-up of an earlier search, ``rba.interact.generating``'s pool) gives that clip: it was simulated with its
+    runner-up of an earlier search, ``rba.interact.generating_agent``'s pool) gives that clip: it was simulated with its
     search, and rendered ahead it plays at once (``ClipRef`` resolves it while the domain's store keeps it).
     """
     ctx = svc.catalog.context(*key)
-    step_ctx = generation.step_context(svc, key, None) if generate else ctx
+    step_ctx = session_searches.step_context(svc, key, None) if generate else ctx
     nexts: list[str] = []
     for answer in answer_order(ctx.attribute_names, last):
         if stale():
             break
         try:
             rollout_id = svc.transitions.advance(step_ctx, key[1], state, answer)[0]
-        except generation.WouldSearch as exc:
+        except session_searches.WouldSearch as exc:
             if exc.fallback is None:
                 continue
             rollout_id = exc.fallback

@@ -1,10 +1,10 @@
-"""Export a satisfied session (``GET /api/sessions/{id}/export`` and ``rba export``): ``rba.export``'s zip.
+"""Export a satisfied session (``GET /api/sessions/{id}/export`` and ``rba export``): ``rba.data.export_zip``'s zip.
 
 The operation reads the session and its feedback rows, the serve library and the session's model set,
 and the chosen clip's MP4: the app asks its clip cache (rendered on the compute layer if missing); the
 command line, which starts no app, renders in its own process into the same clip store.
 
-Import direction: beside ``server.sessions`` (above ``server.services``); the route and ``rba export``
+Import direction: beside ``server.ops.session_steps`` (above ``server.runtime.services``); the route and ``rba export``
 (by name, as ``rba serve`` imports the app) use it.
 """
 
@@ -17,16 +17,16 @@ from pathlib import Path
 from sqlalchemy.engine import make_url
 from sqlmodel import Session, select
 
-from rba.clips import GENERATED, ClipKey, Source, render_job
+from rba.data.export_zip import ExportError, ExportSource, Profile, build_export, export_bytes, write_export
 from rba.domains import Rollout
-from rba.export import ExportError, ExportSource, Profile, build_export, export_bytes, write_export
-from rba.generate import is_generated
-from server import generation
-from server.catalog import Catalog
-from server.errors import conflict, not_found
-from server.models import FeedbackEvent, GeneratedClip, SessionStatus, TuningSession
-from server.services import Services
-from server.settings import Settings
+from rba.generate.cma import is_generated
+from rba.media.clip_cache import GENERATED, ClipKey, Source, render_job
+from server.common.app_settings import Settings
+from server.common.errors import conflict, not_found
+from server.db.tables import FeedbackEvent, GeneratedClip, SessionStatus, TuningSession
+from server.ops import session_searches
+from server.runtime.catalog import Catalog
+from server.runtime.services import Services
 
 log = logging.getLogger(__name__)
 
@@ -54,7 +54,7 @@ def export_source(catalog: Catalog, db: Session, session_id: str, clip: ClipByte
     if s.library_version is not None and s.library_version != library.version:
         raise conflict(f"session {s.id} showed clips of {s.domain}'s serve library {s.library_version}; it is "
                        f"{library.version} now (rebuilt), so its clip ids name other behaviours: it cannot be exported")
-    chosen = remake(generation.lookup(db, s.domain, rid)) if is_generated(rid) else None
+    chosen = remake(session_searches.lookup(db, s.domain, rid)) if is_generated(rid) else None
     return ExportSource(domain=s.domain, method=s.method, rep=s.rep, model_version=s.model_version,
                         model_set=s.model_set, models_root=catalog.models(s.model_set).root, library=library,
                         rollout_id=rid, feedback=rounds, clip=clip(chosen or library, rid), rollout=chosen)
@@ -68,7 +68,7 @@ def export_session(svc: Services, db: Session, session_id: str) -> tuple[Profile
         path = svc.clips.request(key, source, urgent=True).result(CLIP_WAIT_SECONDS)
         return Path(path).read_bytes()
 
-    src = export_source(svc.catalog, db, session_id, clip, lambda row: generation.rollout_of(svc, row))
+    src = export_source(svc.catalog, db, session_id, clip, lambda row: session_searches.rollout_of(svc, row))
     try:
         profile, reward = build_export(src)
     except ExportError as exc:
@@ -86,7 +86,7 @@ def export_to_file(session_id: str, out: Path, settings: Settings | None = None)
     from fastapi import HTTPException
 
     from rba.compute.tasks import render_here
-    from server.db import make_engine
+    from server.db.engine import make_engine
 
     settings = settings or Settings()
     catalog = Catalog(settings)

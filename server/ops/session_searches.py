@@ -5,12 +5,13 @@ An answer to such a session runs the agent's step on ``Services.searcher`` with 
 answers the request as any session's would; one that starts simulating is a CMA-ES search of seconds to
 minutes, so the request returns 202 and the page polls ``GET /api/sessions/{id}/generation``
 (``Search``: generation k of K). The step, and the row of the clip it made (``GeneratedClip``), are then
-one transaction (``server.sessions``).
+one transaction (``server.ops.session_steps``).
 
 Searches live in this process's memory only: after a restart the session is still at its step, its
 search is gone (the progress route says so) and the person answers again.
 
-Import direction: above ``server.services``, below ``server.views``, ``server.prerender`` and ``server.sessions``.
+Import direction: above ``server.runtime.services``, below ``server.ops.views``, ``server.ops.prerender`` and
+``server.ops.session_steps``.
 """
 
 from __future__ import annotations
@@ -27,11 +28,11 @@ from sqlmodel import Session
 
 from rba.compute import SimJob
 from rba.domains import Rollout
-from rba.generate import is_generated
-from rba.interact.generating import GenerationContext
-from server.errors import not_found
-from server.models import GeneratedClip, GenerationPublic, TuningSession
-from server.services import ClipRef, Services
+from rba.generate.cma import is_generated
+from rba.interact.generating_agent import GenerationContext
+from server.common.errors import not_found
+from server.db.tables import GeneratedClip, GenerationPublic, TuningSession
+from server.runtime.services import ClipRef, Services
 
 log = logging.getLogger(__name__)
 KEPT_ENDED = 1024  # ended searches kept for their pages' last polls; older ones are forgotten

@@ -4,8 +4,8 @@ The agent lives in the database as its JSON state; every request restores a fres
 from that state, so a session continues exactly after a restart and concurrent guesses
 (prerendering) never touch the stored agent.
 
-Import direction: above ``server.services``, ``server.views``, ``server.prerender``,
-``server.feedback`` and ``server.versions``; only the routes import it.
+Import direction: above ``server.runtime.services``, ``server.ops.views``, ``server.ops.prerender``,
+``server.common.feedback`` and ``server.ops.model_versions``; only the routes import it.
 """
 
 from __future__ import annotations
@@ -20,13 +20,12 @@ from sqlalchemy import update
 from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session
 
-from rba.generate import is_generated
+from rba.generate.cma import is_generated
 from rba.interact import SATISFIED, Feedback
-from rba.interact.generating import generating_methods
-from server import generation
-from server.errors import conflict, invalid, not_found
-from server.feedback import parse_feedback
-from server.models import (
+from rba.interact.generating_agent import generating_methods
+from server.common.errors import conflict, invalid, not_found
+from server.common.feedback import parse_feedback
+from server.db.tables import (
     FeedbackCreate,
     FeedbackEvent,
     GeneratedClip,
@@ -36,10 +35,11 @@ from server.models import (
     TuningSession,
     utcnow,
 )
-from server.prerender import schedule_prerender, stop_prerender
-from server.services import Services
-from server.versions import serving_version
-from server.views import session_public
+from server.ops import session_searches
+from server.ops.model_versions import serving_version
+from server.ops.prerender import schedule_prerender, stop_prerender
+from server.ops.views import session_public
+from server.runtime.services import Services
 
 log = logging.getLogger(__name__)
 
@@ -133,7 +133,7 @@ def _record_step(db: Session, s: TuningSession, body: FeedbackCreate, feedback: 
     db.add(FeedbackEvent(session_id=s.id, step=s.step, feedback=stored, rollout_before=s.current_rollout_id,
                          rollout_after=rollout_id))
     if made is not None:
-        generation.add_generated(db, made)
+        session_searches.add_generated(db, made)
     status = SessionStatus.satisfied.value if feedback == SATISFIED else SessionStatus.active.value
 
     def lost(now: TuningSession) -> str:
@@ -151,7 +151,7 @@ def give_feedback(svc: Services, db: Session, session_id: str, body: FeedbackCre
     """
     with svc.session_locks(session_id):
         s = _answerable(db, session_id, body)
-        if (search := generation.running(svc, s.id)) is not None:
+        if (search := session_searches.running(svc, s.id)) is not None:
             raise conflict(f"session {s.id} is still making a new behaviour for step {search.step} (generation "
                            f"{search.generation} of {search.generations}); wait for it: "
                            f"GET /api/sessions/{s.id}/generation")
@@ -173,7 +173,7 @@ def give_feedback(svc: Services, db: Session, session_id: str, body: FeedbackCre
 
 
 def _advance(svc: Services, ctx: Any, s: TuningSession, feedback: Feedback) -> tuple[str, dict]:
-    try:  # server.feedback already refused what the agent would; an agent's ValueError is still the client's
+    try:  # server.common.feedback already refused what the agent would; an agent's ValueError is still the client's
         return svc.transitions.advance(ctx, s.method, s.agent_state, feedback)
     except ValueError as exc:
         raise invalid(str(exc)) from exc
@@ -187,14 +187,14 @@ def _after_step(svc: Services, s: TuningSession, feedback: Feedback, clip: Futur
         stop_prerender(svc, s.id)
 
 
-def _search(svc: Services, s: TuningSession, body: FeedbackCreate, feedback: Feedback) -> generation.Search:
+def _search(svc: Services, s: TuningSession, body: FeedbackCreate, feedback: Feedback) -> session_searches.Search:
     """Run a generating session's step on the searcher; back once it simulates (a search: it goes on) or ends.
 
     A step that ends without simulating is the request's as any other: its failure is raised here.
     """
-    search = generation.begin(svc, s)
+    search = session_searches.begin(svc, s)
     stop_prerender(svc, s.id)  # guesses about the answers not given: they would only slow the search
-    ctx = generation.step_context(svc, (s.domain, s.method, s.rep, s.model_set), search)
+    ctx = session_searches.step_context(svc, (s.domain, s.method, s.rep, s.model_set), search)
 
     def step() -> None:
         try:
@@ -203,9 +203,10 @@ def _search(svc: Services, s: TuningSession, body: FeedbackCreate, feedback: Fee
                 moving = db.get(TuningSession, s.id)
                 if moving.step != search.step:
                     raise conflict(f"step {search.step} is stale: session {s.id} already moved on")
-                made = generation.generated_row(svc, db, s.domain, rollout_id, state)
+                made = session_searches.generated_row(svc, db, s.domain, rollout_id, state)
                 _record_step(db, moving, body, feedback, rollout_id, state, made)
-                shown = made or (generation.lookup(db, s.domain, rollout_id) if is_generated(rollout_id) else None)
+                shown = made or (session_searches.lookup(db, s.domain, rollout_id)
+                                 if is_generated(rollout_id) else None)
         except HTTPException as exc:
             return search.end(exc)
         except Exception as exc:  # the searcher's thread must report, not die: the page is waiting on it
@@ -215,7 +216,7 @@ def _search(svc: Services, s: TuningSession, body: FeedbackCreate, feedback: Fee
         search.end()  # the step is saved: whatever happens to the renders ahead, the answer was taken
         try:
             clip = None if shown is None else svc.clips.request(  # rendered now: the page asks for it next
-                svc.clips.generated_key(s.domain, rollout_id), generation.rollout_of(svc, shown), urgent=True)
+                svc.clips.generated_key(s.domain, rollout_id), session_searches.rollout_of(svc, shown), urgent=True)
             _after_step(svc, moving, feedback, clip)
         except Exception:  # the page's clip request renders (or reports) it again
             log.exception("session %s: step %d is saved, but rendering ahead failed", s.id, s.step)

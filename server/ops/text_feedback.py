@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from rba.interpret import NotUnderstood, Understood, interpreter_for
-from server.errors import invalid
-from server.services import Services
+from rba.interact.free_text import NotUnderstood, Understood, interpreter_for
+from server.common.errors import invalid
+from server.runtime.services import Services
 
 
 def interpret(svc: Services, domain: str, text: str) -> Understood:

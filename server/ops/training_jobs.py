@@ -1,7 +1,7 @@
 """Admin operations on training jobs: start one, read them, cancel one.
 
-Import direction: above ``server.services`` (its ``JobRunner`` runs the processes) and
-``server.labelling`` (which datasets exist); only the admin routes import it.
+Import direction: above ``server.runtime.services`` (its ``JobRunner`` runs the processes) and
+``server.ops.label_admin`` (which datasets exist); only the admin routes import it.
 """
 
 from __future__ import annotations
@@ -13,14 +13,14 @@ import statistics
 from fastapi import HTTPException
 from sqlmodel import Session, select
 
-from rba.methods import UnknownMethodError, get_method
-from rba.training import stage_name
-from server.admin_models import BUILTIN_VERSION, FINISHED, JobPublic, JobState, TrainCreate, TrainJob
-from server.db import commit_or_conflict
-from server.errors import conflict, invalid, not_found
-from server.labelling import check_datasets
-from server.models import as_utc, utcnow
-from server.services import Services
+from rba.core.methods import UnknownMethodError, get_method
+from rba.learn.training import stage_name
+from server.common.errors import conflict, invalid, not_found
+from server.db.admin_tables import BUILTIN_VERSION, FINISHED, JobPublic, JobState, TrainCreate, TrainJob
+from server.db.engine import commit_or_conflict
+from server.db.tables import as_utc, utcnow
+from server.ops.label_admin import check_datasets
+from server.runtime.services import Services
 
 log = logging.getLogger(__name__)
 

@@ -1,7 +1,8 @@
 """What the public API shows of domains, sessions and clips (read-only, no transactions).
 
-Import direction: above ``server.services`` (it reads the catalog and the clip cache through it),
-``server.versions`` and ``server.generation``, below ``server.sessions`` and the routes; it never imports either.
+Import direction: above ``server.runtime.services`` (it reads the catalog and the clip cache through it),
+``server.ops.model_versions`` and ``server.ops.session_searches``, below ``server.ops.session_steps`` and the routes; it
+never imports either.
 """
 
 from __future__ import annotations
@@ -13,18 +14,17 @@ from urllib.parse import quote
 import numpy as np
 from sqlmodel import Session, select
 
-from rba.clips import ClipKey
+from rba.core.methods import trainable
+from rba.data.library import LibraryNotFoundError
 from rba.domains import Domain
-from rba.embed import REPRESENTATIONS
-from rba.generate import is_generated
+from rba.generate.cma import is_generated
 from rba.interact import SATISFIED, restore_agent
-from rba.interact.generating import generating_methods
-from rba.library import LibraryNotFoundError
-from rba.methods import trainable
-from server import generation
-from server.admin_models import BUILTIN_VERSION, ModelVersion
-from server.errors import not_found
-from server.models import (
+from rba.interact.generating_agent import generating_methods
+from rba.learn.embed import REPRESENTATIONS
+from rba.media.clip_cache import ClipKey
+from server.common.errors import not_found
+from server.db.admin_tables import BUILTIN_VERSION, ModelVersion
+from server.db.tables import (
     AttributeChoice,
     AttributePublic,
     ClipPublic,
@@ -43,8 +43,9 @@ from server.models import (
     TuningSession,
     attribute_methods,
 )
-from server.services import Services
-from server.versions import active_version
+from server.ops import session_searches
+from server.ops.model_versions import active_version
+from server.runtime.services import Services
 
 
 def clip_url(domain: str, rollout_id: str) -> str:
@@ -133,7 +134,7 @@ def clip_status(svc: Services, db: Session, domain: str, rollout_id: str) -> Cli
     """How far the render of a clip is; 404 for an unknown domain or rollout."""
     svc.catalog.domain(domain)
     if is_generated(rollout_id):
-        key = svc.clips.generated_key(domain, generation.lookup(db, domain, rollout_id).id)
+        key = svc.clips.generated_key(domain, session_searches.lookup(db, domain, rollout_id).id)
         return _status(svc, key)
     try:
         lib = svc.catalog.library(domain)
@@ -175,7 +176,7 @@ def session_public(svc: Services, db: Session, s: TuningSession) -> SessionPubli
                          attributes=attributes_public(domain, svc, specs),
                          clip=clip_public(svc, db, s.domain, s.current_rollout_id),
                          history=history_public(svc, db, s), target=target_public(svc, s),
-                         generate=s.generate, generation=generation.current(svc, s),
+                         generate=s.generate, generation=session_searches.current(svc, s),
                          created_at=s.created_at, updated_at=s.updated_at)
 
 

@@ -11,19 +11,19 @@ import threading
 import time
 from typing import Any
 
+from rba.core.fileio import load_json
+from rba.core.locks import KeyedLocks
+from rba.core.methods import get_method
+from rba.core.store import ModelFiles, Store
+from rba.data.library import SkillLibrary
 from rba.domains import Domain, domain_names, get_domain
-from rba.generate import SearchConfig
+from rba.generate.cma import SearchConfig
 from rba.interact import load_context
-from rba.interact.generating import GeneratedStore, GenerationContext, generating_class
-from rba.library import SkillLibrary
-from rba.locks import KeyedLocks
-from rba.methods import get_method
-from rba.storage import load_json
-from rba.store import ModelFiles, Store
-from server.admin_models import BUILTIN_VERSION
-from server.errors import invalid, not_found
-from server.models import attribute_methods
-from server.settings import Settings
+from rba.interact.generating_agent import GeneratedStore, GenerationContext, generating_class
+from server.common.app_settings import Settings
+from server.common.errors import invalid, not_found
+from server.db.admin_tables import BUILTIN_VERSION
+from server.db.tables import attribute_methods
 
 log = logging.getLogger(__name__)
 

@@ -11,7 +11,7 @@ heartbeat went stale (their server died) or that it ran itself before a restart,
 job of another replica. A job cancelled through another replica is stopped by its owner at the
 next heartbeat. The database's unique ``busy_domain`` keeps one job per domain across replicas.
 
-A job's process dies with its server (``server.processes``). A restart fails the jobs its previous
+A job's process dies with its server (``server.runtime.processes``). A restart fails the jobs its previous
 process ran, kills their processes if they still run, and sweeps every staging folder and process
 record no live job owns. A process whose job was taken away (failed by a restart or another replica,
 cancelled) writes nothing more: every write of the child is conditional on its server still owning
@@ -37,11 +37,11 @@ from sqlalchemy import func, update
 from sqlalchemy.exc import SQLAlchemyError
 from sqlmodel import Session, select
 
-from rba.store import Store
-from server.admin_models import FINISHED, ActiveModel, JobState, ModelVersion, TrainJob
-from server.models import as_utc, utcnow
-from server.processes import Launcher, ProcessRecord, tie_to_parent
-from server.settings import Settings
+from rba.core.store import Store
+from server.common.app_settings import Settings
+from server.db.admin_tables import FINISHED, ActiveModel, JobState, ModelVersion, TrainJob
+from server.db.tables import as_utc, utcnow
+from server.runtime.processes import Launcher, ProcessRecord, tie_to_parent
 
 log = logging.getLogger(__name__)
 JOB_VERSION = re.compile(r".+-\d{8}-\d{6}-(?P<job>[0-9a-f]{6})")  # how a job names the version it publishes
@@ -181,10 +181,11 @@ class JobRunner:
                 live[job_id].terminate()
 
     def start(self, job_id: str) -> None:
-        """Start the job's process (on the launcher's thread, see ``server.processes``), record it and watch it."""
+        """Start the job's process (on the launcher's thread, see ``server.runtime.processes``), record it and watch
+        it."""
         ctx = multiprocessing.get_context("spawn")
+        from rba.core.methods import method_targets
         from rba.domains import domain_targets
-        from rba.methods import method_targets
 
         registry, method_registry = domain_targets(), method_targets()  # plugins registered at run time too
         proc = ctx.Process(target=run_job, args=(job_id, self.owner, os.getpid(), self.settings.model_dump(mode="json"),
@@ -265,14 +266,14 @@ def run_job(job_id: str, owner: str, parent_pid: int, settings_json: dict, regis
     """The child process: train from the job's label sources, then publish the version, while ``owner`` owns it."""
     tie_to_parent(parent_pid)
     os.environ.setdefault("MUJOCO_GL", "egl")
-    from rba import methods
+    from rba.core import methods
     from rba.domains import register
 
     for name, target in registry.items():
         register(name, target)
     for name, target in method_registry.items():
         methods.register(name, target)
-    from server.db import make_engine
+    from server.db.engine import make_engine
 
     settings = Settings(**settings_json)
     tail = _Tail()
@@ -296,7 +297,7 @@ def run_job(job_id: str, owner: str, parent_pid: int, settings_json: dict, regis
 
 def _train_and_publish(engine, store: Store, settings: Settings, job_id: str, mine, tail: _Tail) -> None:
     """Train into the staging folder, then rename it to the version's name and record both, or raise."""
-    from server.labeldata import job_sources
+    from server.runtime.stored_labels import job_sources
 
     def progress(stage: str, step: int, total: int, loss: float) -> None:
         if not update_job(engine, job_id, mine, stage=stage, step=step, total=total, loss=float(loss),
@@ -308,7 +309,7 @@ def _train_and_publish(engine, store: Store, settings: Settings, job_id: str, mi
         domain, method, rep, preset = job.domain, job.method, job.rep, job.preset
         sources = job_sources(db, store.uploads(domain), domain, list(job.datasets), job.include_page_labels)
     store.discard(job_id)
-    from rba import methods
+    from rba.core import methods
 
     metrics = methods.get_method(method).trainer(domain, rep, preset, data_root=store.data_dir,
                                                  models_root=store.staging(job_id), sources=sources,
@@ -331,7 +332,7 @@ def _train_and_publish(engine, store: Store, settings: Settings, job_id: str, mi
 def _record_success(engine, settings: Settings, job_id: str, mine, version: str, metrics: dict,
                     log_tail: str) -> None:
     """The job's success and its version in one transaction, only while this process still owns the job."""
-    from server.catalog import Catalog
+    from server.runtime.catalog import Catalog
 
     with Session(engine) as db:
         job = db.get(TrainJob, job_id)

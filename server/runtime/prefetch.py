@@ -1,7 +1,7 @@
 """The guess queue: one thread that keeps a few guessed renders in flight on the compute layer, most needed first.
 
 The compute layer runs what it is given; this decides what to give it next. Three tiers, always
-taking from the highest that has work (``server.prerender`` says what goes in each):
+taking from the highest that has work (``server.ops.prerender`` says what goes in each):
 
 1. ``offer(session, clips)``: a session's possible next clips, most likely first (a newer offer
    replaces the session's older one); taken round-robin over the sessions, the newest offer first;
@@ -23,7 +23,7 @@ from collections import OrderedDict, deque
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future
 
-from rba.clips import ClipCache, ClipKey, Source
+from rba.media.clip_cache import ClipCache, ClipKey, Source
 
 log = logging.getLogger(__name__)
 

@@ -33,7 +33,7 @@ from pathlib import Path
 import psutil
 
 from rba.compute.tasks import watch_parent
-from rba.storage import load_json, save_json
+from rba.core.fileio import load_json, save_json
 
 log = logging.getLogger(__name__)
 PR_SET_PDEATHSIG = 1  # <linux/prctl.h>

@@ -1,18 +1,20 @@
 """The app's long-lived parts in one object (``app.state.services``), shared by the routes.
 
-Import direction (no cycles, function-level imports included), lowest first:
+Import direction (no cycles, function-level imports included): the server's folders are its layers, lowest first,
+and a module imports only from its own layer and those below it (``tests/test_architecture.py`` checks it by folder):
 
-1. tables, rules and tools: ``settings``, ``errors``, ``feedback``, ``models``, ``admin_models``,
-   ``db`` (and its ``migrations``), ``uploads``, ``transitions``, ``background``, ``prefetch``, ``catalog``;
-   ``labeldata`` (stored label data), ``processes`` (job processes that die with their server) and ``jobs``
-   (training processes, which read ``labeldata`` and use ``processes``); the clip cache and the
-   per-key locks are the library's (``rba.clips``, ``rba.locks``), and so is the compute layer (``rba.compute``);
-2. this module, which holds those parts and imports nothing above it;
-3. operations that take a ``Services``: ``versions``, ``generation``, ``views``, ``prerender``, ``sessions``,
-   ``labelling``, ``training``, ``exporting`` (each imports only those before it in this list);
-4. ``deps``, ``auth`` and ``routes.*``; then ``main``.
-
-Nothing in 1 imports this module or anything in 3-4 (``tests/test_architecture.py`` checks it).
+0. ``server.common``: what every layer uses: the app's settings, the one error body, the rules of feedback;
+1. ``server.db``: the SQL tables (``tables``, ``admin_tables``), the ``engine`` and the schema's ``migrations``;
+2. ``server.runtime``: the long-lived parts: ``uploads``, ``transitions``, ``background``, ``prefetch``, ``catalog``,
+   ``stored_labels`` (label data as the database and the upload folder hold it), ``processes`` (job processes that
+   die with their server) and ``job_runner`` (training processes, which read ``stored_labels`` and use
+   ``processes``); then this module, which holds those parts and which none of them imports. The clip cache and the
+   per-key locks are the library's (``rba.media.clip_cache``, ``rba.core.locks``), and so is the compute layer
+   (``rba.compute``);
+3. ``server.ops``: operations that take a ``Services``: ``model_versions``, ``session_searches``, ``views``,
+   ``prerender``, ``session_steps``, ``label_admin``, ``training_jobs``, ``session_export``, ``text_feedback`` (each
+   imports only those before it in this list);
+4. ``server.api``: ``deps``, ``auth``, ``limits`` and ``routes.*``; then ``server.main``, which builds the app.
 """
 
 from __future__ import annotations
@@ -24,20 +26,20 @@ from typing import NamedTuple
 
 from sqlalchemy.engine import Engine
 
-from rba.clips import GENERATED, ClipCache, ClipKey, Source
 from rba.compute import Compute, make_compute
-from rba.generate import is_generated
-from rba.locks import KeyedLocks
-from rba.store import Store
-from server.background import Background
-from server.catalog import Catalog
-from server.db import make_engine
-from server.jobs import JobRunner
-from server.labeldata import sweep_uploads
-from server.prefetch import Prefetcher
-from server.settings import Settings
-from server.transitions import Transitions
-from server.uploads import sweep_workspaces
+from rba.core.locks import KeyedLocks
+from rba.core.store import Store
+from rba.generate.cma import is_generated
+from rba.media.clip_cache import GENERATED, ClipCache, ClipKey, Source
+from server.common.app_settings import Settings
+from server.db.engine import make_engine
+from server.runtime.background import Background
+from server.runtime.catalog import Catalog
+from server.runtime.job_runner import JobRunner
+from server.runtime.prefetch import Prefetcher
+from server.runtime.stored_labels import sweep_uploads
+from server.runtime.transitions import Transitions
+from server.runtime.uploads import sweep_workspaces
 
 log = logging.getLogger(__name__)
 SEARCHERS = 4
@@ -52,7 +54,7 @@ class ClipRef(NamedTuple):
     rollout_id: str
 
 
-def _resolver(catalog: Catalog, clips: ClipCache):  # -> server.prefetch.Resolve
+def _resolver(catalog: Catalog, clips: ClipCache):  # -> server.runtime.prefetch.Resolve
     def resolve(ref: ClipRef) -> tuple[ClipKey, Source]:
         if not is_generated(ref.rollout_id):
             library = catalog.library(ref.domain)
@@ -81,10 +83,10 @@ class Services:
     # generating sessions' steps: a thread each while it waits for the compute layer (SEARCHERS at once)
     searcher: Background = field(default_factory=lambda: Background(SEARCHERS, "rba-generate"))
     session_locks: KeyedLocks = field(default_factory=KeyedLocks)
-    searches: dict = field(default_factory=dict)  # session id -> its latest server.generation.Search
+    searches: dict = field(default_factory=dict)  # session id -> its latest server.ops.session_searches.Search
     search_lock: threading.Lock = field(default_factory=threading.Lock)
     prerendering: dict[str, int] = field(default_factory=dict)  # session id -> step being prerendered
-    warming: threading.Thread | None = None  # the warm-up (server.prerender.warm_up), while it runs
+    warming: threading.Thread | None = None  # the warm-up (server.ops.prerender.warm_up), while it runs
 
     @classmethod
     def start(cls, settings: Settings, compute: Compute | None = None) -> Services:

@@ -1,13 +1,13 @@
 """Label data as the database and the upload folder hold it, and what a training job learns from it.
 
 A dataset is whole once its row is committed; its files are written (and renamed into place)
-before that, under the dataset's lock (``server.uploads.claimed``). ``sweep_uploads`` removes at
+before that, under the dataset's lock (``server.runtime.uploads.claimed``). ``sweep_uploads`` removes at
 start-up what uploads cut short left: files without a row, and half-written temporaries.
 
-Import direction: this module sits low, beside ``server.jobs`` (whose training process reads
-it) and under ``server.labelling`` (the admin operations that write it). It imports only
-tables, ``server.uploads`` and the library, never ``server.services``, ``server.labelling`` or
-``server.jobs``.
+Import direction: this module sits low, beside ``server.runtime.job_runner`` (whose training process reads
+it) and under ``server.ops.label_admin`` (the admin operations that write it). It imports only
+tables, ``server.runtime.uploads`` and the library, never ``server.runtime.services``, ``server.ops.label_admin`` or
+``server.runtime.job_runner``.
 """
 
 from __future__ import annotations
@@ -18,12 +18,12 @@ import zipfile
 from sqlalchemy.engine import Engine
 from sqlmodel import Session, select
 
-from rba.labels import LabelSet, NewAttribute
-from rba.storage import load_npz
-from rba.store import Store, UploadFiles
-from rba.training import LabelSource
-from server.admin_models import AttributeDef, Dataset, LabelRecord
-from server.uploads import LEFTOVER_GRACE_SECONDS, abandoned, older_than
+from rba.core.fileio import load_npz
+from rba.core.store import Store, UploadFiles
+from rba.data.labels import LabelSet, NewAttribute
+from rba.learn.training import LabelSource
+from server.db.admin_tables import AttributeDef, Dataset, LabelRecord
+from server.runtime.uploads import LEFTOVER_GRACE_SECONDS, abandoned, older_than
 
 log = logging.getLogger(__name__)
 

@@ -19,7 +19,7 @@ from collections import OrderedDict
 from typing import Any
 
 from rba.interact import SATISFIED, Agent, Feedback, new_agent, restore_agent
-from rba.interact.generating import GenerationContext, generating_class
+from rba.interact.generating_agent import GenerationContext, generating_class
 
 FeedbackKey = tuple[tuple[str, int], ...] | str
 

@@ -2,7 +2,7 @@
 locks that let start-up tell what a dead upload left from what a live one is writing.
 
 An upload is an ``.npz`` of trajectories (one float array T x state_dim per trajectory) and a
-JSON label set (``rba.labels``). The ``.npz`` is opened as a zip and every array's header is
+JSON label set (``rba.data.labels``). The ``.npz`` is opened as a zip and every array's header is
 read before any array is: object arrays, wrong shapes and zip bombs are refused without
 allocating what they claim. Arrays are then read member by member with ``allow_pickle=False``.
 Trajectory names are data: any printable text, never a path or a keyword argument.
@@ -32,8 +32,8 @@ from pathlib import Path
 import numpy as np
 from pydantic_core import from_json
 
-from rba.labels import LabelSet
-from rba.storage import load_npz
+from rba.core.fileio import load_npz
+from rba.data.labels import LabelSet
 
 log = logging.getLogger(__name__)
 NAME_RULE = "1-128 printable characters (any language), no / or \\, no leading or trailing space"

@@ -17,8 +17,8 @@ import pytest
 from sqlalchemy import create_engine
 from sqlmodel import Session
 
-from server.admin_models import ModelVersion, TrainJob
-from server.settings import Settings
+from server.common.app_settings import Settings
+from server.db.admin_tables import ModelVersion, TrainJob
 from tests.browser.conftest import axe_violations
 
 REPO = Path(__file__).resolve().parents[2]

@@ -12,7 +12,7 @@ import re
 
 import pytest
 
-from server.settings import Settings
+from server.common.app_settings import Settings
 from tests.browser.conftest import PLAYED, PLAYING, axe_violations
 from tests.fakes import InProcessCompute
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from server.settings import Settings
+from server.common.app_settings import Settings
 
 REPO = Path(__file__).resolve().parents[2]
 SCRIPTS = {"/": {"/static/app.js", "/static/common.js", "/static/meters.js"},

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import pytest
 
-from rba.export import read_export
-from server.catalog import Catalog
-from server.settings import Settings
+from rba.data.export_zip import read_export
+from server.common.app_settings import Settings
+from server.runtime.catalog import Catalog
 from tests.browser.conftest import PLAYED, PLAYING, axe_violations
 
 REPO = Path(__file__).resolve().parents[2]

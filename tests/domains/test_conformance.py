@@ -65,7 +65,7 @@ def test_a_clip_rendered_in_parts_has_the_frames_of_the_whole_clip(domain):
 
 
 def test_sample_params_stay_inside_the_declared_parameter_space(domain):
-    """What ``rba.generate`` may search covers every parameter the domain's own sampler draws."""
+    """What ``rba.generate.cma`` may search covers every parameter the domain's own sampler draws."""
     space = domain.param_space()
     assert space.names == domain.param_names and space.fixed <= set(space.names)
     assert all(space.low[k] < space.high[k] for k in space.names) and space.free

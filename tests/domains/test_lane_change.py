@@ -50,7 +50,7 @@ def test_image_frames_keep_the_follower_in_view_at_the_widest_gap():
 
 
 def test_a_frame_vae_trained_on_another_view_is_refused(monkeypatch):
-    from rba import artifacts
+    from rba.core import artifacts
     from rba.domains.lane_change_image import LaneChangeImage
 
     old_card = {"architecture": {"view_m": 60.0, "ego_at": 0.5}}  # the centred view of before

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from rba.cli import main
+from rba.core.store import Store
+from rba.data.library import SPLITS, SkillLibrary
 from rba.domains import domain_names, get_domain
-from rba.library import SPLITS, SkillLibrary
-from rba.store import Store
 
 BASES = ("walker", "manipulator", "lane_change", "snake")
 # columns of a raw state's first sample that are the positions the replay's first row holds (replay[0] order)

@@ -11,15 +11,15 @@ from fastapi.testclient import TestClient
 from sqlalchemy import create_engine, text
 from sqlmodel import SQLModel
 
+from server.common.app_settings import Settings
 from server.main import create_app
-from server.settings import Settings
 
 POSTGRES_URL = os.environ.get("RBA_TEST_POSTGRES_URL")
 
 
 def _reset_postgres(url: str) -> None:
     """Drop the app's tables and the migrations' record, so every test starts from an empty database."""
-    from server import admin_models, models  # noqa: F401  (registers every table)
+    from server.db import admin_tables, tables  # noqa: F401  (registers every table)
 
     engine = create_engine(url)
     SQLModel.metadata.drop_all(engine)
@@ -74,7 +74,7 @@ def more(attribute: str, step: int, direction: str = "more", clip: str | None = 
 
 def make_engines_together(database_url: str, n: int) -> tuple[list, list[Exception]]:
     """``n`` replicas' ``make_engine`` started at once (each in a thread): their engines and errors."""
-    from server.db import make_engine
+    from server.db.engine import make_engine
 
     engines, errors = [], []
 

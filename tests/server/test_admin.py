@@ -283,7 +283,7 @@ def wait_job(client, job_id: str, timeout: float = 300) -> dict:
 
 
 def test_train_activate_and_sessions_keep_their_version(admin, settings, caplog):
-    caplog.set_level(logging.INFO, logger="server.versions")
+    caplog.set_level(logging.INFO, logger="server.ops.model_versions")
     first = admin.post("/api/sessions", json={"domain": "toy", "method": "global", "rep": "onehot"}).json()
     assert first["model_set"] == "builtin"
     ids = serve_ids(admin, 8)

@@ -11,7 +11,7 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlmodel import Session
 
-from server.admin_models import ModelVersion, TrainJob
+from server.db.admin_tables import ModelVersion, TrainJob
 from server.main import create_app
 from tests.conftest import own_copy
 

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from rba.embed import REPRESENTATIONS
-from rba.methods import trainable
-from server.catalog import attribute_methods
+from rba.core.methods import trainable
+from rba.learn.embed import REPRESENTATIONS
+from server.runtime.catalog import attribute_methods
 from tests.server.conftest import more
 
 # -- domains ---------------------------------------------------------------------------------
@@ -272,10 +272,10 @@ def test_page_docs_and_unknown_routes(client):
 
 def test_attributes_say_how_to_read_them_and_with_how_many_decimals():
     """Walker softness is minus a landing speed: shown as the speed; snake speed changes in the third decimal."""
+    from rba.data.library import SkillLibrary
     from rba.domains import get_domain
-    from rba.library import SkillLibrary
-    from server.models import ReadingPublic
-    from server.views import attributes_public, epsilon_decimals, range_decimals
+    from server.db.tables import ReadingPublic
+    from server.ops.views import attributes_public, epsilon_decimals, range_decimals
 
     walker = {a.name: a for a in attributes_public(get_domain("walker"))}
     assert walker["softness"].reading == ReadingPublic(label="landing speed", sign=-1, note="lower is softer")

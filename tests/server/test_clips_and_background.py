@@ -7,16 +7,16 @@ import threading
 import pytest
 from fastapi.testclient import TestClient
 
-from rba.clips import GENERATED, ClipCache, ClipStatus
 from rba.compute.base import CLIP_PARTS
+from rba.core.store import ClipStore
+from rba.data.library import SkillLibrary
 from rba.interact import AttributeFeedback
-from rba.library import SkillLibrary
-from rba.store import ClipStore
-from server import transitions
-from server.background import Background
+from rba.media.clip_cache import GENERATED, ClipCache, ClipStatus
 from server.main import create_app
-from server.prefetch import Prefetcher
-from server.prerender import answer_order
+from server.ops.prerender import answer_order
+from server.runtime import transitions
+from server.runtime.background import Background
+from server.runtime.prefetch import Prefetcher
 from tests.fakes import FakeCompute
 from tests.server.conftest import more
 
@@ -265,7 +265,7 @@ def test_urgent_renders_in_flight_are_pending_by_version_a_guess_is_not(fake_cac
 
 
 def test_prerender_library_renders_every_serve_clip_once(make_settings, toy_roots, tmp_path):
-    from rba.library import build_all
+    from rba.data.library import build_all
 
     data = tmp_path / "small"  # a 24-clip serve library: the test is about coverage, not volume
     build_all("toy", seed=3, sizes={"train": 12, "serve": 24, "val": 4, "test": 4}, workers=1, root=data,

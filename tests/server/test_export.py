@@ -8,7 +8,7 @@ import zipfile
 
 import numpy as np
 
-from rba.export import read_export
+from rba.data.export_zip import read_export
 from tests.server.conftest import more
 
 
@@ -75,7 +75,7 @@ def test_a_session_whose_serve_library_was_rebuilt_is_not_exported(client, sessi
     refused, a session from before migration 0006 (no library named) is exported as before."""
     from sqlmodel import Session
 
-    from server.models import TuningSession
+    from server.db.tables import TuningSession
 
     _finish(client, session)
     svc = client.app.state.services

@@ -1,4 +1,4 @@
-"""The server's feedback rules (server.feedback) and the nearest-neighbour pick of clips to label."""
+"""The server's feedback rules (server.common.feedback) and the nearest-neighbour pick of clips to label."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import pytest
 from fastapi import HTTPException
 
 from rba.interact import SATISFIED, AttributeFeedback, validate_feedback
-from server.feedback import check_kind, parse_feedback
-from server.labelling import nearest
+from server.common.feedback import check_kind, parse_feedback
+from server.ops.label_admin import nearest
 
 VALID = ("amplitude", "pace")
 

@@ -15,21 +15,21 @@ from fastapi.testclient import TestClient
 from pydantic import ValidationError
 from sqlmodel import Session
 
-from rba import generate
-from rba.clips import GENERATED, ClipKey, render_job
-from rba.export import read_export, replay
-from rba.generate import generated_id, is_generated
-from rba.interact import AttributeFeedback, generating
-from rba.interact.generating import GeneratingGlobalAgent
-from server.admin_models import BUILTIN_VERSION
-from server.exporting import export_to_file
-from server.generation import WouldSearch, begin, step_context
+from rba.data.export_zip import read_export, replay
+from rba.generate import cma
+from rba.generate.cma import generated_id, is_generated
+from rba.interact import AttributeFeedback, generating_agent
+from rba.interact.generating_agent import GeneratingGlobalAgent
+from rba.media.clip_cache import GENERATED, ClipKey, render_job
+from server.common.app_settings import GENERATE_SECONDS, GENERATE_SECONDS_OTHERS, Settings
+from server.db.admin_tables import BUILTIN_VERSION
+from server.db.tables import TuningSession
 from server.main import create_app
-from server.models import TuningSession
-from server.prerender import next_clips, resume_prerender
-from server.services import ClipRef
-from server.sessions import load_session
-from server.settings import GENERATE_SECONDS, GENERATE_SECONDS_OTHERS, Settings
+from server.ops.prerender import next_clips, resume_prerender
+from server.ops.session_export import export_to_file
+from server.ops.session_searches import WouldSearch, begin, step_context
+from server.ops.session_steps import load_session
+from server.runtime.services import ClipRef
 from tests.fakes import FakeCompute, InProcessCompute, InstantCompute
 from tests.server.conftest import more
 from tests.toy import Toy
@@ -114,7 +114,7 @@ def test_a_generated_clip_is_served_listed_and_exported(gen_settings, tmp_path, 
     clip = read_export(tmp_path / "cli.zip").clip
     assert clip[4:8] == b"ftyp"  # a real MP4 this time: the bytes the app's compute layer renders for that key
     key = ClipKey("toy", GENERATED, profile.rollout_id, gen_settings.clip_width, gen_settings.clip_height)
-    made = generate.replay("toy", profile.params, profile.seed)  # the clip's rollout, remade
+    made = cma.replay("toy", profile.params, profile.seed)  # the clip's rollout, remade
     assert clip == local_compute.render(render_job(key, made)).future.result(SEARCH_SECONDS)
 
 
@@ -160,7 +160,7 @@ def first_search(settings: Settings) -> dict:
 
 def test_a_search_stops_at_its_seconds(gen_settings):
     """``generate_seconds``: no generation starts that would end after it (the first is cut short once a
-    candidate arrived late: rba.generate's own tests)."""
+    candidate arrived late: rba.generate.cma's own tests)."""
     for bad in ("0", "inf", "nan"):
         with pytest.raises(ValidationError, match="generate_seconds"):
             Settings(generate_seconds=bad)
@@ -225,9 +225,9 @@ def test_a_session_showing_a_generated_clip_continues_after_a_restart(gen_settin
     """Also with ζσ re-fitted on the session's answers (``Domain.session_refit``, here from the first answer on): the
     restored session fits the same heads from its stored answers."""
     monkeypatch.setattr(Toy, "session_refit", refit)
-    monkeypatch.setattr(generating, "REFIT_AFTER", 1)
-    fits, fit = [], generating.refit_heads
-    monkeypatch.setattr(generating, "refit_heads", lambda *args: fits.append(len(args[1])) or fit(*args))
+    monkeypatch.setattr(generating_agent, "REFIT_AFTER", 1)
+    fits, fit = [], generating_agent.refit_heads
+    monkeypatch.setattr(generating_agent, "refit_heads", lambda *args: fits.append(len(args[1])) or fit(*args))
     with TestClient(create_app(gen_settings, InProcessCompute())) as first:
         s = first.post("/api/sessions", json={"domain": "toy"}).json()
         shown = answer_generating(first, s)
@@ -261,7 +261,7 @@ def test_a_restored_refit_session_remakes_its_clip_without_it_counting_as_a_sear
     """After a restart a re-fitting session's next step simulates its made clips again for ζσ's features: a guess
     (no search allowed) may do that, and only a real search makes it ``WouldSearch``."""
     monkeypatch.setattr(Toy, "session_refit", True)
-    monkeypatch.setattr(generating, "REFIT_AFTER", 1)
+    monkeypatch.setattr(generating_agent, "REFIT_AFTER", 1)
     with TestClient(create_app(gen_settings, InProcessCompute())) as first:
         s = first.post("/api/sessions", json={"domain": "toy"}).json()
         answer_generating(first, s)

@@ -12,10 +12,10 @@ import pytest
 from fastapi.testclient import TestClient
 
 from rba.domains import domain_names
-from server.auth import FailureLimiter
+from server.api.auth import FailureLimiter
+from server.common.app_settings import Settings
+from server.db.tables import attribute_methods
 from server.main import create_app
-from server.models import attribute_methods
-from server.settings import Settings
 from tests.conftest import own_copy
 from tests.fakes import InstantCompute
 
@@ -133,7 +133,7 @@ def test_a_bug_is_a_500_with_the_error_body(client, monkeypatch):
     def broken(*_args):
         raise RuntimeError("boom")
 
-    monkeypatch.setattr("server.routes.domains.domains_public", broken)
+    monkeypatch.setattr("server.api.routes.domains.domains_public", broken)
     r = client.get("/api/domains")
     assert an_error(r, 500) == "internal error in GET /api/domains; the server log has the details"
 

@@ -8,9 +8,9 @@ import pytest
 from fastapi.testclient import TestClient
 
 from rba.domains import domain_names
-from rba.interpret import MAX_TEXT
+from rba.interact.free_text import MAX_TEXT
+from server.common.app_settings import Settings
 from server.main import create_app
-from server.settings import Settings
 
 
 @pytest.fixture(scope="module")

@@ -17,12 +17,12 @@ import pytest
 from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session, select
 
-from server.admin_models import JobState, ModelVersion, TrainJob
-from server.db import make_engine
-from server.jobs import JobLost, JobRunner, _record_success, update_job
-from server.models import as_utc, utcnow
-from server.processes import ProcessRecord
-from server.settings import Settings
+from server.common.app_settings import Settings
+from server.db.admin_tables import JobState, ModelVersion, TrainJob
+from server.db.engine import make_engine
+from server.db.tables import as_utc, utcnow
+from server.runtime.job_runner import JobLost, JobRunner, _record_success, update_job
+from server.runtime.processes import ProcessRecord
 from tests.server.test_processes import alive, wait_dead
 
 # The heartbeat tests' timings. A live job must look alive however busy the machine: 20 beats may be missed

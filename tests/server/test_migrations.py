@@ -35,12 +35,12 @@ from sqlalchemy import (
 )
 from sqlmodel import Session, SQLModel, select
 
-from server import migrations
-from server.admin_models import TrainJob
-from server.db import make_engine
+from server.db import migrations
+from server.db.admin_tables import TrainJob
+from server.db.engine import make_engine
+from server.db.migrations.__main__ import main as migrations_cli
+from server.db.tables import FeedbackEvent, TuningSession, as_utc
 from server.main import create_app
-from server.migrations.__main__ import main as migrations_cli
-from server.models import FeedbackEvent, TuningSession, as_utc
 from tests.server.conftest import make_engines_together, more
 
 HEAD = ScriptDirectory.from_config(migrations.config()).get_current_head()
@@ -51,7 +51,7 @@ JOB = {"id": "j-old", "domain": "toy", "method": "global", "rep": "onehot", "pre
        "state": "succeeded", "stage": "done", "step": 10, "total": 10, "log_tail": "ok", "version": "toy-v1",
        "owner": "a#1", "created_at": NOW, "updated_at": NOW}
 
-# The first release's tables (server/models.py at the web app's first commit), before any start-up ALTER.
+# The first release's tables (server/db/tables.py at the web app's first commit), before any start-up ALTER.
 FIRST_RELEASE = MetaData()
 Table("rba_session", FIRST_RELEASE, Column("domain", String(64), nullable=False),
       Column("method", String(32), nullable=False), Column("rep", String(32), nullable=False),
@@ -126,10 +126,10 @@ def _continue(app: TestClient, s: dict) -> None:
 
 
 def test_an_empty_database_gets_exactly_the_models_tables(database_url):
-    """Fails when a table in server/models.py or server/admin_models.py changed without a migration."""
+    """Fails when a table in server/db/tables.py or server/db/admin_tables.py changed without a migration."""
     engine = make_engine(database_url)
     assert revision(engine) == HEAD
-    assert differences(engine) == [], "a table changed without a migration: python -m server.migrations revision -m"
+    assert differences(engine) == [], "a table changed without a migration: python -m server.db.migrations revision -m"
     engine.dispose()
     assert migrations_cli(["check"]) == 0
 

@@ -6,8 +6,8 @@ from fastapi.testclient import TestClient
 from sqlmodel import Session, select
 
 from rba.interact import AttributeFeedback, load_context, new_agent
+from server.db.tables import FeedbackEvent, TuningSession
 from server.main import create_app
-from server.models import FeedbackEvent, TuningSession
 from tests.server.conftest import more
 
 PLAN = [("amplitude", "more"), ("pace", "less"), ("amplitude", "less"), ("pace", "more")]

@@ -5,7 +5,7 @@ from __future__ import annotations
 from fastapi.testclient import TestClient
 
 from server.main import create_app
-from server.prerender import AnswerCounts, answer_order, first_steps, tree_clips
+from server.ops.prerender import AnswerCounts, answer_order, first_steps, tree_clips
 from tests.server.conftest import more
 
 

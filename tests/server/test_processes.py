@@ -16,8 +16,8 @@ from pathlib import Path
 import psutil
 import pytest
 
-from server import processes
-from server.processes import Launcher, ProcessRecord, tie_to_parent
+from server.runtime import processes
+from server.runtime.processes import Launcher, ProcessRecord, tie_to_parent
 
 REPO = Path(__file__).resolve().parents[2]
 linux_only = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
@@ -49,7 +49,7 @@ def wait_dead(pid: int, timeout: float) -> bool:
 
 PARENT = """
 import multiprocessing, os, sys, time
-from server.processes import Launcher
+from server.runtime.processes import Launcher
 from tests.server.test_processes import tied_child
 ctx = multiprocessing.get_context("spawn")
 tied = ctx.Event()

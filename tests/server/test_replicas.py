@@ -15,10 +15,10 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlmodel import Session, select
 
-from server import sessions
-from server.admin_models import ModelVersion
+from server.db.admin_tables import ModelVersion
+from server.db.tables import FeedbackEvent, TuningSession
 from server.main import create_app
-from server.models import FeedbackEvent, TuningSession
+from server.ops import session_steps
 from tests.server.conftest import make_engines_together, more
 
 
@@ -32,13 +32,13 @@ def two_replicas(make_settings, database_url):
 def hold_before_writing(monkeypatch, parties: int = 2) -> threading.Barrier:
     """Make every session write wait until ``parties`` requests are about to write."""
     barrier = threading.Barrier(parties, timeout=30)
-    move = sessions._move
+    move = session_steps._move
 
     def held(*args, **kwargs):
         barrier.wait()
         return move(*args, **kwargs)
 
-    monkeypatch.setattr(sessions, "_move", held)
+    monkeypatch.setattr(session_steps, "_move", held)
     return barrier
 
 

@@ -25,9 +25,9 @@ from schemathesis.specs.openapi.checks import (
     unsupported_method,
 )
 
-from server.jobs import JobRunner
+from server.common.app_settings import Settings
 from server.main import create_app
-from server.settings import Settings
+from server.runtime.job_runner import JobRunner
 from tests.conftest import own_copy
 from tests.fakes import InstantCompute
 

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import httpx
 
-from rba.store import Store
-from server.settings import Settings
+from rba.core.store import Store
+from server.common.app_settings import Settings
 
 REPO = Path(__file__).resolve().parents[2]
 

@@ -26,13 +26,13 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlmodel import Session, select
 
-from rba.storage import load_npz, save_npz
-from rba.training import GlobalTrainConfig, train_global
-from server import labelling
-from server.admin_models import Dataset
-from server.labeldata import job_sources
+from rba.core.fileio import load_npz, save_npz
+from rba.learn.training import GlobalTrainConfig, train_global
+from server.db.admin_tables import Dataset
 from server.main import create_app
-from server.uploads import LEFTOVER_GRACE_SECONDS, NAME_RULE, claimed, workspace
+from server.ops import label_admin
+from server.runtime.stored_labels import job_sources
+from server.runtime.uploads import LEFTOVER_GRACE_SECONDS, NAME_RULE, claimed, workspace
 from tests.server.test_admin import AUTH, STATE_DIM, TOKEN, datasets, labels_bytes, serve_ids, stored, upload
 
 REPO = Path(__file__).resolve().parents[2]
@@ -167,7 +167,7 @@ def test_names_that_are_savez_parameters_or_unicode_round_trip_through_upload_an
         [source] = job_sources(db, svc.store.uploads("toy"), "toy", [ds["id"]], include_page_labels=False)
     assert source.name == f"dataset {ds['id']}" and sorted(source.trajectories) == sorted(NAMES)
     np.testing.assert_array_equal(source.trajectories["file"], arrays["file"])
-    source.check(labelling.library_ids(svc, "toy"), STATE_DIM)  # every reference resolves
+    source.check(label_admin.library_ids(svc, "toy"), STATE_DIM)  # every reference resolves
 
 
 BAD_NAMES = {
@@ -247,7 +247,7 @@ def folder_of(settings) -> Path:
 
 
 def rows(settings) -> list[str]:
-    from server.db import make_engine
+    from server.db.engine import make_engine
 
     engine = make_engine(settings.db_url)
     try:
@@ -267,7 +267,7 @@ def fail_at(monkeypatch, name: str, error: BaseException) -> None:
     def fail(*_args, **_kwargs):
         raise error
 
-    monkeypatch.setattr(labelling, name, fail)
+    monkeypatch.setattr(label_admin, name, fail)
 
 
 def test_restart_removes_what_dead_uploads_left_and_keeps_whole_datasets(admin, settings, monkeypatch):

@@ -26,10 +26,10 @@ def die() -> None:
 
 
 def install_kill(step: str) -> None:
-    from rba.storage import write_atomic
-    from server import labelling
+    from rba.core.fileio import write_atomic
+    from server.ops import label_admin
 
-    check_npz, record = labelling.check_npz, labelling._record_upload
+    check_npz, record = label_admin.check_npz, label_admin._record_upload
 
     def checking(path, *args):
         assert path.exists()
@@ -51,14 +51,14 @@ def install_kill(step: str) -> None:
     patches = {"checking": ("check_npz", checking), "writing": ("save_npz", writing),
                "saved": ("_record_upload", saved), "recorded": ("_record_upload", recorded)}
     name, fn = patches[step]
-    setattr(labelling, name, fn)
+    setattr(label_admin, name, fn)
 
 
 def main() -> None:
     import uvicorn
 
+    from server.common.app_settings import Settings
     from server.main import create_app
-    from server.settings import Settings
 
     register("toy", "tests.toy:Toy")
     if len(sys.argv) > 2:

@@ -5,12 +5,12 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import JSONResponse
 
-from server import labelling
-from server.admin_models import DatasetPublic
-from server.auth import ADMIN_ERRORS, require_admin
-from server.deps import DbDep, ServicesDep
-from server.errors import error_response, responses
-from server.models import DomainName
+from server.api.auth import ADMIN_ERRORS, require_admin
+from server.api.deps import DbDep, ServicesDep
+from server.common.errors import error_response, responses
+from server.db.admin_tables import DatasetPublic
+from server.db.tables import DomainName
+from server.ops import label_admin
 
 router = APIRouter(prefix="/api/admin/datasets", tags=["admin"], dependencies=[Depends(require_admin)],
                    responses=responses(*ADMIN_ERRORS))
@@ -29,10 +29,10 @@ UPLOAD_FORM = {  # the route streams and parses the form itself (under RBA_UPLOA
                                                          422: "every problem found, in 'problems'"})},
              summary="Upload labelled behaviour (multipart: domain, labels = JSON file, trajectories = .npz)")
 async def upload_dataset(request: Request, svc: ServicesDep, db: DbDep):
-    form = await labelling.read_upload_form(request)
+    form = await label_admin.read_upload_form(request)
     try:
-        dataset, new = await labelling.store_upload(svc, db, form)
-    except labelling.UploadProblems as e:
+        dataset, new = await label_admin.store_upload(svc, db, form)
+    except label_admin.UploadProblems as e:
         return error_response(422, e.detail, problems=e.problems)
     if not new:
         return JSONResponse(status_code=200, content=dataset.model_dump(mode="json"))
@@ -41,4 +41,4 @@ async def upload_dataset(request: Request, svc: ServicesDep, db: DbDep):
 
 @router.get("", response_model=list[DatasetPublic], summary="Uploaded datasets of a domain")
 def list_datasets(domain: DomainName, db: DbDep) -> list[DatasetPublic]:
-    return labelling.list_datasets(db, domain)
+    return label_admin.list_datasets(db, domain)

@@ -21,12 +21,12 @@ from starlette.datastructures import Headers
 from starlette.responses import MalformedRangeHeader, RangeNotSatisfiable
 from starlette.types import Receive, Scope, Send
 
-from rba.generate import is_generated
-from server import generation
-from server.deps import DbDep, ServicesDep
-from server.errors import error_response, not_found, responses
-from server.models import ClipStatusPublic, DomainName, GeneratedClip
-from server.views import clip_status
+from rba.generate.cma import is_generated
+from server.api.deps import DbDep, ServicesDep
+from server.common.errors import error_response, not_found, responses
+from server.db.tables import ClipStatusPublic, DomainName, GeneratedClip
+from server.ops import session_searches
+from server.ops.views import clip_status
 
 router = APIRouter(prefix="/api/clips", tags=["clips"], responses=responses(413, 422))
 
@@ -64,7 +64,7 @@ async def get_clip(domain: Annotated[DomainName, Path()], rollout_id: Annotated[
                    svc: ServicesDep, db: DbDep, if_none_match: Annotated[str | None, Header()] = None) -> Response:
     await anyio.to_thread.run_sync(svc.catalog.domain, domain)  # the first call imports the simulator
     if is_generated(rollout_id):
-        row = await anyio.to_thread.run_sync(generation.lookup, db, domain, rollout_id)
+        row = await anyio.to_thread.run_sync(session_searches.lookup, db, domain, rollout_id)
         key, source = svc.clips.generated_key(domain, row.id), row
     else:
         library = await anyio.to_thread.run_sync(svc.catalog.library, domain)  # LibraryNotFoundError is a 404
@@ -77,7 +77,7 @@ async def get_clip(domain: Annotated[DomainName, Path()], rollout_id: Annotated[
         return Response(status_code=304, headers=headers)
     if isinstance(source, GeneratedClip) and not svc.clips.cached(key):
         # from memory, else simulated again on the compute layer, in a thread (the loop stays free)
-        source = await anyio.to_thread.run_sync(generation.rollout_of, svc, source)
+        source = await anyio.to_thread.run_sync(session_searches.rollout_of, svc, source)
     # Rendered on the compute layer (or already in flight there): waiting holds no thread.
     path = await asyncio.wrap_future(svc.clips.request(key, source))
     return ClipFile(path, media_type="video/mp4", headers=headers)

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from fastapi import APIRouter
 
-from server.deps import DbDep, ServicesDep
-from server.errors import responses
-from server.models import DomainsPublic
-from server.views import domains_public
+from server.api.deps import DbDep, ServicesDep
+from server.common.errors import responses
+from server.db.tables import DomainsPublic
+from server.ops.views import domains_public
 
 router = APIRouter(prefix="/api/domains", tags=["domains"], responses=responses(413))
 

@@ -7,11 +7,11 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, Path
 from pydantic import BaseModel, Field, field_validator
 
-from rba.interpret import MAX_TEXT, Understood
-from server import interpreting
-from server.deps import ServicesDep
-from server.errors import responses
-from server.models import STRICT_BODY, DomainName
+from rba.interact.free_text import MAX_TEXT, Understood
+from server.api.deps import ServicesDep
+from server.common.errors import responses
+from server.db.tables import STRICT_BODY, DomainName
+from server.ops import text_feedback
 
 router = APIRouter(prefix="/api/domains", tags=["interpret"])
 
@@ -62,4 +62,4 @@ ERRORS = responses(413, 422, said={
 @router.post("/{domain}/interpret", response_model=InterpretPublic, responses=ERRORS,
              summary="Map a sentence of feedback to more/less of the domain's attributes")
 def interpret(domain: Annotated[DomainName, Path()], body: InterpretCreate, svc: ServicesDep) -> InterpretPublic:
-    return InterpretPublic.of(interpreting.interpret(svc, domain, body.text))
+    return InterpretPublic.of(text_feedback.interpret(svc, domain, body.text))

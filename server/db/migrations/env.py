@@ -1,4 +1,4 @@
-"""Alembic's environment: migrates the connection ``server.migrations.config`` hands over.
+"""Alembic's environment: migrates the connection ``server.db.migrations.config`` hands over.
 
 The target is the SQLModel tables, so autogenerate compares them with the database. Only the app's
 tables (``rba_*``) are considered, so a shared PostgreSQL database's other tables are left alone.
@@ -13,8 +13,8 @@ from sqlalchemy.engine import Connection
 from sqlmodel import SQLModel
 from sqlmodel.sql.sqltypes import AutoString
 
-from server import admin_models, models  # noqa: F401  (registers the tables on SQLModel.metadata)
-from server.migrations import TABLE_PREFIX
+from server.db import admin_tables, tables  # noqa: F401  (registers the tables on SQLModel.metadata)
+from server.db.migrations import TABLE_PREFIX
 
 
 def include_name(name: str | None, type_: str, _parents: dict[str, Any]) -> bool:

@@ -1,6 +1,6 @@
 """The first release's tables: tuning sessions and their feedback events.
 
-Revision 0001 (the first), as `server/models.py` had them when the web app shipped (before any column was
+Revision 0001 (the first), as `server/db/tables.py` had them when the web app shipped (before any column was
 added at start-up).
 """
 

@@ -8,7 +8,7 @@ models.
 import sqlalchemy as sa
 from alembic import op
 
-from server.migrations import add_missing_columns
+from server.db.migrations import add_missing_columns
 
 revision = "0002"
 down_revision = "0001"

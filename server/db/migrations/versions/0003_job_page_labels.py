@@ -7,7 +7,7 @@ jobs from before it had no page labels to learn from.
 import sqlalchemy as sa
 from alembic import op
 
-from server.migrations import add_missing_columns
+from server.db.migrations import add_missing_columns
 
 revision = "0003"
 down_revision = "0002"

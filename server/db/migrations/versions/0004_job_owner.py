@@ -6,7 +6,7 @@ Revision 0004 (after 0003): the columns start-up used to add by hand for API rep
 import sqlalchemy as sa
 from alembic import op
 
-from server.migrations import add_missing_columns
+from server.db.migrations import add_missing_columns
 
 revision = "0004"
 down_revision = "0003"
