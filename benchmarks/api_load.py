@@ -67,6 +67,9 @@ from rba.core.fileio import save_report
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"
+OUTPUTS = (  # what this script writes into benchmarks/results/ (tests/test_results_files.py)
+    "api_load_cold.json", "api_load_cold.md", "api_load_warm.json", "api_load_warm.md",
+)
 HOST = "127.0.0.1"  # loopback only
 REQUEST_TIMEOUT = 120.0
 START_TIMEOUT = 90.0  # seconds for the server to answer /healthz (imports take a while on a busy machine)

@@ -30,6 +30,9 @@ from rba.interact.evaluate import EvalResult, af_cell, evaluate, searches_cell
 
 log = logging.getLogger("beyond_range")
 RESULTS = Path(__file__).resolve().parent / "results"
+OUTPUTS = (  # what this script writes into benchmarks/results/ (tests/test_results_files.py)
+    "beyond_range.json", "beyond_range.md",
+)
 DOMAINS = ("walker", "manipulator", "snake", "lane_change")  # the default, and the report's row order
 MODES = {"library": False, "gen": True}  # a row's mode -> whether the agent generates
 

@@ -63,6 +63,9 @@ from rba.media import video
 log = logging.getLogger("clip_cost")
 
 RESULTS = Path(__file__).resolve().parent / "results"
+OUTPUTS = (  # what this script writes into benchmarks/results/ (tests/test_results_files.py)
+    "clip_cost.json", "clip_cost.md",
+)
 DOMAINS = ("walker", "manipulator", "snake", "lane_change")
 Encoder = Callable[[Iterable[np.ndarray], Path, float], int]
 

@@ -42,6 +42,9 @@ from rba.core.settings import LibrarySettings
 from rba.data.library import SkillLibrary
 
 RESULTS = Path(__file__).resolve().parents[1] / "benchmarks" / "results"
+OUTPUTS = (  # what this script writes into benchmarks/results/ (tests/test_results_files.py)
+    "clip_parts.json", "clip_parts.md",
+)
 DOMAINS = ("walker", "manipulator", "lane_change", "snake")
 WAYS = ("whole", "parts")
 log = logging.getLogger("clip_parts")

@@ -45,6 +45,9 @@ from rba.core.fileio import save_report
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"
+OUTPUTS = (  # what this script writes into benchmarks/results/ (tests/test_results_files.py)
+    "cold_start.json", "cold_start.md",
+)
 HOST = "127.0.0.1"  # the server's default host: loopback only
 GOALS = {"page_s": 5.0, "first_clip_s": 3.0}
 PAGE_ASSETS = ("/static/app.js", "/static/common.js", "/static/meters.js", "/static/app.css")  # what index.html loads

@@ -37,6 +37,9 @@ from rba.interact.users import parse_user
 from server.common.app_settings import GENERATE_SECONDS, GENERATE_SECONDS_OTHERS
 
 RESULTS = Path(__file__).resolve().parents[1] / "benchmarks" / "results"
+OUTPUTS = (  # what this script writes into benchmarks/results/ (tests/test_results_files.py)
+    "generation_latency.json", "generation_latency.md",
+)
 DOMAINS = ("walker", "manipulator", "lane_change", "snake")
 GOAL_P95_S = 2.0
 log = logging.getLogger("generation_latency")

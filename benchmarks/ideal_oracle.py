@@ -33,6 +33,9 @@ from rba.interact.users import SimulatedUser
 
 log = logging.getLogger("ideal_oracle")
 RESULTS = Path(__file__).resolve().parent / "results"
+OUTPUTS = (  # what this script writes into benchmarks/results/ (tests/test_results_files.py)
+    "ideal_oracle.json", "ideal_oracle.md",
+)
 DOMAINS = ("walker", "manipulator", "snake", "lane_change")
 PURE = 1e-9  # the error rate of plain bisection: the paper's user never errs
 PRIOR_BANDWIDTH = 0.05  # the library prior's kernel width, a share of each proxy's 1st-99th percentile range

@@ -22,6 +22,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 PHRASINGS = ROOT / "tests" / "data" / "interpret_phrasings.json"
 REPORT = ROOT / "benchmarks" / "results" / "interpret.md"
+OUTPUTS = ("interpret.md",)  # what this script writes into benchmarks/results/ (tests/test_results_files.py)
 log = logging.getLogger("interpret")
 
 

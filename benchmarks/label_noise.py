@@ -43,6 +43,9 @@ from rba.learn.embed import attribute_embeddings
 from rba.learn.ranker import RankerConfig, ranking_metrics, train_ranker
 
 RESULTS = Path(__file__).resolve().parent / "results"
+OUTPUTS = (  # what this script writes into benchmarks/results/ (tests/test_results_files.py)
+    "label_noise.json", "label_noise.md", "label_noise.png",
+)
 log = logging.getLogger("label_noise")
 
 

@@ -31,6 +31,9 @@ from rba.interact.global_agent import GlobalContext
 
 log = logging.getLogger("library_size")
 RESULTS = Path(__file__).resolve().parent / "results"
+OUTPUTS = (  # what this script writes into benchmarks/results/ (tests/test_results_files.py)
+    "library_size.json", "library_size.md",
+)
 DOMAINS = ("walker", "manipulator", "snake", "lane_change")  # the report's row order
 MODES = {"library": False, "gen": True}  # a row's mode -> whether the agent generates
 MISS = 500  # answers a failed trial counts in a row's *answers in all*: the evaluation's feedback budget

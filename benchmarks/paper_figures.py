@@ -35,6 +35,9 @@ from rba.learn.training import GlobalTrainConfig, LocalTrainConfig, train_global
 
 log = logging.getLogger("paper_figures")
 RESULTS = Path(__file__).resolve().parent / "results"
+OUTPUTS = (  # what this script writes into benchmarks/results/ (tests/test_results_files.py)
+    "sample_efficiency.json", "sample_efficiency.png", "zeta_vs_proxy.png",
+)
 
 
 def zeta_vs_proxy(domains: list[str], out: Path) -> None:

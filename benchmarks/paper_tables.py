@@ -49,6 +49,9 @@ from rba.interact.users import USER_KINDS, UserSpec, parse_user
 
 log = logging.getLogger("paper_tables")
 RESULTS = Path(__file__).resolve().parent / "results"
+OUTPUTS = (  # what this script writes into benchmarks/results/ (tests/test_results_files.py)
+    "paper_tables.json", "paper_tables.md",
+)
 LABEL_NOISE = RESULTS / "label_noise.md"  # the ζσ label-noise report (its own benchmark); linked when it exists
 SPLIT = "test"  # every reported row's targets: `test` is touched only by `rba eval` and these tables
 PAPER_USER = "paper"  # the user of the paper's tables

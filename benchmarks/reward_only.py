@@ -51,6 +51,9 @@ from rba.learn.ranker import AttributeRanker
 
 log = logging.getLogger("reward_only")
 RESULTS = Path(__file__).resolve().parent / "results"
+OUTPUTS = (  # what this script writes into benchmarks/results/ (tests/test_results_files.py)
+    "reward_only_*.json", "reward_only_*.md",
+)
 PRIOR_SAMPLES = 2000  # draws of sample_params that bound the searched box
 ZETA_REACHED = 0.05  # the ceiling's distance to v* (standardised ζσ) below which it found ζσ's optimum
 DRAWN_SIGMA = 0.1  # CMA-ES's first step from the best prior draw (``--draws``; 0.3 from the box's centre)

@@ -49,6 +49,9 @@ from rba.data.library import SkillLibrary, generate
 from rba.media.clip_cache import ClipCache
 
 RESULTS = Path(__file__).resolve().parent / "results"
+OUTPUTS = (  # what this script writes into benchmarks/results/ (tests/test_results_files.py)
+    "scale_out.json", "scale_out.md",
+)
 GOAL_SPEEDUP = 1.8
 PROJECT_ROLLOUTS, PROJECT_CORES = 100_000, 32
 RAY_ENV = {"RAY_USAGE_STATS_ENABLED": "0", "RAY_AUTH_MODE": "disabled",

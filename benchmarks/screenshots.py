@@ -23,6 +23,7 @@ from server.main import serve_in_thread
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"
+OUTPUTS = ("screenshot-*.png",)  # what this script writes into benchmarks/results/ (tests/test_results_files.py)
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
                  "--disable-component-update", "--disable-sync", "--no-first-run"]

@@ -27,6 +27,7 @@ from rba.domains import get_domain
 from rba.interact import load_context
 
 RESULTS = Path(__file__).resolve().parent / "results"
+OUTPUTS = ("shortlist.md",)  # what this script writes into benchmarks/results/ (tests/test_results_files.py)
 
 
 def measure(domain: str, rep: str, ks: list[int | None]) -> list[dict]:

@@ -41,6 +41,7 @@ from rba.core.fileio import save_report
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"
+OUTPUTS = ("soak.json", "soak.md")  # what this script writes into benchmarks/results/ (tests/test_results_files.py)
 FLAT_GROWTH = 0.05  # the API's RSS may end at most 5 % above its level after the first two minutes
 SETTLE_SECONDS = 120.0
 

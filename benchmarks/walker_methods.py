@@ -34,6 +34,9 @@ from rba.learn.training import LocalTrainConfig, train_local
 log = logging.getLogger("walker_methods")
 
 RESULTS = Path(__file__).resolve().parent / "results"
+OUTPUTS = (  # what this script writes into benchmarks/results/ (tests/test_results_files.py)
+    "walker_methods.json", "walker_methods.md",
+)
 # Paper Table 1, walker column, by row label: (SR, AF, std of AF); paper_tables keeps every table of the paper
 PAPER = dict(zip(PAPER_LABELS, PAPER_TABLES["normal"]["walker"], strict=True))
 LABELS = {(m.name, rep): m.label_for(rep) for m in methods(include_reference=True) for rep in m.run_reps}

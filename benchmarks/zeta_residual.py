@@ -44,6 +44,9 @@ from rba.interact import load_context
 from rba.interact.generating_agent import STARTS, THRESHOLD
 
 RESULTS = Path(__file__).resolve().parent / "results"
+OUTPUTS = (  # what this script writes into benchmarks/results/ (tests/test_results_files.py)
+    "zeta_residual.json", "zeta_residual.md",
+)
 STEPS = (0.01, 0.03, 0.1)  # std of the parameter moves, in units of each free parameter's range
 SEEDS = 6  # other seeds per val clip (--seeds)
 BANDS = (0.0, 0.01, 0.02, 0.03, 0.05, 0.08)  # ζσ distances (ranges scaled to 1) between a serve clip and a target
