@@ -1,4 +1,4 @@
-"""The shape rules of docs/ARCHITECTURE.md, checked on the source: imports run one way, no cycles, short functions."""
+"""The shape rules of docs/architecture.md, checked on the source: imports run one way, no cycles, short functions."""
 
 from pathlib import Path
 

@@ -1,4 +1,5 @@
-"""The deployment files agree with the code and with each other: docker-compose.yml, deploy/, Dockerfile, README.
+"""The deployment files agree with the code and with each other: docker-compose.yml, deploy/, Dockerfile and the
+deployment section of docs/guide.md.
 
 No container runs here (CI has no Docker engine): the files are parsed and every command in them is checked
 against the parser that will run it (``rba.cli.build_parser()``, Ray's own ``ray`` CLI, ``sh -n``), every
@@ -30,7 +31,7 @@ COMPOSE = yaml.safe_load((ROOT / "docker-compose.yml").read_text())
 SERVICES: dict[str, dict] = COMPOSE["services"]
 NGINX_CONF = ROOT / "deploy" / "nginx.conf"
 ENTRYPOINT = ROOT / "deploy" / "entrypoint.sh"
-README = (ROOT / "README.md").read_text()
+README = (ROOT / "docs" / "guide.md").read_text()  # the user guide: its deployment section
 RBA_IMAGE = "rba-studio:latest"
 NGINX_RESOLVE_SINCE = (1, 27, 3)  # `server ... resolve` in an upstream: open-source nginx since 1.27.3
 
@@ -417,7 +418,7 @@ def test_dockerfile_agrees_with_the_readme_and_the_project():
     assert docker_json("CMD") == ["rba", "serve"] and "The image's command is `rba serve`" in README
     for var, value in docker_env().items():
         if var.startswith("RBA_"):
-            assert f"`{var}={value}`" in README, f"README should say the image sets `{var}={value}`"
+            assert f"`{var}={value}`" in README, f"docs/guide.md should say the image sets `{var}={value}`"
     health = " ".join(a for o, a in dockerfile() if o == "HEALTHCHECK")
     assert f"127.0.0.1:{docker_env()['RBA_PORT']}/healthz" in health
     deps = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["dependencies"]

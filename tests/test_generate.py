@@ -234,17 +234,17 @@ def test_a_clip_made_with_a_seed_of_its_own_replays_from_that_seed(ctx, gap_root
 
 
 def test_each_domain_generates_as_chosen_on_val():
-    """``Domain.generate_spread`` (generation_spread_val.md: the walker and the manipulator search sooner),
-    ``Domain.zeta_noise`` (generation_noise_val.md: the soft step; the manipulator's chosen with its spread) and
+    """``Domain.generate_spread`` (docs/decisions/0003: the walker and the manipulator search sooner),
+    ``Domain.zeta_noise`` (docs/decisions/0006: the soft step; the manipulator's chosen with its spread) and
     ``Domain.session_refit``."""
     names = ("walker", "manipulator", "snake", "lane_change")
     assert {d: get_domain(d).generate_spread for d in names} == {"walker": 0.5, "manipulator": 0.5, "snake": 1.0,
                                                                  "lane_change": 1.0}
     assert {d: get_domain(d).zeta_noise for d in names} == {"walker": 0.04, "manipulator": 0.06, "snake": 0.03,
                                                             "lane_change": 0.0}
-    # session_refit_val.md: the snake's val answers fell by 41 %, the manipulator's rose
+    # docs/decisions/0011: the snake's val answers fell by 41 %, the manipulator's rose
     assert [d for d in names if get_domain(d).session_refit] == ["snake"]
-    # belief_prior_val.md: the manipulator's val answers fell by 7.5 %, the snake's rose
+    # docs/decisions/0010: the manipulator's val answers fell by 7.5 %, the snake's rose
     assert {d: get_domain(d).belief_prior for d in names} == {"walker": 0.0, "manipulator": 0.05, "snake": 0.0,
                                                               "lane_change": 0.0}
 

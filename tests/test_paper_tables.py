@@ -180,12 +180,12 @@ def test_the_generating_row_sits_below_rba_global_and_generates(gap_roots, monke
     assert text.index("| toy | RBA-Global |") < text.index("| toy | RBA-Global+gen |")
 
 
-README_DOMAINS = {"walker": "walker", "manipulator": "manipulator", "snake": "snake", "lane change": "lane_change"}
+TABLE_DOMAINS = {"walker": "walker", "manipulator": "manipulator", "snake": "snake", "lane change": "lane_change"}
 
 
 def _readme_tables() -> list[tuple[str, list[str], list[list[str]]]]:
-    """(precision, column domains, rows of cells) of each results table in the README's Results section."""
-    section = (REPO_ROOT / "README.md").read_text().split("## Results", 1)[1].split("\n## ", 1)[0]
+    """(precision, column domains, rows of cells) of each table in the paper comparison of docs/results.md."""
+    section = (REPO_ROOT / "docs" / "results.md").read_text().split("## Paper comparison", 1)[1].split("\n## ", 1)[0]
     tables, precision = [], None
     for block in section.split("\n\n"):
         first = block.strip().splitlines()[0] if block.strip() else ""
@@ -193,7 +193,7 @@ def _readme_tables() -> list[tuple[str, list[str], list[list[str]]]]:
             precision = "normal" if first.startswith("Normal") else "high"
         elif first.startswith("| method |"):
             lines = [[c.strip() for c in line.strip().strip("|").split("|")] for line in block.strip().splitlines()]
-            tables.append((precision, [README_DOMAINS[c] for c in lines[0][1:]], lines[2:]))
+            tables.append((precision, [TABLE_DOMAINS[c] for c in lines[0][1:]], lines[2:]))
     return tables
 
 
@@ -201,8 +201,8 @@ NOT_MEASURED = "not measured"
 
 
 def test_readme_results_say_what_the_report_says():
-    """Every SR / AF in the README's results tables is the report's row, and every paper number the paper's: a
-    re-measured report with a README left behind fails here."""
+    """Every SR / AF in docs/results.md's paper comparison is the report's row, and every paper number the paper's: a
+    re-measured report with the document left behind fails here."""
     report = {(r["domain"], r["label"], r["precision"]): r
               for r in json.loads((REPO_ROOT / "benchmarks/results/paper_tables.json").read_text())
               if r["user"] == paper_tables.PAPER_USER}

@@ -175,7 +175,7 @@ def test_a_search_stops_at_its_seconds(gen_settings):
 
 
 def test_each_domain_has_its_own_default_bound(gen_settings, monkeypatch):
-    """Unset, a search's bound is its domain's, chosen on val (generation_seconds_val.md): the walker and the
+    """Unset, a search's bound is its domain's, chosen on val (docs/decisions/0005): the walker and the
     manipulator keep SR at 1 s, the snake at 1.25 s; a domain not named gets 2 s."""
     assert Settings.model_fields["generate_seconds"].default is None
     default = Settings(generate_seconds=None)
