@@ -3,7 +3,7 @@
 For each registered domain with a library and trained models: every registered method with each
 representation it runs with (RBA-Global, RBA-Global-L, RBA-Local, RBA-Local-L, PbRL), between two
 reference rows, Random (the floor: random serve clips) and Oracle (the ceiling the library allows:
-bisection on the true proxies), 20 targets of the ``test`` split each (ARCHITECTURE §5), beside the paper's
+bisection on the true proxies), 20 targets of the ``test`` split each (docs/architecture.md §5), beside the paper's
 numbers, with the paper's user; ``RBA-Global+gen`` is RBA-Global making clips beyond the library
 (``rba.interact.generating_agent``). ``--users KIND ...`` adds one table per teacher kind (RBA-Global and RBA-Local,
 one-hot, normal precision, over the four hand-made domains); raw state views (``<domain>_raw``, just more

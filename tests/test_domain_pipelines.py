@@ -55,8 +55,8 @@ def test_generation_keeps_the_serve_library_at_1200(domain):
 
 @pytest.mark.parametrize("domain", SHIPPED)
 def test_epsilons_come_from_the_serve_librarys_robust_range(domain):
-    """ARCHITECTURE §4: ε is a seventh of the 1st–99th percentile range of serve's proxies, high precision 6× finer;
-    a few outlying clips barely move it (they stretched the raw range: snake's ε was twice the others')."""
+    """docs/architecture.md §4: ε is a seventh of the 1st–99th percentile range of serve's proxies, high precision 6×
+    finer; a few outlying clips barely move it (they stretched the raw range: snake's ε was twice the others')."""
     serve = SkillLibrary.load(domain, "serve", REPO_ROOT / "data")
     spec = get_domain(domain)
     normal, high = spec.epsilons(serve.proxies, "normal"), spec.epsilons(serve.proxies, "high")

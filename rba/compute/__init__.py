@@ -1,4 +1,4 @@
-"""The compute layer (ARCHITECTURE §9): every simulation and every render runs here, never in the API process.
+"""The compute layer (docs/architecture.md §9): every simulation and every render runs here, never in the API process.
 
 One small interface, :class:`Compute`, with two backends:
 

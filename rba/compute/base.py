@@ -1,4 +1,4 @@
-"""The compute layer's interface (ARCHITECTURE §9): jobs, tasks and the ``Compute`` backend contract."""
+"""The compute layer's interface (docs/architecture.md §9): jobs, tasks and the ``Compute`` backend contract."""
 
 from __future__ import annotations
 

@@ -4,7 +4,7 @@ A zip holds ``profile.json`` (what was chosen and how: domain, targets, feedback
 parameters and seed, simulator versions; the sha256 of every other member), ``clip.mp4`` and, when
 the method has a reward to condition on the choice, ``reward.pt`` (a state_dict, ``torch.save`` of
 tensors only, read with ``weights_only=True``) + ``reward.json`` (its model card) and the condition's
-arrays as ``.npy`` (``allow_pickle=False``). ARCHITECTURE §4 (Export) says what each method exports:
+arrays as ``.npy`` (``allow_pickle=False``). docs/architecture.md §4 (Export) says what each method exports:
 
 * a reward of kind ``global_reward`` (RBA-Global): rθ(s | v*) with v* the ranker's ζσ score of the
   chosen rollout, standardised as the model expects (``condition.v_star``; ``condition.zeta`` raw), its

@@ -1,4 +1,4 @@
-"""The Domain contract (ARCHITECTURE §4): a simulator, a scripted parameterised skill, and proxies.
+"""The Domain contract (docs/architecture.md §4): a simulator, a scripted parameterised skill, and proxies.
 
 A domain turns skill parameters into a physically simulated :class:`Rollout` whose
 ``states`` are what the learned models see and whose ``replay`` is what rendering needs.

@@ -1,4 +1,4 @@
-"""The Agent contract (ARCHITECTURE §4) and the feedback records that drive it.
+"""The Agent contract (docs/architecture.md §4) and the feedback records that drive it.
 
 An agent turns feedback into the next rollout to show. It takes one kind of feedback (its
 ``feedback_kind``): more/less about attributes, or the answer to an A/B question. It never

@@ -1,4 +1,4 @@
-"""The paper's protocol (ARCHITECTURE §5): simulated users chase held-out targets; SR and AF.
+"""The paper's protocol (docs/architecture.md §5): simulated users chase held-out targets; SR and AF.
 
 ε comes from the serve library's robust proxy range (``Domain.epsilons``); the user is any teacher kind of
 ``rba.interact.users`` (``user="KIND[:param]"``). A trial ends when the user says it is satisfied and succeeds

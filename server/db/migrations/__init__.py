@@ -3,7 +3,7 @@
 ``server.db.engine`` runs :func:`upgrade` at start-up under its schema lock. Alembic is configured here in code,
 from this package's folder (never the working directory; no alembic.ini). A database made before
 migrations existed has the tables but no ``alembic_version``: it is recognised by its columns and
-stamped with the revision it matches, then upgraded. How to add a migration: ARCHITECTURE §6.
+stamped with the revision it matches, then upgraded. How to add a migration: docs/architecture.md §6.
 """
 
 from __future__ import annotations

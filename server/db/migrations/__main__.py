@@ -3,7 +3,7 @@ due.
 
 Both compare the SQLModel tables with a scratch in-memory SQLite database brought to the newest revision,
 so no server or database is needed. Review what ``revision`` writes: autogenerate sees added and dropped
-tables, columns, indexes and constraints and changed types, not renames or server defaults (ARCHITECTURE §6).
+tables, columns, indexes and constraints and changed types, not renames or server defaults (docs/architecture.md §6).
 """
 
 from __future__ import annotations
