@@ -130,6 +130,24 @@ def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
     return sorted(found)
 
 
+def folders(root: Path = REPO_ROOT, package: str = "rba") -> dict[str, list[str]]:
+    """``package``'s modules by folder: ``""`` -> the modules at its top, ``"core"`` -> those in ``core/`` (any depth),
+    each by its own name (packages' ``__init__`` and ``__main__`` left out)."""
+    found: dict[str, list[str]] = {}
+    for module, path in module_files(root).items():
+        parts = module.split(".")
+        if parts[0] != package or path.name in ("__init__.py", "__main__.py"):
+            continue
+        found.setdefault(parts[1] if len(parts) > 2 else "", []).append(parts[-1])
+    return {folder: sorted(names) for folder, names in sorted(found.items())}
+
+
+def shared_names(root: Path = REPO_ROOT) -> list[str]:
+    """Module names used in more than one of ``PACKAGES`` (one name should say one thing across the repository)."""
+    names = [{name for found in folders(root, package).values() for name in found} for package in PACKAGES]
+    return sorted(set.intersection(*names))
+
+
 @dataclass(frozen=True)
 class Function:
     file: str
@@ -160,6 +178,14 @@ def report(root: Path = REPO_ROOT, top: int = 8) -> str:
     lines += [f"  - {a} → {b}" for a, b in back_edges(graph)]
     lines.append(f"- import cycles: {len(cycles(graph))}")
     lines += [f"  - {' ↔ '.join(c)}" for c in cycles(graph)]
+    for package in PACKAGES:
+        found = folders(root, package)
+        loose = found.pop("", [])
+        lines.append(f"- modules at the top of `{package}/`: {len(loose)} ({', '.join(loose)}); folders: "
+                     + ", ".join(f"{folder}/ ({len(names)})" for folder, names in found.items()))
+    shared = shared_names(root)
+    lines.append(f"- module names used in both {' and '.join(PACKAGES)}: {len(shared)}"
+                 + (f" ({', '.join(shared)})" if shared else ""))
     for package in PACKAGES:
         lines += ["", f"Longest functions in `{package}/`:", "", "| lines | function |", "|---|---|"]
         lines += [f"| {f.lines} | `{f.file}:{f.line}` {f.name} |" for f in functions(root, package)[:top]]

@@ -42,6 +42,10 @@ def test_no_import_cycles():
     assert code_shape.cycles(code_shape.import_graph()) == []
 
 
+def test_no_module_name_is_used_in_both_the_library_and_the_server():
+    assert code_shape.shared_names() == []
+
+
 @pytest.mark.parametrize("package", code_shape.PACKAGES)
 def test_functions_are_short_enough_to_read_at_once(package):
     long = [f for f in code_shape.functions(package=package) if f.lines > MAX_FUNCTION_LINES]
