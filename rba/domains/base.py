@@ -199,31 +199,29 @@ class Domain(ABC):
     serve_size: int = 1200  # rollouts in ``serve``: the generating agent makes what it lacks (the image view: 2,400)
     ranker_steps: int | None = None  # ζσ gradient steps of `rba train` where RankerConfig's default underfits
     # the generating agent's soft step for answers, a share of ζσ's train range (rba.interact.bisection): about how
-    # far ζσ can put a clip from where a person would; 0: the hard step. Chosen on val (generation_noise_val.md)
+    # far ζσ can put a clip from where a person would; 0: the hard step. Decision 0006
     zeta_noise: float = 0.0
     # the generating agent's belief starts where the serve library's clips lie in ζσ (a kernel of this share of ζσ's
     # train range, ``GlobalContext.prior_width``) rather than uniform over it (0): targets are behaviours of the
-    # same skill. Chosen on val (belief_prior_val.md: the manipulator's 0.05)
+    # same skill. Decision 0010
     belief_prior: float = 0.0
     # neighbours of the ζσ surface over the skill's parameters (rba.generate.surface) the generating agent reads clips
     # on and makes them from: where the proxies move smoothly with the parameters it orders nearby clips better than ζσ
-    # of their states. 0: each clip's own ζσ. Chosen on val (generation_surface_val.md)
+    # of their states. 0: each clip's own ζσ. Decision 0008
     zeta_surface: int = 0
     # the generating agent re-fits ζσ's last layers near the target on the session's answers (rba.interact.refit):
-    # where ζσ's labels leave it least precise. Not with a surface. On for the snake (session_refit_val.md: its val
-    # answers fell by 41 % over three draws; the manipulator's rose by 9.5 %)
+    # where ζσ's labels leave it least precise. Not with a surface. Decision 0011
     session_refit: bool = False
     # the generating agent searches only where the library clip misses its target by more than this share of the
     # belief's half interquartile range (and the threshold): while it is unsure where the target is, a library clip
-    # there asks as well as a made one, at once (0: by the threshold alone). Chosen on val (generation_spread_val.md,
-    # the manipulator's 0.5 too; the walker's with its surface, generation_surface_val.md)
+    # there asks as well as a made one, at once (0: by the threshold alone). Decisions 0003 and 0008
     generate_spread: float = 1.0
     # the skill's outcome depends on its seed beyond the parameters (the manipulator's tremor is drawn from it): a
     # search then simulates each candidate with a seed of its own (``rba.generate.cma.search``), so the noise is part of
-    # what it chooses among, as the library's seeds are. Chosen on val (generation_seeds_val.md)
+    # what it chooses among, as the library's seeds are. Decision 0007
     noisy_skill: bool = False
     # an export re-fits its global reward's last layer for the chosen v* (``rba.data.export_zip``; False: the trained
-    # weights). Chosen on val with the reward-only search (reward_refit_val.md)
+    # weights). Decision 0012
     export_refit: bool = True
     # (kind, rep) of a learned model the states come from (models/<name>/<kind>-<rep>.pt): loaded, never trained
     # here; `rba build` makes it when missing (rba.learn.training.prepare_states)

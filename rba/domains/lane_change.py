@@ -236,9 +236,8 @@ class LaneChange(Domain):
     param_names = tuple(PARAM_RANGES)
     frame_rate = float(SIM_HZ)
     feedback_phrases = FEEDBACK_PHRASES
-    # serve_size: the default 1,200. With it 19 % of test targets have no serve clip within the high-precision ε;
-    # the generating agent makes them (it needed 3,600 before generation; README, Table 2)
-    # zeta_noise: the default hard step. With the 1,200-clip library val AF is lowest there (generation_noise_val.md)
+    # serve_size: the default 1,200; the generating agent makes what it lacks (decision 0020)
+    # zeta_noise: the default hard step (decision 0006)
 
     def __init__(self) -> None:
         self._local = threading.local()  # one highway-env per thread (simulation and rendering)

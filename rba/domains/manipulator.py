@@ -262,14 +262,10 @@ class Manipulator(Domain):
     param_names = tuple(PARAM_RANGES)
     frame_rate = FRAME_RATE
     feedback_phrases = FEEDBACK_PHRASES
-    zeta_noise = 0.06  # the generating agent's soft step: val AF lowest with SR held (generation_noise_val.md; 0.06
-    # since its spread became 0.5: generation_spread_val.md)
-    generate_spread = 0.5  # searches once the belief is this sure: val AF lower on two target draws, normal precision
-    # unchanged (generation_spread_val.md)
-    belief_prior = 0.05  # the generating agent's belief starts where serve clips lie: val answers 2,321 against 2,508
-    # over three draws of 60 targets, normal precision 134 against 132 (belief_prior_val.md)
-    noisy_skill = True  # the tremor is drawn from the seed: other seeds at a val clip's parameters spread its
-    # instability by 2.3 high-precision ε (std, median of 10 clips: zeta_residual.md); generation_seeds_val.md
+    zeta_noise = 0.06  # decisions 0006 and 0003
+    generate_spread = 0.5  # decision 0003
+    belief_prior = 0.05  # decision 0010
+    noisy_skill = True  # the tremor is drawn from the seed (zeta_residual.md); decision 0007
 
     def __init__(self) -> None:
         self._model: mujoco.MjModel | None = None

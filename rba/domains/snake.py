@@ -329,9 +329,8 @@ class Snake(Domain):
     param_names = tuple(PARAM_RANGES)
     frame_rate = 1.0 / (FRAME_EVERY * CONTROL_EVERY * TIMESTEP)
     feedback_phrases = FEEDBACK_PHRASES
-    zeta_noise = 0.03  # the generating agent's soft step: val AF lowest with SR held (generation_noise_val.md)
-    # ζσ re-fitted on the session's answers (``rba.interact.refit``, from its ``REFIT_AFTER``-th): val answers fell by
-    # 41 % over three draws of 20 targets (session_refit_val.md)
+    zeta_noise = 0.03  # decision 0006
+    # ζσ re-fitted on the session's answers (``rba.interact.refit``, from its ``REFIT_AFTER``-th): decision 0011
     session_refit = True
 
     def __init__(self) -> None:
