@@ -122,8 +122,7 @@ class LocalCompute(Compute):
 
         Why: a search out of time stops taking jobs and closes the stream; jobs handed to the pool before then
         ran anyway (the pool queues one more than it has workers, beyond cancelling), and the clip the search
-        made, rendered next on the same workers, waited for them: a snake clip took median 1.19 s, p95 1.81 s to
-        render after a cut search, against 0.31 / 0.58 s after a whole one (``session_refit_val.md``).
+        made, rendered next on the same workers, waited for them (decision 0005).
         """
         window: deque[Task] = deque()
 

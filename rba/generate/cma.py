@@ -143,9 +143,7 @@ def _simulate_until(simulate: Simulate, jobs: list[SimJob], deadline: float, too
     The jobs are handed over one at a time and, once one succeeded, none that would end after the deadline if it
     took as long as the search's jobs so far (``took``: seconds from hand-over to arrival, appended to). Why: a
     backend that takes jobs as its workers free up (``LocalCompute``) runs what it took to the end, and the clip
-    the search made is rendered next on the same workers: after a search cut short by its bound, a snake clip
-    took median 1.19 s, p95 1.81 s to render, against 0.31 / 0.58 s after one that ended in time
-    (``session_refit_val.md``)."""
+    the search made is rendered next on the same workers, and would wait for them (decision 0005)."""
     rollouts: list[Rollout] = []
     handed: list[float] = []
 

@@ -2,7 +2,7 @@
 
 ζσ scores a clip's states. Two clips of nearly the same parameters (other seeds) differ in ζσ by more than
 their proxies do, so near a high-precision target ζσ orders clips only by chance
-(``benchmarks/results/generation_surface_val.md``). Where the proxies move smoothly with the parameters, a fit of
+(decision 0008). Where the proxies move smoothly with the parameters, a fit of
 ζσ over the parameters averages that noise away: LOESS, a weighted least-squares plane through the
 ``neighbours`` serve clips nearest in the unit parameter box (tricube weights), read at its centre.
 """

@@ -1,7 +1,7 @@
 """ζσ re-fitted near a session's target on the session's own answers.
 
 Why: ζσ orders clips a few high-precision ε apart only by chance, and what bounds it there is the precision of
-its labels, not the model (``benchmarks/results/ranker_precision_val.md``). A session at high precision answers
+its labels, not the model (decision 0015). A session at high precision answers
 dozens of clips near one target, and every pair of them where one was answered "more α" and the other "less α"
 is a correctly ordered label exactly there: the first shows less α than the target, the second more. So after
 each answer, each attribute's last layer of fσ (``AttributeRanker.with_heads``) is fitted again on the pairs
@@ -23,13 +23,10 @@ from scipy.special import expit
 
 from rba.learn.ranker import AttributeRanker
 
-# weight of ‖(w, b) − trained‖² against the pairs' mean Bradley-Terry loss: the probe's in ranker_precision_val.md;
-# 0.03 and 0.3 were within 6 % of it on a snake val draw, short of the 10 % a change needed (session_refit_val.md)
+# weight of ‖(w, b) − trained‖² against the pairs' mean Bradley-Terry loss (decision 0011)
 PULL = 0.1
 # answers a session gives before the first fit: a session at normal precision ends within a few answers, and fits on
-# their few pairs cost it answers on val (from the 1st answer: all four draws of 20 snake targets longer; from the
-# 5th: one session; from the 7th: none); one at high precision gives dozens, and there 7 took 21 % fewer answers
-# than 10 over three val draws (session_refit_val.md)
+# their few pairs would cost it answers; one at high precision gives dozens (decision 0011)
 REFIT_AFTER = 7
 Answered = list[tuple[str, list[tuple[int, int]]]]  # per answer: the clip's id, (attribute, ±1) per named attribute
 Features = Callable[[str], tuple[np.ndarray, float]]  # a clip's id -> its summed features float[k, H], its length
