@@ -568,6 +568,12 @@ def _made(rollout: Rollout, zeta: np.ndarray) -> dict:
     return {"params": dict(rollout.params), "seed": int(rollout.seed), "zeta": [float(v) for v in zeta]}
 
 
+def made_clip(state: dict, rollout_id: str) -> dict | None:
+    """What the agent whose ``state_dict()`` this is keeps of ``rollout_id`` if it made that clip (params, seed,
+    ζ): None for a serve clip, or a state without generation."""
+    return state.get("generation", {}).get("generated", {}).get(rollout_id)
+
+
 GENERATING = {GlobalAgent: GeneratingGlobalAgent}  # an agent class -> its generating form
 
 

@@ -18,7 +18,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from rba.compute import Compute, RenderJob, Task
-from rba.compute.base import CLIP_PARTS
 from rba.core.store import ClipStore
 from rba.data.library import SkillLibrary
 from rba.domains import Rollout
@@ -32,17 +31,22 @@ STALE_TMP_SECONDS = 600
 # nearly all of a cache, are the same bytes as before.
 RENDERER_VERSION = 2
 CLAIM_TTL_SECONDS = 120  # a guess claimed longer ago than this was left by a crashed process: render it here
-GENERATED = "generated"  # the key's version of a generated rollout: its id already hashes what makes it
 Source = SkillLibrary | Rollout  # what a clip is rendered from: a library holding the rollout, or the rollout
 
 
 @dataclass(frozen=True)
 class ClipKey:
+    """A clip's name in the store. Keys are made by ``server.runtime.clip_sources`` (and ``ClipCache.key`` for a
+    library's clips): what a rollout id names is decided there, never here."""
+
     domain: str
-    version: str  # the serve library's content hash, or GENERATED
-    rollout_id: str  # already looked up in the library
+    version: str  # the serve library's content hash, or the made clips' own version (their ids hash what makes them)
+    rollout_id: str  # already looked up where it comes from
     width: int
     height: int
+    # parts its render is split into on separate workers (a clip someone waits for); not in the digest: a key's
+    # parts never change, and the joined MP4 differs from one encoded whole, so one key is always rendered alike
+    parts: int = 1
 
     @property
     def digest(self) -> str:
@@ -76,10 +80,10 @@ class _Render:
 
 
 def render_job(key: ClipKey, source: Source) -> RenderJob:
-    """What renders ``key``'s clip: a generated one in ``CLIP_PARTS`` parts (someone waits for it), others whole.
-    The parts' joined MP4 differs in bytes from one encoded whole, so whatever caches under a key renders this."""
+    """What renders ``key``'s clip: in ``key.parts`` parts. The parts' joined MP4 differs in bytes from one encoded
+    whole, so whatever caches under a key renders this."""
     rollout = source if isinstance(source, Rollout) else source.rollout(source.index_of(key.rollout_id))
-    return RenderJob.of(key.domain, rollout, key.width, key.height, split=CLIP_PARTS if key.version == GENERATED else 1)
+    return RenderJob.of(key.domain, rollout, key.width, key.height, split=key.parts)
 
 
 class ClipCache:
@@ -100,10 +104,6 @@ class ClipCache:
         library.index_of(rollout_id)
         return ClipKey(library.domain, library.version, rollout_id, self.width, self.height)
 
-    def generated_key(self, domain: str, rollout_id: str) -> ClipKey:
-        """The key of a generated rollout (``gen-<hash>``): no library holds it, a rebuild never changes it."""
-        return ClipKey(domain, GENERATED, rollout_id, self.width, self.height)
-
     def path(self, key: ClipKey) -> Path:
         return self.store.path(key)
 
@@ -113,11 +113,6 @@ class ClipCache:
     def pending(self, key: ClipKey) -> bool:
         with self._lock:
             return key in self._inflight
-
-    def urgent_pending(self, version: str) -> bool:
-        """Whether a clip of ``version`` (e.g. ``GENERATED``) someone asked for is being rendered."""
-        with self._lock:
-            return any(render.urgent and key.version == version for key, render in self._inflight.items())
 
     def typical_seconds(self, domain: str) -> float | None:
         """Mean seconds a clip of ``domain`` took from submission to stored, in this process."""
@@ -142,8 +137,9 @@ class ClipCache:
             futures = [r.done for r in self._inflight.values()]
         return not wait(futures, timeout).not_done
 
-    def request(self, key: ClipKey, source: Source, urgent: bool = True) -> Future:
+    def request(self, key: ClipKey, source: Source | None, urgent: bool = True) -> Future:
         """A future of the clip's stored file: done at once if cached, else the render in flight or a new one.
+        ``source`` may be None only for a key known to be stored (a made clip's rollout is not simulated for it).
 
         An urgent request for a clip queued as a guess moves it to the urgent queue when the backend has one.
         A guess (``urgent=False``) another process sharing the store has claimed resolves to ``None`` at once:

@@ -28,12 +28,12 @@ from dataclasses import dataclass
 from sqlmodel import Session, select
 
 from rba.domains import domain_names, domain_target
-from rba.generate.cma import is_generated
 from rba.interact import SATISFIED, AttributeFeedback, Feedback
 from server.db.admin_tables import BUILTIN_VERSION
 from server.db.tables import FeedbackEvent, SessionStatus, TuningSession
 from server.ops import session_searches
-from server.runtime.services import ClipRef, Services
+from server.runtime.clip_sources import ClipRef
+from server.runtime.services import Services
 from server.runtime.transitions import FeedbackKey, feedback_key
 
 log = logging.getLogger(__name__)
@@ -67,7 +67,7 @@ def next_clips(svc: Services, key: ContextKey, generate: bool, state: dict, last
     guess never spends the compute layer on a search (the step renders what it made), but the fallback is the clip
     a person waits longest for when the search falls short. An answer that shows a made clip without a search (a
     runner-up of an earlier search, ``rba.interact.generating_agent``'s pool) gives that clip: it was simulated with its
-    search, and rendered ahead it plays at once (``ClipRef`` resolves it while the domain's store keeps it).
+    search, and rendered ahead it plays at once (``ClipSources.guess`` resolves it while the domain's store keeps it).
     """
     ctx = svc.catalog.context(*key)
     step_ctx = session_searches.step_context(svc, key, None) if generate else ctx
@@ -103,7 +103,8 @@ def schedule_prerender(svc: Services, s: TuningSession, last: Feedback | None, a
         return svc.stopping or svc.prerendering.get(session_id) != step
 
     def think() -> None:
-        clips = [*([] if is_generated(shown) else [shown]), *next_clips(svc, key, generate, state, last, stale)]
+        # the shown clip first (the prefetcher skips it when it is stored or rendering: a step's made clip is)
+        clips = [shown, *next_clips(svc, key, generate, state, last, stale)]
         if not stale():
             svc.prefetch.offer(session_id, [ClipRef(key[0], rid) for rid in clips])
 
@@ -207,7 +208,7 @@ def first_steps(svc: Services) -> list[tuple[ContextKey, str, dict]]:
                 ctx = svc.catalog.context(name, method, rep)
                 rollout_id, state = svc.transitions.first(ctx, method)
                 first = not starts  # the default domain's: urgent, and waited for; the others are guesses
-                clip = svc.clips.request(*svc.prefetch.resolve(ClipRef(name, rollout_id)), urgent=first)
+                clip = svc.clips.request(*svc.sources.guess(ClipRef(name, rollout_id)), urgent=first)
                 if first:
                     clip.result(FIRST_CLIP_WAIT_SECONDS)
             except Exception:

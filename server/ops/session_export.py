@@ -18,28 +18,27 @@ from sqlalchemy.engine import make_url
 from sqlmodel import Session, select
 
 from rba.data.export_zip import ExportError, ExportSource, Profile, build_export, export_bytes, write_export
-from rba.domains import Rollout
-from rba.generate.cma import is_generated
-from rba.media.clip_cache import GENERATED, ClipKey, Source, render_job
+from rba.media.clip_cache import render_job
 from server.common.app_settings import Settings
 from server.common.errors import conflict, not_found
-from server.db.tables import FeedbackEvent, GeneratedClip, SessionStatus, TuningSession
-from server.ops import session_searches
+from server.db.tables import FeedbackEvent, SessionStatus, TuningSession
 from server.runtime.catalog import Catalog
+from server.runtime.clip_sources import ClipSources, ResolvedClip, UnknownRollout
 from server.runtime.services import Services
 
 log = logging.getLogger(__name__)
 
 CLIP_WAIT_SECONDS = 120.0  # an export waits this long at most for its clip to render
 
-ClipBytes = Callable[[Source, str], bytes]  # (serve library or generated rollout, rollout id) -> the clip's MP4
-Remake = Callable[[GeneratedClip], Rollout]  # a generated rollout from its row (params and seed)
+ClipBytes = Callable[[ResolvedClip], bytes]  # the chosen clip -> its MP4
 
 
-def export_source(catalog: Catalog, db: Session, session_id: str, clip: ClipBytes, remake: Remake) -> ExportSource:
+def export_source(catalog: Catalog, sources: ClipSources, db: Session, session_id: str,
+                  clip: ClipBytes) -> ExportSource:
     """What the export of ``session_id`` is made of; 404 for an unknown session, 409 unless it ended satisfied.
 
-    A generated chosen rollout is remade from its row: the export holds its own params, seed and states."""
+    The chosen rollout comes from ``sources`` (a made one remade from its params and seed): the export holds its
+    own params, seed and states."""
     s = db.get(TuningSession, session_id)
     if s is None:
         raise not_found(f"no session {session_id!r}; create one with POST /api/sessions")
@@ -54,21 +53,22 @@ def export_source(catalog: Catalog, db: Session, session_id: str, clip: ClipByte
     if s.library_version is not None and s.library_version != library.version:
         raise conflict(f"session {s.id} showed clips of {s.domain}'s serve library {s.library_version}; it is "
                        f"{library.version} now (rebuilt), so its clip ids name other behaviours: it cannot be exported")
-    chosen = remake(session_searches.lookup(db, s.domain, rid)) if is_generated(rid) else None
+    try:
+        chosen = sources.resolve(db, s.domain, rid)
+    except UnknownRollout as exc:
+        raise not_found(str(exc)) from exc
     return ExportSource(domain=s.domain, method=s.method, rep=s.rep, model_version=s.model_version,
                         model_set=s.model_set, models_root=catalog.models(s.model_set).root, library=library,
-                        rollout_id=rid, feedback=rounds, clip=clip(chosen or library, rid), rollout=chosen)
+                        rollout_id=rid, feedback=rounds, clip=clip(chosen), rollout=chosen.rollout())
 
 
 def export_session(svc: Services, db: Session, session_id: str) -> tuple[Profile, bytes]:
     """The profile and zip bytes of a satisfied session; its clip comes from the app's clip cache."""
-    def clip(source: Source, rollout_id: str) -> bytes:
-        key = (svc.clips.generated_key(source.domain, rollout_id) if isinstance(source, Rollout)
-               else svc.clips.key(source, rollout_id))
-        path = svc.clips.request(key, source, urgent=True).result(CLIP_WAIT_SECONDS)
+    def clip(chosen: ResolvedClip) -> bytes:
+        path = svc.clips.request(chosen.key, chosen.source(), urgent=True).result(CLIP_WAIT_SECONDS)
         return Path(path).read_bytes()
 
-    src = export_source(svc.catalog, db, session_id, clip, lambda row: session_searches.rollout_of(svc, row))
+    src = export_source(svc.catalog, svc.sources, db, session_id, clip)
     try:
         profile, reward = build_export(src)
     except ExportError as exc:
@@ -91,18 +91,14 @@ def export_to_file(session_id: str, out: Path, settings: Settings | None = None)
     settings = settings or Settings()
     catalog = Catalog(settings)
     store = catalog.store.clips()
+    sources = ClipSources(catalog, settings.clip_width, settings.clip_height)  # simulates in this process
 
-    def clip(source: Source, rollout_id: str) -> bytes:
-        version = GENERATED if isinstance(source, Rollout) else source.version
-        key = ClipKey(source.domain, version, rollout_id, settings.clip_width, settings.clip_height)
-        if not store.exists(key):  # the bytes the app would cache under this key
-            data = render_here(render_job(key, source))
-            store.write(key, lambda tmp: tmp.write_bytes(data))
-        with store.open(key) as f:
+    def clip(chosen: ResolvedClip) -> bytes:
+        if not store.exists(chosen.key):  # the bytes the app would cache under this key
+            data = render_here(render_job(chosen.key, chosen.source()))
+            store.write(chosen.key, lambda tmp: tmp.write_bytes(data))
+        with store.open(chosen.key) as f:
             return f.read()
-
-    def remake(row: GeneratedClip) -> Rollout:  # simulated in this process, as the clip is rendered here
-        return catalog.generated_store(row.domain).rollout(row.domain, row.id, row.params, row.seed)
 
     url = make_url(settings.db_url)
     where = url.render_as_string(hide_password=True)
@@ -113,7 +109,7 @@ def export_to_file(session_id: str, out: Path, settings: Settings | None = None)
     try:
         with Session(engine) as db:
             try:
-                return write_export(out, export_source(catalog, db, session_id, clip, remake))
+                return write_export(out, export_source(catalog, sources, db, session_id, clip))
             except HTTPException as exc:
                 if exc.status_code == 404:
                     raise LookupError(f"{exc.detail} (database {where})") from None

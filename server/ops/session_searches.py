@@ -1,11 +1,12 @@
 """Generating sessions (``TuningSession.generate``): the searches their answers start, and the clips they make.
 
-An answer to such a session runs the agent's step on ``Services.searcher`` with the compute layer's
-``simulate``. A step that simulates nothing (a serve clip is near the target, or the memo knew the step)
-answers the request as any session's would; one that starts simulating is a CMA-ES search of seconds to
-minutes, so the request returns 202 and the page polls ``GET /api/sessions/{id}/generation``
-(``Search``: generation k of K). The step, and the row of the clip it made (``GeneratedClip``), are then
-one transaction (``server.ops.session_steps``).
+An answer to such a session runs the agent's step as a job on ``Services.searcher`` (a future) with the
+compute layer's ``simulate``; the request awaits that job until it ends or starts simulating (``answer``). A
+step that simulates nothing (a serve clip is near the target, or the memo knew the step) answers the request
+as any session's would; one that starts simulating is a CMA-ES search of seconds to minutes, so the request
+returns 202 and the page polls ``GET /api/sessions/{id}/generation`` (``Search``: generation k of K, the job's
+outcome once it ends). The step, and the row of the clip it made (``GeneratedClip``), are then one
+transaction (``server.ops.session_steps``).
 
 Searches live in this process's memory only: after a restart the session is still at its step, its
 search is gone (the progress route says so) and the person answers again.
@@ -16,10 +17,11 @@ Import direction: above ``server.runtime.services``, below ``server.ops.views``,
 
 from __future__ import annotations
 
+import contextlib
 import logging
-import threading
 import time
 from collections.abc import Iterable, Iterator
+from concurrent.futures import FIRST_COMPLETED, Future, InvalidStateError, wait
 from dataclasses import dataclass, field, replace
 
 from fastapi import HTTPException
@@ -28,19 +30,22 @@ from sqlmodel import Session
 
 from rba.compute import SimJob
 from rba.domains import Rollout
-from rba.generate.cma import is_generated
-from rba.interact.generating_agent import GenerationContext
+from rba.interact.generating_agent import GenerationContext, made_clip
 from server.common.errors import not_found
 from server.db.tables import GeneratedClip, GenerationPublic, TuningSession
-from server.runtime.services import ClipRef, Services
+from server.runtime.clip_sources import ClipRef, ResolvedClip
+from server.runtime.services import Services
 
 log = logging.getLogger(__name__)
 KEPT_ENDED = 1024  # ended searches kept for their pages' last polls; older ones are forgotten
 
 
+ANSWER_POLL_SECONDS = 1.0  # how often a request waiting on its step looks whether the server is stopping
+
+
 @dataclass
 class Search:
-    """One step of a generating session, run in the background: its progress and how it ended."""
+    """One step of a generating session, run as a job on the searcher: its progress and how it ended."""
 
     step: int
     generations: int
@@ -50,16 +55,44 @@ class Search:
     generation: int = 0
     state: str = "searching"  # then "done" or "failed"
     error: HTTPException | None = None  # why it failed, as the request would have said it
-    news: threading.Event = field(default_factory=threading.Event)  # it simulated, or it ended
-    simulating: bool = False
+    job: Future | None = None  # the step's job (``follow``): its result the step's outcome, or the HTTPException
+    simulated: Future = field(default_factory=Future)  # done once the step starts simulating: a search
+    clip: Future | None = None  # the render of the clip the step made, which the person waits for
+
+    @property
+    def simulating(self) -> bool:
+        return self.simulated.done()
 
     def progress(self, k: int, of: int) -> None:
         self.generation, self.generations = k, of
 
+    def begin_simulating(self) -> None:
+        with contextlib.suppress(InvalidStateError):  # a search simulates in many batches: only the first tells
+            self.simulated.set_result(None)
+
+    def follow(self, job: Future) -> None:
+        """Take the outcome of the step's ``job``: done, or failed with its HTTPException (503: the server stopped
+        before it ran)."""
+        self.job = job
+        job.add_done_callback(self.settle)
+
+    def settle(self, job: Future) -> None:
+        """Its state from the ended ``job`` (once: the job's callback, or a request that saw it end first)."""
+        if self.ended is not None:
+            return
+        if job.cancelled():
+            self.end(HTTPException(503, "the server is stopping; answer again once it is back"))
+        else:
+            error = job.exception()
+            self.end(error if isinstance(error, HTTPException) or error is None else HTTPException(500, str(error)))
+
     def end(self, error: HTTPException | None = None) -> None:
         self.state, self.error = ("failed", error) if error is not None else ("done", None)
         self.ended = time.monotonic()
-        self.news.set()
+
+    def waited_on(self) -> bool:
+        """Whether a person waits on it now: simulating, or rendering the clip it made (``Services.someone_waits``)."""
+        return (self.state == "searching" and self.simulating) or (self.clip is not None and not self.clip.done())
 
     def public(self) -> GenerationPublic:
         elapsed = (self.ended or time.monotonic()) - self.started
@@ -67,6 +100,23 @@ class Search:
                                 generations=self.generations, elapsed_seconds=round(elapsed, 3),
                                 seconds_at_most=self.seconds_at_most,
                                 detail=None if self.error is None else str(self.error.detail))
+
+
+def answer(svc: Services, search: Search) -> bool:
+    """Await the search's job until the request can answer: True once it simulates (a search: it goes on), False
+    once it ended well; its failure is raised (503 once the server stops)."""
+    job = search.job
+    while not wait([job, search.simulated], ANSWER_POLL_SECONDS, return_when=FIRST_COMPLETED).done:
+        if svc.searcher.stopping:
+            raise HTTPException(503, "the server is stopping; answer again once it is back")
+    if not job.done():
+        return True
+    search.settle(job)  # before the answer: the page's next request must find the search ended
+    if job.cancelled():
+        raise HTTPException(503, "the server is stopping; answer again once it is back")
+    if job.exception() is not None:
+        raise job.exception()
+    return False
 
 
 def step_context(svc: Services, key: tuple[str, str, str, str], search: Search | None) -> GenerationContext:
@@ -82,15 +132,14 @@ def step_context(svc: Services, key: tuple[str, str, str, str], search: Search |
     def simulate(jobs: Iterable[SimJob]) -> Iterator[Rollout]:
         if search is None:  # a guard: the agent calls on_search before any simulation, and that raises first
             raise WouldSearch(None)
-        search.simulating = True
-        search.news.set()
+        search.begin_simulating()
         return svc.compute.simulate(jobs)
 
     def before_search(fallback: str) -> None:
         if search is None:
             raise WouldSearch(fallback)
         try:  # a head start on a render: the search must not fail for it (the page asks for the clip again)
-            svc.clips.request(*svc.prefetch.resolve(ClipRef(key[0], fallback)), urgent=True)
+            svc.clips.request(*svc.sources.guess(ClipRef(key[0], fallback)), urgent=True)
         except Exception:
             log.warning("session search: the fallback clip %s of %s could not be requested", fallback, key[0],
                         exc_info=True)
@@ -145,32 +194,23 @@ def current(svc: Services, s: TuningSession) -> GenerationPublic | None:
 
 
 def generated_row(svc: Services, db: Session, domain: str, rollout_id: str, state: dict) -> GeneratedClip | None:
-    """The row a step that shows ``rollout_id`` must add: None for a library clip or one already stored."""
-    if not is_generated(rollout_id) or db.get(GeneratedClip, rollout_id) is not None:
+    """The row a step that shows ``rollout_id`` must add: None unless its agent (``state``) made that clip and no
+    row holds it yet."""
+    made = made_clip(state, rollout_id)
+    if made is None or db.get(GeneratedClip, rollout_id) is not None:
         return None
-    made = state["generation"]["generated"][rollout_id]
     rollout = svc.catalog.generated_store(domain).rollout(domain, rollout_id, made["params"], made["seed"],
                                                           svc.compute.simulate)
     return GeneratedClip(id=rollout_id, domain=domain, params=made["params"], seed=made["seed"],
                          proxies={k: float(v) for k, v in rollout.proxies.items()})
 
 
+def made_shown(svc: Services, db: Session, domain: str, rollout_id: str, state: dict) -> ResolvedClip | None:
+    """The clip a step shows if its agent (``state``) made it (someone waits for its render), else None."""
+    return None if made_clip(state, rollout_id) is None else svc.sources.resolve(db, domain, rollout_id)
+
+
 def add_generated(db: Session, row: GeneratedClip) -> None:
     """Insert ``row`` in the caller's transaction unless its id is there already (ids are content: equal rows)."""
     dialect = postgresql if db.get_bind().dialect.name == "postgresql" else sqlite
     db.exec(dialect.insert(GeneratedClip).values(**row.model_dump()).on_conflict_do_nothing(index_elements=["id"]))
-
-
-def lookup(db: Session, domain: str, rollout_id: str) -> GeneratedClip:
-    """The stored generated rollout ``rollout_id`` of ``domain``; 404 naming where such ids come from."""
-    row = db.get(GeneratedClip, rollout_id)
-    if row is None or row.domain != domain:
-        raise not_found(f"unknown generated rollout id {rollout_id!r} in {domain}: generated ids come from a "
-                        "session's clip (clip.rollout_id of GET /api/sessions/{id})")
-    return row
-
-
-def rollout_of(svc: Services, row: GeneratedClip) -> Rollout:
-    """The generated rollout itself: in memory if recent, else simulated again on the compute layer (blocking)."""
-    return svc.catalog.generated_store(row.domain).rollout(row.domain, row.id, row.params, row.seed,
-                                                           svc.compute.simulate)

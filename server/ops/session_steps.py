@@ -13,6 +13,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from concurrent.futures import Future
+from functools import partial
 from typing import Any
 
 from fastapi import HTTPException
@@ -20,7 +21,6 @@ from sqlalchemy import update
 from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session
 
-from rba.generate.cma import is_generated
 from rba.interact import SATISFIED, Feedback
 from rba.interact.generating_agent import generating_methods
 from server.common.errors import conflict, invalid, not_found
@@ -162,7 +162,7 @@ def give_feedback(svc: Services, db: Session, session_id: str, body: FeedbackCre
             raise conflict(f"the served model changed since session {s.id} started ({s.model_version} -> "
                            f"{ctx.model_version}); start a new session")
         if s.generate:
-            searching = _search(svc, s, body, feedback).state == "searching"
+            searching = _search(svc, s, body, feedback)
             if not searching:
                 db.refresh(s)
             return session_public(svc, db, s), searching
@@ -187,47 +187,53 @@ def _after_step(svc: Services, s: TuningSession, feedback: Feedback, clip: Futur
         stop_prerender(svc, s.id)
 
 
-def _search(svc: Services, s: TuningSession, body: FeedbackCreate, feedback: Feedback) -> session_searches.Search:
-    """Run a generating session's step on the searcher; back once it simulates (a search: it goes on) or ends.
-
-    A step that ends without simulating is the request's as any other: its failure is raised here.
-    """
+def _search(svc: Services, s: TuningSession, body: FeedbackCreate, feedback: Feedback) -> bool:
+    """Run a generating session's step as a job on the searcher; back once it simulates (a search: it goes on, True)
+    or ends (False). A step that ends without simulating is the request's as any other: its failure is raised here."""
     search = session_searches.begin(svc, s)
     stop_prerender(svc, s.id)  # guesses about the answers not given: they would only slow the search
     ctx = session_searches.step_context(svc, (s.domain, s.method, s.rep, s.model_set), search)
+    job = svc.searcher.submit(s.id, partial(_searched_step, svc, s, body, feedback, ctx, search))
+    search.follow(job)
+    job.add_done_callback(partial(_guess_after, svc, feedback))
+    return session_searches.answer(svc, search)
 
-    def step() -> None:
-        try:
-            rollout_id, state = _advance(svc, ctx, s, feedback)
-            with Session(svc.engine, expire_on_commit=False) as db:
-                moving = db.get(TuningSession, s.id)
-                if moving.step != search.step:
-                    raise conflict(f"step {search.step} is stale: session {s.id} already moved on")
-                made = session_searches.generated_row(svc, db, s.domain, rollout_id, state)
-                _record_step(db, moving, body, feedback, rollout_id, state, made)
-                shown = made or (session_searches.lookup(db, s.domain, rollout_id)
-                                 if is_generated(rollout_id) else None)
-        except HTTPException as exc:
-            return search.end(exc)
-        except Exception as exc:  # the searcher's thread must report, not die: the page is waiting on it
-            log.exception("session %s: the search of step %d failed", s.id, s.step)
-            return search.end(HTTPException(500, f"the search for a new behaviour failed ({type(exc).__name__}); "
-                                                 "answer again"))
-        search.end()  # the step is saved: whatever happens to the renders ahead, the answer was taken
-        try:
-            clip = None if shown is None else svc.clips.request(  # rendered now: the page asks for it next
-                svc.clips.generated_key(s.domain, rollout_id), session_searches.rollout_of(svc, shown), urgent=True)
-            _after_step(svc, moving, feedback, clip)
-        except Exception:  # the page's clip request renders (or reports) it again
-            log.exception("session %s: step %d is saved, but rendering ahead failed", s.id, s.step)
 
-    svc.searcher.submit(s.id, step)
-    while not search.news.wait(1.0):
-        if svc.searcher.stopping:
-            raise HTTPException(503, "the server is stopping; answer again once it is back")
-    if search.state == "failed":
-        raise search.error
-    return search
+def _searched_step(svc: Services, s: TuningSession, body: FeedbackCreate, feedback: Feedback, ctx: Any,
+                   search: session_searches.Search) -> tuple[TuningSession, Future | None]:
+    """The step itself, on the searcher: the agent's answer (a search if it must), stored with the clip it made in
+    one transaction, then that clip's render asked for (the page asks for it next). Returns the moved session and
+    that render; every failure of the step is an HTTPException, as the request would have raised it."""
+    try:
+        rollout_id, state = _advance(svc, ctx, s, feedback)
+        with Session(svc.engine, expire_on_commit=False) as db:
+            moving = db.get(TuningSession, s.id)
+            if moving.step != s.step:
+                raise conflict(f"step {s.step} is stale: session {s.id} already moved on")
+            made = session_searches.generated_row(svc, db, s.domain, rollout_id, state)
+            _record_step(db, moving, body, feedback, rollout_id, state, made)
+            shown = session_searches.made_shown(svc, db, s.domain, rollout_id, state)
+    except HTTPException:
+        raise
+    except Exception as exc:  # reported, not raised raw: the page is waiting on it
+        log.exception("session %s: the search of step %d failed", s.id, s.step)
+        raise HTTPException(500, f"the search for a new behaviour failed ({type(exc).__name__}); answer again") from exc
+    try:  # the step is saved: whatever happens to this render, the answer was taken
+        search.clip = None if shown is None else svc.clips.request(shown.key, shown.source(), urgent=True)
+    except Exception:  # the page's clip request renders (or reports) it again
+        log.exception("session %s: step %d is saved, but rendering ahead failed", s.id, s.step)
+    return moving, search.clip
+
+
+def _guess_after(svc: Services, feedback: Feedback, job: Future) -> None:
+    """Once a step's job ended well: guess the next answers' clips (once the clip it made is rendered)."""
+    if job.cancelled() or job.exception() is not None:
+        return
+    moving, clip = job.result()
+    try:
+        _after_step(svc, moving, feedback, clip)
+    except Exception:
+        log.exception("session %s: step %d is saved, but guessing ahead failed", moving.id, moving.step - 1)
 
 
 def _not_abandonable(s: TuningSession) -> str:

@@ -17,11 +17,9 @@ from sqlmodel import Session, select
 from rba.core.methods import trainable
 from rba.data.library import LibraryNotFoundError
 from rba.domains import Domain
-from rba.generate.cma import is_generated
 from rba.interact import SATISFIED, restore_agent
 from rba.interact.generating_agent import generating_methods
 from rba.learn.embed import REPRESENTATIONS
-from rba.media.clip_cache import ClipKey
 from server.common.errors import not_found
 from server.db.admin_tables import BUILTIN_VERSION, ModelVersion
 from server.db.tables import (
@@ -33,7 +31,6 @@ from server.db.tables import (
     DomainsPublic,
     FeedbackEvent,
     FeedbackPublic,
-    GeneratedClip,
     MethodPublic,
     ReadingPublic,
     SessionPublic,
@@ -45,6 +42,7 @@ from server.db.tables import (
 )
 from server.ops import session_searches
 from server.ops.model_versions import active_version
+from server.runtime.clip_sources import UnknownRollout
 from server.runtime.services import Services
 
 
@@ -54,18 +52,13 @@ def clip_url(domain: str, rollout_id: str) -> str:
 
 def clip_public(svc: Services, db: Session, domain: str, rollout_id: str) -> ClipPublic:
     """A clip's URL, its measured attribute values and whether it is rendered already."""
-    if is_generated(rollout_id):
-        row = db.get(GeneratedClip, rollout_id)
-        ready = svc.clips.cached(svc.clips.generated_key(domain, rollout_id))
-        return ClipPublic(rollout_id=rollout_id, url=clip_url(domain, rollout_id), measured=row.proxies if row else {},
-                          ready=ready, generated=True)
+    url = clip_url(domain, rollout_id)
     try:
-        lib = svc.catalog.library(domain)
-        i = lib.index_of(rollout_id)
-    except (LibraryNotFoundError, KeyError):  # the library was rebuilt since: nothing to measure
-        return ClipPublic(rollout_id=rollout_id, url=clip_url(domain, rollout_id), measured={}, ready=False)
-    ready = svc.clips.cached(svc.clips.key(lib, rollout_id))
-    return ClipPublic(rollout_id=rollout_id, url=clip_url(domain, rollout_id), measured=lib.proxies_of(i), ready=ready)
+        clip = svc.sources.resolve(db, domain, rollout_id)
+    except UnknownRollout as exc:  # the library was rebuilt since: nothing to measure
+        return ClipPublic(rollout_id=rollout_id, url=url, measured={}, ready=False, generated=exc.generated)
+    return ClipPublic(rollout_id=rollout_id, url=url, measured=clip.measured, ready=svc.clips.cached(clip.key),
+                      generated=clip.generated)
 
 
 def attributes_public(domain: Domain, svc: Services | None = None,
@@ -133,20 +126,10 @@ def target_public(svc: Services, s: TuningSession) -> list[TargetRange] | None:
 def clip_status(svc: Services, db: Session, domain: str, rollout_id: str) -> ClipStatusPublic:
     """How far the render of a clip is; 404 for an unknown domain or rollout."""
     svc.catalog.domain(domain)
-    if is_generated(rollout_id):
-        key = svc.clips.generated_key(domain, session_searches.lookup(db, domain, rollout_id).id)
-        return _status(svc, key)
     try:
-        lib = svc.catalog.library(domain)
-        key = svc.clips.key(lib, rollout_id)
-    except LibraryNotFoundError as exc:
+        key = svc.sources.resolve(db, domain, rollout_id).key
+    except UnknownRollout as exc:
         raise not_found(str(exc)) from exc
-    except KeyError as exc:
-        raise not_found(f"unknown rollout id {rollout_id!r} in {domain}/serve; ids look like {lib.ids[0]}") from exc
-    return _status(svc, key)
-
-
-def _status(svc: Services, key: ClipKey) -> ClipStatusPublic:
     st = svc.clips.status(key)
     return ClipStatusPublic(rollout_id=key.rollout_id, state=st.state, elapsed_seconds=st.elapsed,
                             typical_seconds=st.typical)

@@ -2,7 +2,8 @@
 
 A session submits one job per step (work out the clips its possible next answers would show).
 When the person answers before the job ran, the job is replaced, not queued behind: a guess
-about a clip nobody can see any more is wasted CPU on a 2-core machine.
+about a clip nobody can see any more is wasted CPU on a 2-core machine. Each job's outcome is a
+future (cancelled if the job is dropped unrun), so a request can await a job with a timeout.
 """
 
 from __future__ import annotations
@@ -12,6 +13,8 @@ import threading
 import time
 from collections import OrderedDict
 from collections.abc import Callable
+from concurrent.futures import Future
+from typing import Any
 
 log = logging.getLogger(__name__)
 
@@ -21,7 +24,7 @@ class Background:
 
     def __init__(self, workers: int = 1, name: str = "rba-think") -> None:
         self._cond = threading.Condition()
-        self._pending: OrderedDict[str, Callable[[], None]] = OrderedDict()
+        self._pending: OrderedDict[str, tuple[Callable[[], Any], Future]] = OrderedDict()
         self._running = 0
         self._stopping = False
         self.done = 0
@@ -30,18 +33,27 @@ class Background:
         for t in self.workers:
             t.start()
 
-    def submit(self, key: str, job: Callable[[], None]) -> None:
-        """Queue ``job`` under ``key``, replacing a not-yet-started job with that key."""
+    def submit(self, key: str, job: Callable[[], Any]) -> Future:
+        """Queue ``job`` under ``key``, replacing a not-yet-started job with that key; the future of its result."""
+        done: Future = Future()
         with self._cond:
             if self._stopping:
-                return
-            self._pending.pop(key, None)
-            self._pending[key] = job
+                done.cancel()
+                return done
+            self._drop(key)
+            self._pending[key] = (job, done)
             self._cond.notify()
+        return done
 
     def cancel(self, key: str) -> None:
         with self._cond:
-            self._pending.pop(key, None)
+            self._drop(key)
+
+    def _drop(self, key: str) -> None:
+        """Forget ``key``'s job if it has not started (its future is cancelled); the caller holds the lock."""
+        dropped = self._pending.pop(key, None)
+        if dropped is not None:
+            dropped[1].cancel()
 
     def wait_idle(self, timeout: float) -> bool:
         """True once no job is queued or running (tests and benchmarks use it)."""
@@ -58,7 +70,8 @@ class Background:
         """Drop queued jobs; give a running one ``timeout`` seconds (threads are daemons)."""
         with self._cond:
             self._stopping = True
-            self._pending.clear()
+            for key in list(self._pending):
+                self._drop(key)
             self._cond.notify_all()
         deadline = time.monotonic() + timeout
         for t in self.workers:
@@ -71,18 +84,26 @@ class Background:
                     self._cond.wait()
                 if self._stopping:
                     return
-                key, job = self._pending.popitem(last=False)
+                key, (job, done) = self._pending.popitem(last=False)
                 self._running += 1
             try:
-                job()
-                self.done += 1
-            except Exception:  # a failed prerender only costs a later on-demand render
-                self.failed += 1
-                log.exception("background job %s failed", key)
+                if done.set_running_or_notify_cancel():
+                    self._run(key, job, done)
             finally:
                 with self._cond:
                     self._running -= 1
                     self._cond.notify_all()
+
+    def _run(self, key: str, job: Callable[[], Any], done: Future) -> None:
+        try:
+            result = job()
+        except Exception as exc:  # a failed prerender only costs a later on-demand render
+            self.failed += 1
+            log.exception("background job %s failed", key)
+            done.set_exception(exc)
+        else:
+            self.done += 1
+            done.set_result(result)
 
     @property
     def stopping(self) -> bool:

@@ -7,8 +7,9 @@ and a module imports only from its own layer and those below it (``tests/test_ar
 1. ``server.db``: the SQL tables (``tables``, ``admin_tables``), the ``engine`` and the schema's ``migrations``;
 2. ``server.runtime``: the long-lived parts: ``uploads``, ``transitions``, ``background``, ``prefetch``, ``catalog``,
    ``stored_labels`` (label data as the database and the upload folder hold it), ``processes`` (job processes that
-   die with their server) and ``job_runner`` (training processes, which read ``stored_labels`` and use
-   ``processes``); then this module, which holds those parts and which none of them imports. The clip cache and the
+   die with their server), ``job_runner`` (training processes, which read ``stored_labels`` and use
+   ``processes``) and ``clip_sources`` (every rollout id resolved, over the catalog); then this module, which
+   holds those parts and which none of them imports. The clip cache and the
    per-key locks are the library's (``rba.media.clip_cache``, ``rba.core.locks``), and so is the compute layer
    (``rba.compute``);
 3. ``server.ops``: operations that take a ``Services``: ``model_versions``, ``session_searches``, ``views``,
@@ -22,19 +23,18 @@ from __future__ import annotations
 import logging
 import threading
 from dataclasses import dataclass, field
-from typing import NamedTuple
 
 from sqlalchemy.engine import Engine
 
 from rba.compute import Compute, make_compute
 from rba.core.locks import KeyedLocks
 from rba.core.store import Store
-from rba.generate.cma import is_generated
-from rba.media.clip_cache import GENERATED, ClipCache, ClipKey, Source
+from rba.media.clip_cache import ClipCache
 from server.common.app_settings import Settings
 from server.db.engine import make_engine
 from server.runtime.background import Background
 from server.runtime.catalog import Catalog
+from server.runtime.clip_sources import ClipSources
 from server.runtime.job_runner import JobRunner
 from server.runtime.prefetch import Prefetcher
 from server.runtime.stored_labels import sweep_uploads
@@ -45,29 +45,6 @@ log = logging.getLogger(__name__)
 SEARCHERS = 4
 
 
-class ClipRef(NamedTuple):
-    """A clip by name: what the prerender tiers queue (resolved to a key when its turn comes). A serve clip, or
-    a made one (``gen-<hash>``) still in the domain's generated store: a runner-up a session's next answer may
-    show without a search."""
-
-    domain: str
-    rollout_id: str
-
-
-def _resolver(catalog: Catalog, clips: ClipCache):  # -> server.runtime.prefetch.Resolve
-    def resolve(ref: ClipRef) -> tuple[ClipKey, Source]:
-        if not is_generated(ref.rollout_id):
-            library = catalog.library(ref.domain)
-            return clips.key(library, ref.rollout_id), library
-        # a guess never simulates: a made clip the store has forgotten is rendered once it is shown
-        rollout = catalog.generated_store(ref.domain).get(ref.rollout_id)
-        if rollout is None:
-            raise LookupError(f"generated rollout {ref.rollout_id} of {ref.domain} is no longer in memory")
-        return clips.generated_key(ref.domain, ref.rollout_id), rollout
-
-    return resolve
-
-
 @dataclass
 class Services:
     settings: Settings
@@ -75,6 +52,7 @@ class Services:
     catalog: Catalog
     compute: Compute  # where every simulation and render runs (never this process)
     clips: ClipCache
+    sources: ClipSources  # every rollout id -> its clip's key and rollout (library or made): the one resolver
     transitions: Transitions
     thinker: Background | None  # works out what each possible next answer would show (agent copies)
     prefetch: Prefetcher  # feeds guessed renders to the compute layer, most needed first
@@ -107,8 +85,9 @@ class Services:
         jobs = JobRunner(settings, engine)
         jobs.recover()
         window = settings.prerender_window or compute.capacity
-        prefetch = Prefetcher(clips, _resolver(catalog, clips), window, settings.background_nice)
-        svc = cls(settings, engine, catalog, compute, clips, Transitions(), thinker, prefetch, jobs, owns)
+        sources = ClipSources(catalog, settings.clip_width, settings.clip_height, compute.simulate)
+        prefetch = Prefetcher(clips, sources.guess, window, settings.background_nice)
+        svc = cls(settings, engine, catalog, compute, clips, sources, Transitions(), thinker, prefetch, jobs, owns)
         prefetch.hold = svc.someone_waits  # the queue is made first: it has to exist in the Services
         return svc
 
@@ -117,8 +96,7 @@ class Services:
         with ten users someone nearly always waits for one, and guesses held then were missed more, so answers
         waited longer; there niceness alone serves better, ``api_load_cold.md``.)"""
         with self.search_lock:
-            searching = any(s.state == "searching" and s.simulating for s in self.searches.values())
-        return searching or self.clips.urgent_pending(GENERATED)
+            return any(search.waited_on() for search in self.searches.values())
 
     @property
     def store(self) -> Store:

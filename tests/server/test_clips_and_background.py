@@ -11,7 +11,7 @@ from rba.compute.base import CLIP_PARTS
 from rba.core.store import ClipStore
 from rba.data.library import SkillLibrary
 from rba.interact import AttributeFeedback
-from rba.media.clip_cache import GENERATED, ClipCache, ClipStatus
+from rba.media.clip_cache import ClipCache, ClipKey, ClipStatus
 from server.main import create_app
 from server.ops.prerender import answer_order
 from server.runtime import transitions
@@ -248,20 +248,17 @@ def test_a_guess_worked_out_while_someone_began_to_wait_waits_too(fake_cache):
         prefetch.stop()
 
 
-def test_urgent_renders_in_flight_are_pending_by_version_a_guess_is_not(fake_cache):
+def test_a_key_renders_in_its_parts(fake_cache):
+    """The clip cache never asks what a rollout id names: its key says how many parts the render is split into
+    (``server.runtime.clip_sources`` gives a made clip's key ``CLIP_PARTS``)."""
     cache, compute, lib = fake_cache
-    cache.request(cache.key(lib, "serve-00002"), lib, urgent=False)
-    assert not cache.urgent_pending(lib.version)  # a guess
     cache.request(cache.key(lib, "serve-00004"), lib, urgent=True)
-    assert cache.urgent_pending(lib.version) and not cache.urgent_pending(GENERATED)  # not a search's clip
     made = lib.rollout(5)
     made.id = "gen-0123456789abcdef"
-    cache.request(cache.generated_key("toy", made.id), made, urgent=True)
-    assert cache.urgent_pending(GENERATED)
-    assert [job.split for job in compute.jobs] == [1, 1, CLIP_PARTS]  # only the generated clip renders in parts
-    for _, future in compute.submitted[-2:]:
+    cache.request(ClipKey("toy", "generated", made.id, cache.width, cache.height, CLIP_PARTS), made, urgent=True)
+    assert [job.split for job in compute.jobs] == [1, CLIP_PARTS]
+    for _, future in compute.submitted:
         future.set_result(b"x")
-    assert not cache.urgent_pending(lib.version) and not cache.urgent_pending(GENERATED)
 
 
 def test_prerender_library_renders_every_serve_clip_once(make_settings, toy_roots, tmp_path):

@@ -20,7 +20,8 @@ from rba.generate import cma
 from rba.generate.cma import generated_id, is_generated
 from rba.interact import AttributeFeedback, generating_agent
 from rba.interact.generating_agent import GeneratingGlobalAgent
-from rba.media.clip_cache import GENERATED, ClipKey, render_job
+from rba.compute.base import CLIP_PARTS
+from rba.media.clip_cache import ClipKey, render_job
 from server.common.app_settings import GENERATE_SECONDS, GENERATE_SECONDS_OTHERS, Settings
 from server.db.admin_tables import BUILTIN_VERSION
 from server.db.tables import TuningSession
@@ -29,7 +30,7 @@ from server.ops.prerender import next_clips, resume_prerender
 from server.ops.session_export import export_to_file
 from server.ops.session_searches import WouldSearch, begin, step_context
 from server.ops.session_steps import load_session
-from server.runtime.services import ClipRef
+from server.runtime.clip_sources import MADE, ClipRef
 from tests.fakes import FakeCompute, InProcessCompute, InstantCompute
 from tests.server.conftest import more
 from tests.toy import Toy
@@ -113,7 +114,7 @@ def test_a_generated_clip_is_served_listed_and_exported(gen_settings, tmp_path, 
     assert cli.rollout_id == profile.rollout_id and cli.params == profile.params and cli.seed == profile.seed
     clip = read_export(tmp_path / "cli.zip").clip
     assert clip[4:8] == b"ftyp"  # a real MP4 this time: the bytes the app's compute layer renders for that key
-    key = ClipKey("toy", GENERATED, profile.rollout_id, gen_settings.clip_width, gen_settings.clip_height)
+    key = ClipKey("toy", MADE, profile.rollout_id, gen_settings.clip_width, gen_settings.clip_height, CLIP_PARTS)
     made = cma.replay("toy", profile.params, profile.seed)  # the clip's rollout, remade
     assert clip == local_compute.render(render_job(key, made)).future.result(SEARCH_SECONDS)
 

@@ -2,8 +2,8 @@
 (``gen-<hash>``), as H.264 video (and ``/status``: how far its render is, for the page's progress while a
 person waits).
 
-The rollout id is looked up in the library or the generated clips' table (404 if absent) and never used
-as a path; a generated rollout no longer in memory is simulated again from its params and seed. The
+The rollout id is resolved by ``server.runtime.clip_sources`` (404 if unknown) and never used as a path; a
+generated rollout no longer in memory is simulated again from its params and seed, unless its clip is stored. The
 file is rendered on first request and cached; responses carry a content ETag and honour
 ``If-None-Match`` (304) and ``Range`` (206, so browsers can seek and stream).
 """
@@ -21,12 +21,11 @@ from starlette.datastructures import Headers
 from starlette.responses import MalformedRangeHeader, RangeNotSatisfiable
 from starlette.types import Receive, Scope, Send
 
-from rba.generate.cma import is_generated
 from server.api.deps import DbDep, ServicesDep
 from server.common.errors import error_response, not_found, responses
-from server.db.tables import ClipStatusPublic, DomainName, GeneratedClip
-from server.ops import session_searches
+from server.db.tables import ClipStatusPublic, DomainName
 from server.ops.views import clip_status
+from server.runtime.clip_sources import UnknownRollout
 
 router = APIRouter(prefix="/api/clips", tags=["clips"], responses=responses(413, 422))
 
@@ -63,21 +62,19 @@ class ClipFile(FileResponse):
 async def get_clip(domain: Annotated[DomainName, Path()], rollout_id: Annotated[str, Path(max_length=128)],
                    svc: ServicesDep, db: DbDep, if_none_match: Annotated[str | None, Header()] = None) -> Response:
     await anyio.to_thread.run_sync(svc.catalog.domain, domain)  # the first call imports the simulator
-    if is_generated(rollout_id):
-        row = await anyio.to_thread.run_sync(session_searches.lookup, db, domain, rollout_id)
-        key, source = svc.clips.generated_key(domain, row.id), row
-    else:
-        library = await anyio.to_thread.run_sync(svc.catalog.library, domain)  # LibraryNotFoundError is a 404
-        if rollout_id not in library:
-            raise not_found(f"unknown rollout id {rollout_id!r} in {domain}/serve; ids look like {library.ids[0]}")
-        key, source = svc.clips.key(library, rollout_id), library
+    try:  # in a thread: the first call loads the serve library
+        clip = await anyio.to_thread.run_sync(svc.sources.resolve, db, domain, rollout_id)
+    except UnknownRollout as exc:
+        raise not_found(str(exc)) from exc
+    key = clip.key
     # The URL outlives a library rebuild; the ETag (a hash of the key) does not: browsers revalidate.
     headers = {"ETag": key.etag, "Cache-Control": "no-cache"}
     if if_none_match and key.etag in {t.strip() for t in if_none_match.split(",")}:
         return Response(status_code=304, headers=headers)
-    if isinstance(source, GeneratedClip) and not svc.clips.cached(key):
-        # from memory, else simulated again on the compute layer, in a thread (the loop stays free)
-        source = await anyio.to_thread.run_sync(session_searches.rollout_of, svc, source)
+    source = clip.source(simulate=False)
+    if source is None and not svc.clips.cached(key):
+        # a made clip no longer in memory: simulated again on the compute layer, in a thread (the loop stays free)
+        source = await anyio.to_thread.run_sync(clip.source)
     # Rendered on the compute layer (or already in flight there): waiting holds no thread.
     path = await asyncio.wrap_future(svc.clips.request(key, source))
     return ClipFile(path, media_type="video/mp4", headers=headers)
