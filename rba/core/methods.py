@@ -8,6 +8,10 @@ too, so ``rba eval`` and the tables run them, but ``methods()`` leaves them out 
 never offers them.
 Records are imported lazily (listing names starts no torch). Adding a method = one module + one
 line in ``REGISTRY``.
+A method may have a *generating form* (``Method.generating``): another ``Method`` record, of an agent that
+also makes clips beyond the serve library, reached through its base record rather than by a name of its own:
+it shares the base's name, models and state (a session asks for it with ``generate``), so the CLI, the
+evaluation's rows and the API's method names stay the registry's; ``Method.form`` picks the record that steps.
 """
 
 from __future__ import annotations
@@ -24,8 +28,8 @@ if TYPE_CHECKING:
     from rba.interact.base import Agent, FeedbackKind
     from rba.learn.training import LabelSource, StageProgress
 
-__all__ = ["Method", "Trainer", "UnknownMethodError", "get_method", "method_names", "method_target", "method_targets",
-           "methods", "register", "train_presets", "trainable"]
+__all__ = ["Method", "Trainer", "UnknownMethodError", "generating_methods", "get_method", "method_names",
+           "method_target", "method_targets", "methods", "register", "train_presets", "trainable"]
 
 _REP_SUFFIX = {"onehot": "", "language": "-L"}  # the paper's row labels: RBA-Global-L is the language rep
 
@@ -54,6 +58,11 @@ class Method:
     presets: tuple[str, ...]  # valid ``preset`` names of ``trainer``
     reps: tuple[str, ...]  # attribute representations it learns with; () when it has none
     reference: Literal["floor", "ceiling"] | None = None  # a reference row of the tables, not a method people use
+    # "module:RECORD" of this method's generating form (imported when asked for: it imports this one); None: none
+    generating: str | None = None
+    # a generating form's context built over its base method's loaded one (sharing its serve library and models):
+    # (base context, models_root, **options) -> context; None for a method of the registry
+    extends: Callable[..., Any] | None = None
 
     @property
     def name(self) -> str:
@@ -67,6 +76,16 @@ class Method:
     def run_reps(self) -> tuple[str, ...]:
         """The representations to run it with: its own, or once as "onehot" (ignored) when it has none."""
         return self.reps or ("onehot",)
+
+    def form(self, generate: bool) -> Method:
+        """The record whose agent steps this method's sessions: itself, or with ``generate`` its generating form;
+        ValueError naming the methods that can generate."""
+        if not generate:
+            return self
+        if self.generating is None:
+            raise ValueError(f"method {self.name!r} cannot generate behaviours; valid with generation: "
+                             f"{', '.join(generating_methods())}")
+        return _form(self.generating)
 
     def label_for(self, rep: str) -> str:
         """The paper's row label of this method with ``rep``: "RBA-Global", "RBA-Global-L", "PbRL"."""
@@ -98,6 +117,19 @@ def get_method(name: str) -> Method:
     if not isinstance(record, Method) or record.name != name:
         raise TypeError(f"{method_target(name)} is not the Method record of {name!r}")
     return record
+
+
+@cache
+def _form(target: str) -> Method:
+    record = import_object(target)
+    if not isinstance(record, Method) or record.extends is None:
+        raise TypeError(f"{target} is not a generating form's Method record (one with ``extends``)")
+    return record
+
+
+def generating_methods() -> tuple[str, ...]:
+    """The registered methods that have a generating form."""
+    return tuple(m.name for m in methods() if m.generating is not None)
 
 
 def methods(include_reference: bool = False) -> tuple[Method, ...]:

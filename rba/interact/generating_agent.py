@@ -49,7 +49,8 @@ from typing import Generic, TypeVar
 import numpy as np
 
 from rba.core.artifacts import load_model
-from rba.core.methods import get_method, methods
+from rba.core.methods import Method, get_method
+from rba.core.methods import generating_methods as registered_generating
 from rba.data.library import SkillLibrary
 from rba.domains import Rollout, get_domain
 from rba.generate.cma import (
@@ -68,6 +69,7 @@ from rba.generate.cma import (
 )
 from rba.generate.surface import ZetaSurface
 from rba.interact.base import SATISFIED, Agent, Feedback, validate_feedback
+from rba.interact.global_agent import METHOD as GLOBAL
 from rba.interact.global_agent import GlobalAgent, GlobalContext
 from rba.interact.refit import REFIT_AFTER, Answered, refit_heads
 from rba.learn.common import Ragged
@@ -262,6 +264,22 @@ class GenerationContext:
         surface = ZetaSurface.of_library(self.base.serve, self.base.serve_zeta, self._space, self.surface)
         self.base = replace(self.base, serve_zeta=surface(surface.units))
         return surface
+
+    @property
+    def domain(self) -> str:
+        return self.base.domain
+
+    @property
+    def rep(self) -> str:
+        return self.base.rep
+
+    @property
+    def model_version(self) -> str:
+        return self.base.model_version
+
+    @property
+    def attribute_names(self) -> tuple[str, ...]:
+        return self.base.attribute_names
 
     @property
     def generations(self) -> int:
@@ -574,26 +592,34 @@ def made_clip(state: dict, rollout_id: str) -> dict | None:
     return state.get("generation", {}).get("generated", {}).get(rollout_id)
 
 
-GENERATING = {GlobalAgent: GeneratingGlobalAgent}  # an agent class -> its generating form
+def _extend(base: GlobalContext, models_root=None, **options) -> GenerationContext:
+    return GenerationContext.load(base, models_root, **options)
+
+
+def _load_context(domain: str, rep: str, data_root=None, models_root=None, **options) -> GenerationContext:
+    return _extend(GlobalContext.load(domain, rep, data_root, models_root), models_root, **options)
+
+
+# RBA-Global's generating form (``Method.generating`` of ``rba.interact.global_agent.METHOD``): its name, models
+# and representations are RBA-Global's, and its agent's state is a global agent's plus what it made
+METHOD = Method(agent=GeneratingGlobalAgent, label=GLOBAL.label, load_context=_load_context,
+                model_kinds=GLOBAL.model_kinds, trainer=None, presets=(), reps=GLOBAL.reps,
+                extends=_extend)
 
 
 def generating_methods() -> tuple[str, ...]:
     """The registered methods whose agents have a generating form."""
-    return tuple(m.name for m in methods() if m.agent in GENERATING)
+    return registered_generating()
 
 
-def generating_class(method: str) -> type[GeneratingGlobalAgent]:
+def generating_class(method: str) -> type[Agent]:
     """The generating agent class of ``method``; ValueError naming the methods that can generate."""
-    agent = get_method(method).agent
-    if agent not in GENERATING:
-        raise ValueError(f"method {method!r} cannot generate behaviours; valid with generation: "
-                         f"{', '.join(generating_methods())}")
-    return GENERATING[agent]
+    return get_method(method).form(True).agent
 
 
-def generating_agents(method: str, context, models_root=None, **options) -> Callable[[], GeneratingGlobalAgent]:
-    """New generating agents of ``method`` over ``context`` (one ``GenerationContext`` for all of them);
+def generating_agents(method: str, context, models_root=None, **options) -> Callable[[], Agent]:
+    """New generating agents of ``method`` over ``context`` (one generating context for all of them);
     ValueError naming the methods that can generate."""
-    agent = generating_class(method)
-    gctx = GenerationContext.load(context, models_root, **options)
-    return lambda: agent(gctx)
+    form = get_method(method).form(True)
+    gctx = form.extends(context, models_root, **options)
+    return lambda: form.agent(gctx)

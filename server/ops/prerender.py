@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 from sqlmodel import Session, select
 
+from rba.core.methods import get_method
 from rba.domains import domain_names, domain_target
 from rba.interact import SATISFIED, AttributeFeedback, Feedback
 from server.db.admin_tables import BUILTIN_VERSION
@@ -71,12 +72,13 @@ def next_clips(svc: Services, key: ContextKey, generate: bool, state: dict, last
     """
     ctx = svc.catalog.context(*key)
     step_ctx = session_searches.step_context(svc, key, None) if generate else ctx
+    form = get_method(key[1]).form(generate)
     nexts: list[str] = []
     for answer in answer_order(ctx.attribute_names, last):
         if stale():
             break
         try:
-            rollout_id = svc.transitions.advance(step_ctx, key[1], state, answer)[0]
+            rollout_id = svc.transitions.advance(step_ctx, form, state, answer)[0]
         except session_searches.WouldSearch as exc:
             if exc.fallback is None:
                 continue
@@ -180,7 +182,7 @@ def tree_clips(svc: Services, counts: AnswerCounts, starts: list[tuple[ContextKe
             share = -neg_share * counts.answer_share(context, path, feedback_key(answer), len(answers))
             if share < min_share or stop():
                 continue
-            rollout_id, child = svc.transitions.advance(ctx, context[1], state, answer, memo=False)
+            rollout_id, child = svc.transitions.advance(ctx, get_method(context[1]), state, answer, memo=False)
             yield ClipRef(context[0], rollout_id)
             heapq.heappush(heap, (-share, next(order), context, (*path, feedback_key(answer)), child))
 
@@ -206,7 +208,7 @@ def first_steps(svc: Services) -> list[tuple[ContextKey, str, dict]]:
                 return starts
             try:
                 ctx = svc.catalog.context(name, method, rep)
-                rollout_id, state = svc.transitions.first(ctx, method)
+                rollout_id, state = svc.transitions.first(ctx, get_method(method))
                 first = not starts  # the default domain's: urgent, and waited for; the others are guesses
                 clip = svc.clips.request(*svc.sources.guess(ClipRef(name, rollout_id)), urgent=first)
                 if first:

@@ -127,7 +127,7 @@ def step_context(svc: Services, key: tuple[str, str, str, str], search: Search |
     short kept the person waiting for that render after it, and as a guess (niced below the search) it was slower
     still (``benchmarks/results/generation_latency.md``).
     """
-    gctx = svc.catalog.generation(*key)
+    gctx = svc.catalog.context(*key, generate=True)
 
     def simulate(jobs: Iterable[SimJob]) -> Iterator[Rollout]:
         if search is None:  # a guard: the agent calls on_search before any simulation, and that raises first
@@ -159,7 +159,7 @@ class WouldSearch(Exception):
 
 def begin(svc: Services, s: TuningSession) -> Search:
     """A new search for the session's current step, registered so the progress route finds it."""
-    gctx = svc.catalog.generation(s.domain, s.method, s.rep, s.model_set)
+    gctx = svc.catalog.context(s.domain, s.method, s.rep, s.model_set, generate=True)
     search = Search(s.step, gctx.generations, gctx.config.seconds)
     with svc.search_lock:
         svc.searches.pop(s.id, None)  # to the end: the dict runs oldest first

@@ -21,8 +21,8 @@ from sqlalchemy import update
 from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session
 
+from rba.core.methods import generating_methods, get_method
 from rba.interact import SATISFIED, Feedback
-from rba.interact.generating_agent import generating_methods
 from server.common.errors import conflict, invalid, not_found
 from server.common.feedback import parse_feedback
 from server.db.tables import (
@@ -67,9 +67,8 @@ def create_session(svc: Services, db: Session, body: SessionCreate) -> SessionPu
     generate = _generates(svc, body)
     version = serving_version(svc, db, body.domain, body.method, body.rep)
     svc.catalog.check_available(body.domain, body.method, body.rep, version)
-    ctx = svc.catalog.context(body.domain, body.method, body.rep, version)
-    step_ctx = svc.catalog.generation(body.domain, body.method, body.rep, version) if generate else ctx
-    rollout_id, state = svc.transitions.first(step_ctx, body.method)
+    ctx = svc.catalog.context(body.domain, body.method, body.rep, version, generate)
+    rollout_id, state = svc.transitions.first(ctx, get_method(body.method).form(generate))
     s = TuningSession(domain=body.domain, method=body.method, rep=body.rep, model_version=ctx.model_version,
                       model_set=version, library_version=svc.catalog.library(body.domain).version,
                       current_rollout_id=rollout_id, agent_state=state, generate=generate)
@@ -174,7 +173,7 @@ def give_feedback(svc: Services, db: Session, session_id: str, body: FeedbackCre
 
 def _advance(svc: Services, ctx: Any, s: TuningSession, feedback: Feedback) -> tuple[str, dict]:
     try:  # server.common.feedback already refused what the agent would; an agent's ValueError is still the client's
-        return svc.transitions.advance(ctx, s.method, s.agent_state, feedback)
+        return svc.transitions.advance(ctx, get_method(s.method).form(s.generate), s.agent_state, feedback)
     except ValueError as exc:
         raise invalid(str(exc)) from exc
 

@@ -14,11 +14,10 @@ from urllib.parse import quote
 import numpy as np
 from sqlmodel import Session, select
 
-from rba.core.methods import trainable
+from rba.core.methods import generating_methods, trainable
 from rba.data.library import LibraryNotFoundError
 from rba.domains import Domain
 from rba.interact import SATISFIED, restore_agent
-from rba.interact.generating_agent import generating_methods
 from rba.learn.embed import REPRESENTATIONS
 from server.common.errors import not_found
 from server.db.admin_tables import BUILTIN_VERSION, ModelVersion

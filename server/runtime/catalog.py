@@ -19,7 +19,7 @@ from rba.data.library import SkillLibrary
 from rba.domains import Domain, domain_names, get_domain
 from rba.generate.cma import SearchConfig
 from rba.interact import load_context
-from rba.interact.generating_agent import GeneratedStore, GenerationContext, generating_class
+from rba.interact.generating_agent import GeneratedStore
 from server.common.app_settings import Settings
 from server.common.errors import invalid, not_found
 from server.db.admin_tables import BUILTIN_VERSION
@@ -37,7 +37,7 @@ class Catalog:
         self._spread = settings.generate_spread  # None: each domain's Domain.generate_spread
         self._contexts: dict[tuple[str, str, str, str], Any] = {}
         self._libraries: dict[str, SkillLibrary] = {}
-        self._generation: dict[tuple[str, str, str, str], GenerationContext] = {}
+        self._forms: dict[tuple[str, str, str, str], Any] = {}  # generating forms' contexts
         self._stores: dict[str, GeneratedStore] = {}
         self._locks = KeyedLocks()
         self._guard = threading.Lock()
@@ -104,8 +104,12 @@ class Catalog:
             raise invalid(f"no trained {method}/{rep} models for {domain}; available: {have}")
 
     # -- heavy objects ---------------------------------------------------------------------
-    def context(self, domain: str, method: str, rep: str, version: str = BUILTIN_VERSION) -> Any:
-        """The shared agent context (models + serve library), loaded once per key."""
+    def context(self, domain: str, method: str, rep: str, version: str = BUILTIN_VERSION,
+                generate: bool = False) -> Any:
+        """The shared agent context (models + serve library), loaded once per key; with ``generate``, the context of
+        the method's generating form (``Method.form``) over it (ValueError for a method that has none)."""
+        if generate:
+            return self._form_context(domain, method, rep, version)
         key = (domain, method, rep, version)
         ctx = self._contexts.get(key)
         if ctx is not None:
@@ -120,18 +124,19 @@ class Catalog:
                          time.perf_counter() - start)
         return ctx
 
-    def generation(self, domain: str, method: str, rep: str, version: str = BUILTIN_VERSION) -> GenerationContext:
-        """The context's generating form (its ranker loaded once per key); ValueError for a method that cannot
-        generate. It simulates in this process: each step gives it the compute layer's ``simulate``."""
-        generating_class(method)
+    def _form_context(self, domain: str, method: str, rep: str, version: str) -> Any:
+        """The generating form's context, built once per key over the base one with this server's options: the first
+        clip is the library's (one for every session), each domain's search time bound, the spread. It simulates in
+        this process: each step gives it the compute layer's ``simulate``."""
+        form = get_method(method).form(True)
         key = (domain, method, rep, version)
         with self._locks(("generation", *key)):
-            if key not in self._generation:
-                self._generation[key] = GenerationContext.load(
+            if key not in self._forms:
+                self._forms[key] = form.extends(
                     self.context(*key), self.models(version).root, store=self.generated_store(domain),
                     first_from_library=True, config=SearchConfig(seconds=self._search_seconds(domain)),
                     spread=self._spread)
-        return self._generation[key]
+        return self._forms[key]
 
     def generated_store(self, domain: str) -> GeneratedStore:
         """Recent generated rollouts of ``domain`` in memory, shared by its contexts and the clip route."""

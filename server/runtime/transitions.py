@@ -18,8 +18,8 @@ import threading
 from collections import OrderedDict
 from typing import Any
 
-from rba.interact import SATISFIED, Agent, Feedback, new_agent, restore_agent
-from rba.interact.generating_agent import GenerationContext, generating_class
+from rba.core.methods import Method
+from rba.interact import SATISFIED, Feedback
 
 FeedbackKey = tuple[tuple[str, int], ...] | str
 
@@ -45,16 +45,15 @@ class Transitions:
         self.misses = 0
 
     @staticmethod
-    def _context_key(ctx: Any, method: str) -> tuple:
-        """What names a context: a generating one (``GenerationContext``) steps otherwise than its base."""
-        generating = isinstance(ctx, GenerationContext)
-        base = ctx.base if generating else ctx
-        return base.domain, method, base.rep, base.model_version, generating
+    def _context_key(ctx: Any, method: Method) -> tuple:
+        """What names a context and the agent stepping it: a method's generating form steps otherwise than its
+        base, over the same models (copies of one context made per step share their key)."""
+        return ctx.domain, method.name, ctx.rep, ctx.model_version, method.agent
 
-    def _key(self, ctx: Any, method: str, state: dict, feedback: Feedback) -> tuple:
+    def _key(self, ctx: Any, method: Method, state: dict, feedback: Feedback) -> tuple:
         return (*self._context_key(ctx, method), state_hash(state), feedback_key(feedback))
 
-    def first(self, ctx: Any, method: str) -> tuple[str, dict]:
+    def first(self, ctx: Any, method: Method) -> tuple[str, dict]:
         """A new agent's first rollout and state (agents are deterministic: every session starts alike)."""
         key = (*self._context_key(ctx, method), "first")
         with self._lock:
@@ -62,7 +61,7 @@ class Transitions:
             if hit is not None:
                 self.hits += 1
                 return hit[0], copy.deepcopy(hit[1])
-        agent = generating_class(method)(ctx) if isinstance(ctx, GenerationContext) else new_agent(method, ctx)
+        agent = method.agent(ctx)
         rollout_id = agent.first_query()
         state = json.loads(json.dumps(agent.state_dict()))
         with self._lock:
@@ -70,14 +69,15 @@ class Transitions:
             self._memo[key] = (rollout_id, state)
         return rollout_id, copy.deepcopy(state)
 
-    def advance(self, ctx: Any, method: str, state: dict, feedback: Feedback, memo: bool = True) -> tuple[str, dict]:
+    def advance(self, ctx: Any, method: Method, state: dict, feedback: Feedback, memo: bool = True
+                ) -> tuple[str, dict]:
         """The next rollout id and agent state after ``feedback``; raises ValueError for bad feedback.
 
         ``memo=False`` (walking the shared trees) neither reads nor fills the memo: those steps are used once,
         and would push out the steps the sessions' next answers need.
         """
         if not memo:
-            return self._step(ctx, state, feedback)
+            return self._step(ctx, method, state, feedback)
         key = self._key(ctx, method, state, feedback)
         with self._lock:
             hit = self._memo.get(key)
@@ -85,7 +85,7 @@ class Transitions:
                 self._memo.move_to_end(key)
                 self.hits += 1
                 return hit[0], copy.deepcopy(hit[1])
-        rollout_id, new_state = self._step(ctx, state, feedback)
+        rollout_id, new_state = self._step(ctx, method, state, feedback)
         with self._lock:
             self.misses += 1
             self._memo[key] = (rollout_id, new_state)
@@ -94,14 +94,7 @@ class Transitions:
         return rollout_id, copy.deepcopy(new_state)
 
     @staticmethod
-    def _step(ctx: Any, state: dict, feedback: Feedback) -> tuple[str, dict]:
-        agent = _restore(copy.deepcopy(state), ctx)
+    def _step(ctx: Any, method: Method, state: dict, feedback: Feedback) -> tuple[str, dict]:
+        agent = method.agent.from_state(copy.deepcopy(state), ctx)
         rollout_id = agent.update(feedback)
         return rollout_id, json.loads(json.dumps(agent.state_dict()))  # exactly what the database will hold
-
-
-def _restore(state: dict, ctx: Any) -> Agent:
-    """The agent of ``state``: the generating form over a ``GenerationContext``, else its method's."""
-    if isinstance(ctx, GenerationContext):
-        return generating_class(state["method"]).from_state(state, ctx)
-    return restore_agent(state, ctx)

@@ -15,12 +15,13 @@ from fastapi.testclient import TestClient
 from pydantic import ValidationError
 from sqlmodel import Session
 
+from rba.compute.base import CLIP_PARTS
+from rba.core.methods import get_method
 from rba.data.export_zip import read_export, replay
 from rba.generate import cma
 from rba.generate.cma import generated_id, is_generated
 from rba.interact import AttributeFeedback, generating_agent
 from rba.interact.generating_agent import GeneratingGlobalAgent
-from rba.compute.base import CLIP_PARTS
 from rba.media.clip_cache import ClipKey, render_job
 from server.common.app_settings import GENERATE_SECONDS, GENERATE_SECONDS_OTHERS, Settings
 from server.db.admin_tables import BUILTIN_VERSION
@@ -36,6 +37,7 @@ from tests.server.conftest import more
 from tests.toy import Toy
 
 SEARCH_SECONDS = 30
+GENERATING = get_method("global").form(True)  # RBA-Global's generating form: what steps these sessions
 
 
 @pytest.fixture
@@ -273,7 +275,7 @@ def test_a_restored_refit_session_remakes_its_clip_without_it_counting_as_a_sear
             state = db.get(TuningSession, s["id"]).agent_state
         guess = step_context(svc, ("toy", "global", "onehot", BUILTIN_VERSION), None)
         try:
-            svc.transitions.advance(guess, "global", state, [AttributeFeedback("pace", 1)])
+            svc.transitions.advance(guess, GENERATING, state, [AttributeFeedback("pace", 1)])
         except WouldSearch as would:
             assert would.fallback is not None  # a search the step would start, not the clip made again
         made = state["generation"]
@@ -307,7 +309,7 @@ def test_guesses_never_search_but_render_the_clip_a_search_falls_back_to(gen_set
         guessed = next_clips(svc, key, True, state, None, lambda: False)  # what the thinker queued first
         misses = svc.transitions.misses
         with pytest.raises(WouldSearch) as would:
-            svc.transitions.advance(step_context(svc, key, None), "global", state, [AttributeFeedback("amplitude",
+            svc.transitions.advance(step_context(svc, key, None), GENERATING, state, [AttributeFeedback("amplitude",
                                                                                                       -1)])
         assert svc.transitions.misses == misses  # nothing memoised: the real answer runs the step (and searches)
         rendered = [j.rollout.id for j in compute.jobs]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from fastapi.testclient import TestClient
 
+from rba.core.methods import get_method
 from server.main import create_app
 from server.ops.prerender import AnswerCounts, answer_order, first_steps, tree_clips
 from tests.server.conftest import more
@@ -22,7 +23,7 @@ def test_an_unvisited_tree_is_walked_breadth_first(make_settings, local_compute)
         (key, first, state), = starts
         ctx = svc.catalog.context(*key)
         answers = answer_order(ctx.attribute_names, None)
-        depth1 = [svc.transitions.advance(ctx, "global", state, a)[0] for a in answers]
+        depth1 = [svc.transitions.advance(ctx, get_method("global"), state, a)[0] for a in answers]
         counts = AnswerCounts.load(svc)
         clips = _walk(svc, counts, starts, 1 / len(answers) ** 2)  # down to depth 2, nothing deeper
         assert clips[0].rollout_id == first and clips[1:1 + len(answers)] == [(key[0], r) for r in depth1]
@@ -42,8 +43,8 @@ def test_what_sessions_answered_comes_first(make_settings, local_compute):
         ctx = svc.catalog.context(*key)
         answers = answer_order(ctx.attribute_names, None)
         less_pace = next(a for a in answers if [(f.attribute, f.direction) for f in a] == [("pace", -1)])
-        _, after_less = svc.transitions.advance(ctx, "global", state, less_pace)
-        favourite = [svc.transitions.advance(ctx, "global", after_less, a)[0] for a in answers]
+        _, after_less = svc.transitions.advance(ctx, get_method("global"), state, less_pace)
+        favourite = [svc.transitions.advance(ctx, get_method("global"), after_less, a)[0] for a in answers]
         clips = [c.rollout_id for c in _walk(svc, counts, starts, 1e-3)]
         # the visited branch's children come right after depth 1, before any other depth-2 node
         assert clips[1 + len(answers):1 + 2 * len(answers)] == favourite
