@@ -1,9 +1,10 @@
-"""The shape of the code: the import graph of ``rba/`` and ``server/`` and the longest functions.
+"""The shape of the code: the import graph of ``rba/`` and ``server/``, the longest functions, what a newcomer meets.
 
 ``tests/test_architecture.py`` holds the rules (``rba`` never imports ``server``; no import cycles; short functions);
 this script prints the numbers and writes ``benchmarks/results/code_shape.md``:
 
     python benchmarks/code_shape.py
+    python benchmarks/code_shape.py --root ../other-checkout --no-write    # the same numbers for another checkout
 
 Every ``import`` statement counts, inside functions too (a lazy import is still a dependency), except those under
 ``if TYPE_CHECKING:``. An import names the deepest module it reaches: ``from rba.domains import get_domain`` is an
@@ -14,6 +15,9 @@ from __future__ import annotations
 
 import argparse
 import ast
+import os
+import subprocess
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -169,6 +173,58 @@ def functions(root: Path = REPO_ROOT, package: str | None = None) -> list[Functi
     return sorted(found, key=lambda f: (-f.lines, f.file, f.line))
 
 
+# Where a rollout came from (a serve library or a search) is told in one module, the resolver every caller asks
+# (docs/architecture.md §6): an id's kind (``is_generated``), the made clips' key version (``MADE``, once
+# ``GENERATED``) or a generating context's type checked anywhere else is a caller bypassing it. The generating step
+# alone asks its agent's state what it made (``made_clip``): to store that clip's row and render it at once.
+RESOLVER = "server/runtime/clip_sources.py"
+ALLOWED_KIND_CHECKS = {("server/ops/session_searches.py", "made_clip")}
+
+
+def _kind_check(node: ast.AST) -> str | None:
+    """What ``node`` asks if it tells a made rollout from a serve one, else None."""
+    if isinstance(node, ast.Call):
+        name = getattr(node.func, "id", getattr(node.func, "attr", None))
+        if name in ("is_generated", "made_clip"):
+            return name
+        if name == "isinstance" and len(node.args) == 2 and "GenerationContext" in ast.unparse(node.args[1]):
+            return "isinstance GenerationContext"
+    name = node.id if isinstance(node, ast.Name) else node.name if isinstance(node, ast.alias) else None
+    return name if name in ("GENERATED", "MADE") else None
+
+
+def kind_checks(root: Path = REPO_ROOT) -> list[tuple[str, int, str]]:
+    """(file, line, what) of every place outside the resolver that tells a made rollout from a serve one."""
+    found = []
+    for path in sorted(p for package in PACKAGES for p in (root / package).rglob("*.py")):
+        rel = path.relative_to(root).as_posix()
+        if rel == RESOLVER:
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            what = _kind_check(node)
+            if what is not None and (rel, what) not in ALLOWED_KIND_CHECKS:
+                found.append((rel, getattr(node, "lineno", 0), what))
+    return found
+
+
+def _lines(path: Path) -> int:
+    return len(path.read_text().splitlines()) if path.exists() else 0
+
+
+def house(root: Path = REPO_ROOT) -> dict[str, int]:
+    """What a newcomer meets before the code: the documents' lengths, the reports, the CLI's help."""
+    docs = root / "docs"
+    architecture = docs / "architecture.md" if (docs / "architecture.md").exists() else docs / "ARCHITECTURE.md"
+    command = "import sys; from rba.cli import main; sys.argv = ['rba', 'eval', '--help']; main()"
+    env = {**os.environ, "PYTHONPATH": str(root)}
+    helped = subprocess.run([sys.executable, "-c", command], cwd=root, env=env, capture_output=True, text=True)
+    return {"README.md lines": _lines(root / "README.md"),
+            "architecture document lines": _lines(architecture),
+            "files in benchmarks/results/": sum(1 for p in (root / "benchmarks" / "results").rglob("*") if p.is_file()),
+            "generated-clip checks outside the resolver": len(kind_checks(root)),
+            "`rba eval --help` lines": len(helped.stdout.splitlines())}
+
+
 def report(root: Path = REPO_ROOT, top: int = 8) -> str:
     graph = import_graph(root)
     lines = ["# The shape of the code", "",
@@ -186,6 +242,7 @@ def report(root: Path = REPO_ROOT, top: int = 8) -> str:
     shared = shared_names(root)
     lines.append(f"- module names used in both {' and '.join(PACKAGES)}: {len(shared)}"
                  + (f" ({', '.join(shared)})" if shared else ""))
+    lines += [f"- {what}: {count}" for what, count in house(root).items()]
     for package in PACKAGES:
         lines += ["", f"Longest functions in `{package}/`:", "", "| lines | function |", "|---|---|"]
         lines += [f"| {f.lines} | `{f.file}:{f.line}` {f.name} |" for f in functions(root, package)[:top]]
@@ -201,7 +258,9 @@ def main() -> None:
     text = report(args.root.resolve())
     print(text, end="")
     if not args.no_write:
-        RESULTS.write_text(text)
+        tmp = RESULTS.with_name(RESULTS.name + ".tmp")  # temp file + rename: never a half-written report
+        tmp.write_text(text)
+        os.replace(tmp, RESULTS)
 
 
 if __name__ == "__main__":

@@ -99,41 +99,8 @@ def test_the_layer_check_sees_an_import_from_above(tmp_path):
     assert up == [("server.db.engine", "server.ops.views")]
 
 
-# Where a rollout came from (a serve library or a search) is told in one module, the resolver every caller asks
-# (docs/architecture.md §6): an id's kind (``is_generated``), the made clips' key version (``MADE``, once
-# ``GENERATED``) or a generating context's type checked anywhere else is a caller bypassing it. The generating step
-# alone asks its agent's state what it made (``made_clip``): to store that clip's row and render it at once.
-RESOLVER = "server/runtime/clip_sources.py"
-ALLOWED_KIND_CHECKS = {("server/ops/session_searches.py", "made_clip")}
-
-
-def kind_checks(root: Path = REPO_ROOT) -> list[tuple[str, int, str]]:
-    """(file, line, what) of every place outside the resolver that tells a made rollout from a serve one."""
-    import ast
-
-    found = []
-    for path in sorted([*(root / "server").rglob("*.py"), *(root / "rba").rglob("*.py")]):
-        rel = path.relative_to(root).as_posix()
-        if rel == RESOLVER:
-            continue
-        for node in ast.walk(ast.parse(path.read_text())):
-            what = None
-            if isinstance(node, ast.Call):
-                name = getattr(node.func, "id", getattr(node.func, "attr", None))
-                if name in ("is_generated", "made_clip"):
-                    what = name
-                elif name == "isinstance" and "GenerationContext" in ast.unparse(node.args[1]):
-                    what = "isinstance GenerationContext"
-            elif isinstance(node, ast.Name | ast.alias) and getattr(node, "id", getattr(node, "name", None)) in (
-                    "GENERATED", "MADE"):
-                what = getattr(node, "id", getattr(node, "name", None))
-            if what is not None and (rel, what) not in ALLOWED_KIND_CHECKS:
-                found.append((rel, getattr(node, "lineno", 0), what))
-    return found
-
-
 def test_only_the_resolver_asks_where_a_rollout_came_from():
-    assert kind_checks() == []
+    assert code_shape.kind_checks() == []
 
 
 def test_the_kind_check_sees_a_caller_bypassing_the_resolver(tmp_path):
@@ -144,6 +111,6 @@ def test_the_kind_check_sees_a_caller_bypassing_the_resolver(tmp_path):
         "server/ops/steps.py": "def g(c):\n    return isinstance(c, GenerationContext)\n",
         "server/ops/key.py": "from server.runtime.clip_sources import MADE\n",
     })
-    assert kind_checks(root) == [("server/ops/key.py", 1, "MADE"),
+    assert code_shape.kind_checks(root) == [("server/ops/key.py", 1, "MADE"),
                                  ("server/ops/steps.py", 2, "isinstance GenerationContext"),
                                  ("server/ops/views.py", 4, "is_generated")]
