@@ -24,7 +24,8 @@ from rba.cli import seconds_arg
 from rba.compute import simulation_pool
 from rba.core.fileio import report_to_extend, save_report
 from rba.domains import domain_names
-from rba.generate.cma import SearchConfig, Simulate
+from rba.generate.cma import Simulate
+from rba.generate.config import GenerationConfig
 from rba.interact import load_context
 from rba.interact.evaluate import EvalResult, af_cell, evaluate, searches_cell
 
@@ -42,10 +43,10 @@ def measure(domain: str, mode: str, args: argparse.Namespace, simulate: Simulate
     where a generating row simulates its candidates (``Compute.simulate``; None: this process)."""
     ctx = load_context(domain, "global", "onehot")
     generate = MODES[mode]
-    options = {"config": SearchConfig(seconds=args.gen_seconds), **({"simulate": simulate} if simulate else {})}
     r: EvalResult = evaluate(domain, "global", "onehot", args.targets, args.seed, args.precision, "paper",
                              context=ctx, generate=generate, beyond=args.share,
-                             generate_options=options if generate else None)
+                             gen_config=GenerationConfig(seconds=args.gen_seconds) if generate else None,
+                             simulator=simulate)
     row = {"domain": domain, "mode": mode, "share": args.share, "precision": args.precision, "seed": args.seed,
            "targets": len(r.trials), "success_rate": r.success_rate, "avg_feedback": r.avg_feedback,
            "std_feedback": r.std_feedback, "seconds": round(r.seconds, 1), "generation": r.generation,
@@ -67,8 +68,8 @@ def markdown(report: dict) -> str:
              "`rba.interact.evaluate.beyond_targets`, seed "
              f"{report['seed']}). *library*: serve clips only; *gen*: the agent also makes clips when none is near "
              "its target (`rba eval`'s default). SR / AF (std), AF over successful trials, 500-feedback budget.", "",
-             "*search bound*: `--gen-seconds` (`SearchConfig.seconds`, as the app's `RBA_GENERATE_SECONDS`); –: the "
-             "48-simulation budget alone.", "",
+             "*search bound*: `--gen-seconds` (`GenerationConfig.seconds`, as the app's `RBA_GENERATE_SECONDS`); "
+             "–: the 48-simulation budget alone.", "",
              "| domain | mode | targets | SR / AF (std) | searches (shown) | simulations | search bound | seconds | "
              "measured |", "|---|---|---:|---|---:|---:|---|---:|---|"]
     for r in sorted(report["rows"], key=lambda r: (DOMAINS.index(r["domain"]) if r["domain"] in DOMAINS else 99,
@@ -92,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--targets", type=int, default=20)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--gen-seconds", type=seconds_arg, default=None, help="bound each search in time as the app does "
-                    "(rba eval --gen-seconds); default: the simulation budget alone")
+                    "(GenerationConfig.seconds); default: the simulation budget alone")
     ap.add_argument("--gen-workers", type=int, default=1, help="local processes simulating a search's candidates "
                     "(1: this process); an unbounded row does not depend on it")
     ap.add_argument("--out", type=Path, default=RESULTS / "beyond_range", help="writes <out>.json and <out>.md")

@@ -34,7 +34,6 @@ from rba.data.library import SkillLibrary
 from rba.domains import get_domain
 from rba.interact import SATISFIED
 from rba.interact.users import parse_user
-from server.common.app_settings import GENERATE_SECONDS, GENERATE_SECONDS_OTHERS
 
 RESULTS = Path(__file__).resolve().parents[1] / "benchmarks" / "results"
 OUTPUTS = (  # what this script writes into benchmarks/results/ (tests/test_results_files.py)
@@ -149,7 +148,8 @@ def markdown(report: dict) -> str:
              f"{report['load'][0]:.2f} → {report['load'][1]:.2f}", "",
              __doc__.split("\n\n")[1].replace("\n", " "), ""]
     for bound in report["bounds"]:
-        lines += [f"## Searches bounded at {bound_text(bound['bound_s'])}", "",
+        lines += [f"## Searches bounded at {bound_text(bound['bound_s'], [d['domain'] for d in bound['domains']])}",
+                  "",
                   "| domain | sessions (satisfied) | answers that searched: n, p50 / p95 / max (s) | their search "
                   "alone, p95 (s) | showed a generated clip | showed the library's (search fell short): n, p95 (s) "
                   "| showed a made clip without a search (pooled): n, p95 (s) | other answers: n, p50 / p95 (s) "
@@ -169,13 +169,12 @@ def markdown(report: dict) -> str:
     return "\n".join(lines)
 
 
-def bound_text(bound: float | None) -> str:
-    """How a table's searches were bounded: one value for every domain, or the server's per-domain default."""
+def bound_text(bound: float | None, domains: list[str]) -> str:
+    """How a table's searches were bounded: one value for every domain, or each of ``domains``' own default."""
     if bound is not None:
         return f"{bound:g} s (`RBA_GENERATE_SECONDS`)"
-    named = ", ".join(f"{d} {s:g} s" for d, s in GENERATE_SECONDS.items())
-    return (f"the default bounds ({named}, others {GENERATE_SECONDS_OTHERS:g} s: "
-            "`server.common.app_settings.GENERATE_SECONDS`)")
+    named = ", ".join(f"{d} {get_domain(d).generate_seconds:g} s" for d in domains)
+    return f"the default bounds ({named}: `Domain.generate_seconds`)"
 
 
 def bound_arg(text: str) -> float | None:
@@ -193,7 +192,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    "(the page unlocks the answers after 1 s of playing)")
     p.add_argument("--search-seconds", type=bound_arg, nargs="+", default=[None],
                    help="RBA_GENERATE_SECONDS for the server, one server (and table) each, in turn: seconds, or "
-                        "'default' for the server's own per domain (server.common.app_settings.GENERATE_SECONDS); "
+                        "'default' for the server's own per domain (Domain.generate_seconds); "
                         "default: default")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, default=RESULTS / "generation_latency", help="writes <out>.json and <out>.md")

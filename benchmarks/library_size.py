@@ -45,8 +45,7 @@ def measure(context: GlobalContext, size: int, mode: str, args: argparse.Namespa
     generate, domain = MODES[mode], context.domain
     r: EvalResult = evaluate(domain, "global", "onehot", args.targets, args.seed, args.precision, "paper",
                              context=context, split=args.split,
-                             generate=generate, serve_size=size,
-                             generate_options={"simulate": simulate} if generate and simulate else None)
+                             generate=generate, serve_size=size, simulator=simulate)
     answers = sum(t.feedback_count if t.success else MISS for t in r.trials)
     row = {"domain": domain, "size": size, "mode": mode, "targets": len(r.trials), "success_rate": r.success_rate,
            "avg_feedback": r.avg_feedback, "std_feedback": r.std_feedback, "answers": answers,

@@ -143,8 +143,7 @@ def run(domains: list[str], precisions: list[str], targets: int, seed: int, labe
                 continue
             for user, precision in jobs:
                 r = evaluate(domain, method, rep, targets, seed, precision=precision, user=user, context=ctx,
-                             split=SPLIT, generate=generate,
-                             generate_options={"simulate": simulate} if generate and simulate else None)
+                             split=SPLIT, generate=generate, simulator=simulate)
                 log.info("%s %s %s %s: SR %.2f AF %s (%.0f s)", domain, label, precision, user, r.success_rate,
                          r.avg_feedback, r.seconds)
                 out.append((domain, label, r))

@@ -16,6 +16,8 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from rba.compute import Compute
+    from rba.generate.cma import Simulate
+    from rba.generate.config import GenerationConfig
     from rba.interact.users import UserSpec
 
 log = logging.getLogger("rba")
@@ -56,35 +58,8 @@ def _number(text: str) -> float:
         return float("nan")
 
 
-def _non_negative(text: str) -> float:
-    value = _number(text)
-    if not 0.0 <= value < math.inf:  # an infinite threshold or spread would turn generation off without a word
-        raise argparse.ArgumentTypeError(f"must be a finite number ≥ 0, got {text}")
-    return value
-
-
-def _noise_share(text: str) -> float:
-    """A share in [0, 1) of ζσ's range: the generating agent's soft step or prior width (``--gen-noise``,
-    ``--gen-prior``)."""
-    value = _number(text)
-    if not 0.0 <= value < 1.0:
-        raise argparse.ArgumentTypeError(f"must be a share in [0, 1), got {text}")
-    return value
-
-
-def _surface_neighbours(text: str) -> int:
-    """Neighbours of the generating agent's ζσ surface (``rba eval --gen-surface``): 0 (none) or at least 2."""
-    try:
-        value = int(text)
-    except ValueError:
-        value = -1
-    if value < 0 or value == 1:
-        raise argparse.ArgumentTypeError(f"must be 0 (no surface) or a whole number of clips ≥ 2, got {text}")
-    return value
-
-
 def seconds_arg(text: str) -> float:
-    """A search's time bound in seconds (> 0, finite): ``rba eval --gen-seconds`` and the benchmarks' options."""
+    """A search's time bound in seconds (> 0, finite): the benchmarks' ``--gen-seconds`` options."""
     value = _number(text)
     if not 0.0 < value < math.inf:
         raise argparse.ArgumentTypeError(f"must be a number of seconds > 0, got {text}")
@@ -97,6 +72,16 @@ def _share(text: str) -> float:
     if not 0.0 < value <= 0.5:
         raise argparse.ArgumentTypeError(f"must be a share in (0, 0.5], e.g. 0.1 for 10 %; got {text}")
     return value
+
+
+def _gen_config(text: str) -> GenerationConfig:
+    """``--gen-config FILE``: the generating agent's research settings (``rba.generate.config``), checked whole."""
+    from rba.generate.config import GenerationConfig
+
+    try:
+        return GenerationConfig.from_file(Path(text))
+    except (ValueError, OSError) as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _user(text: str) -> UserSpec:
@@ -153,9 +138,9 @@ def cmd_eval(args) -> int:
     if args.all_methods:
         from rba.core.methods import methods
 
-        if args.generate:
-            raise ValueError("--generate compares one method with and without generation: give --method, "
-                             "not --all-methods")
+        if args.generate or args.gen_config is not None:
+            raise ValueError("--generate and --gen-config work with one method (the rows of --all-methods are the "
+                             "library alone): give --method, not --all-methods")
         args.generate = False  # every method and reference row over the library alone: comparable rows
         if args.serve_size is not None:
             raise ValueError("--serve-size works with one method (global): give --method, not --all-methods")
@@ -170,11 +155,14 @@ def cmd_eval(args) -> int:
         return 0
     if args.generate is None:
         args.generate = can_generate(args.method, args.user)
-    options, compute = _generation(args)
+    if args.gen_config is not None and not args.generate:
+        raise ValueError(f"--gen-config tunes generation, which is off here (method {args.method}, user "
+                         f"{args.user}): give --generate with method global, or leave --gen-config out")
+    simulate, compute = _simulation(args)
     try:
         result = evaluate(args.domain, args.method, args.rep, args.targets, args.seed, args.precision, args.user,
-                          split=args.split, generate=args.generate, generate_options=options, beyond=args.beyond,
-                          serve_size=args.serve_size)
+                          split=args.split, generate=args.generate, gen_config=args.gen_config, beyond=args.beyond,
+                          serve_size=args.serve_size, simulator=simulate)
     finally:
         if compute is not None:
             compute.close()
@@ -186,35 +174,16 @@ def cmd_eval(args) -> int:
     return 0
 
 
-def _generation(args) -> tuple[dict, Compute | None]:
-    """``--generate``'s options for the agents' ``GenerationContext``, and the compute backend (to close) that
-    simulates the candidates: ``--gen-workers`` local processes or ``--ray``; one worker: this process."""
-    if not args.generate:
-        return {}, None
-    from rba.generate.cma import SearchConfig
-
-    vary = None if args.gen_seeds is None else args.gen_seeds == "each"
-    options: dict = {"config": SearchConfig(budget=args.gen_budget, seconds=args.gen_seconds, vary_seed=vary)}
-    if args.gen_threshold is not None:
-        options["threshold"] = args.gen_threshold
-    if args.gen_spread is not None:
-        options["spread"] = args.gen_spread
-    if args.gen_noise is not None:
-        options["zeta_noise"] = args.gen_noise
-    if args.gen_prior is not None:
-        options["prior_width"] = args.gen_prior
-    if args.gen_surface is not None:
-        options["surface"] = args.gen_surface
-    if args.gen_refit is not None:
-        options["refit"] = args.gen_refit
-    if not args.ray and args.gen_workers == 1:
-        return options, None
+def _simulation(args) -> tuple[Simulate | None, Compute | None]:
+    """What simulates a search's candidates with ``--generate``, and the compute backend to close after:
+    ``--workers`` local processes or ``--ray``; one worker (or no generation): this process (None)."""
+    if not args.generate or (not args.ray and args.workers == 1):
+        return None, None
     from rba.compute import make_compute
     from rba.core.settings import LibrarySettings
 
-    compute = make_compute(LibrarySettings(compute_workers=args.gen_workers), args.ray)
-    options["simulate"] = compute.simulate
-    return options, compute
+    compute = make_compute(LibrarySettings(compute_workers=args.workers), args.ray)
+    return compute.simulate, compute
 
 
 def cmd_render(args) -> int:
@@ -394,45 +363,15 @@ def _eval_command(sub) -> argparse.ArgumentParser:
                    help="let the agent make clips beyond the serve library when none is close to its target; "
                         "default: on where the method can (RBA-Global) and the user can judge new clips (not "
                         "myopic); --no-generate: the library alone, to compare")
-    _generation_options(e)
+    e.add_argument("--gen-config", type=_gen_config, default=None, metavar="FILE",
+                   help="research settings of generation, to tune on --split val: a TOML or JSON file of the "
+                        "keys it changes (rba.generate.config.GenerationConfig; docs/guide.md); default: the "
+                        "domain's, chosen on val")
+    e.add_argument("--workers", type=_positive, default=2,
+                   help="local processes simulating generation's candidates (1: this process; without --ray)")
     _ray_option(e)
     e.set_defaults(func=cmd_eval)
     return e
-
-
-def _generation_options(e: argparse.ArgumentParser) -> None:
-    """``rba eval``'s options of the generating agent (``--generate``): its searches and how it reads clips."""
-    e.add_argument("--gen-budget", type=_positive, default=48, help="simulations per generated clip at most")
-    e.add_argument("--gen-seconds", type=seconds_arg, default=None,
-                   help="bound each search in time as the app does (RBA_GENERATE_SECONDS): no CMA-ES generation "
-                        "starts that would end later than this; default: the budget alone (deterministic)")
-    e.add_argument("--gen-threshold", type=_non_negative, default=None,
-                   help="ζσ distance (train range = 1) beyond which the agent generates; default: "
-                        "rba.interact.generating_agent.THRESHOLD (0.02); tune it on --split val")
-    e.add_argument("--gen-spread", type=_non_negative, default=None,
-                   help="generate only where the library clip is also off the target by more than this share of "
-                        "the belief's half interquartile range (0: by the threshold alone); default: "
-                        "the domain's Domain.generate_spread; tune it on --split val")
-    e.add_argument("--gen-noise", type=_noise_share, default=None,
-                   help="the generating agent's soft step for answers, a share of ζσ's train range (0: the hard "
-                        "step); default: the domain's Domain.zeta_noise; tune it on --split val")
-    e.add_argument("--gen-prior", type=_noise_share, default=None, metavar="WIDTH",
-                   help="the generating agent's belief starts where the serve clips lie in ζσ, a kernel of this "
-                        "share of ζσ's train range (0: uniform over it); default: the domain's Domain.belief_prior; "
-                        "tune it on --split val")
-    e.add_argument("--gen-surface", type=_surface_neighbours, default=None, metavar="N",
-                   help="read and make clips on a fit of ζσ over the skill's parameters through the N nearest "
-                        "serve clips (0: each clip's own ζσ); default: the domain's Domain.zeta_surface; tune it "
-                        "on --split val")
-    e.add_argument("--gen-refit", action=argparse.BooleanOptionalAction, default=None,
-                   help="re-fit ζσ's last layers near the target on the session's answers (rba.interact.refit); "
-                        "default: the domain's Domain.session_refit; not with --gen-surface; tune it on --split val")
-    e.add_argument("--gen-seeds", choices=("one", "each"), default=None,
-                   help="simulate a search's candidates with one seed, or each with a seed of its own (the skill's "
-                        "noise is then chosen among too); default: each where the domain's skill is noisy "
-                        "(Domain.noisy_skill), else one; tune it on --split val")
-    e.add_argument("--gen-workers", type=_positive, default=2,
-                   help="local processes simulating candidates (1: this process)")
 
 
 def _render_command(sub) -> argparse.ArgumentParser:

@@ -10,6 +10,7 @@ import json
 import math
 import time
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -29,6 +30,7 @@ from rba.generate.cma import (
     replay,
     search,
 )
+from rba.generate.config import GenerationConfig
 from rba.interact import generating_agent, global_agent
 from rba.interact.base import AttributeFeedback
 from rba.interact.bisection import posterior, quantile
@@ -258,13 +260,10 @@ def test_a_noisy_skills_candidates_each_get_a_seed_of_their_own(ctx, gap_roots, 
     assert _seeds_simulated(dist, monkeypatch, False, True) == list(range(7, 23))
 
 
-def test_cli_gen_seeds_option(gap_roots, monkeypatch, capsys):
-    assert cli_context_option(gap_roots, monkeypatch, "--gen-seeds", "each", "config") == [
-        SearchConfig(budget=8, vary_seed=True), SearchConfig(budget=8)]  # without: the domain's choice
-    with pytest.raises(SystemExit) as exit_:
-        main(["eval", "--domain", "toy", "--gen-seeds", "all"])
-    assert exit_.value.code == 2
-    assert "argument --gen-seeds: invalid choice: 'all' (choose from 'one', 'each')" in capsys.readouterr().err
+def test_cli_noisy_skill_setting(gap_roots, monkeypatch, capsys, tmp_path):
+    assert cli_context_option(gap_roots, monkeypatch, tmp_path, {"noisy_skill": True}, "config") == [
+        SearchConfig(budget=8, vary_seed=True), SearchConfig(budget=8, vary_seed=Toy.noisy_skill)]  # the domain's
+    cli_refuses(capsys, tmp_path, "noisy_skill", ("each", 1), "true or false")
 
 
 def test_state_round_trips_through_json_and_continues_identically(ctx, gap_roots):
@@ -365,7 +364,7 @@ def test_evaluate_with_and_without_generation(gap_roots):
     data, models = gap_roots
     off = evaluate("toy", "global", targets=4, data_root=data, models_root=models, split="test")
     on = evaluate("toy", "global", targets=4, data_root=data, models_root=models, split="test", generate=True,
-                  generate_options={"config": SearchConfig(budget=16)})
+                  gen_config=GenerationConfig(budget=16))
     assert off.generate is False and off.generation is None
     assert on.generate and set(on.generation) >= {"searches", "simulations", "seconds_mean", "seconds_p95"}
     # every made clip shown: a search's best, or a runner-up shown later without a search
@@ -401,8 +400,7 @@ def test_cli_generates_by_default_where_it_can(gap_roots, monkeypatch, tmp_path,
     monkeypatch.setenv("RBA_DATA_DIR", str(gap_roots[0]))
     monkeypatch.setenv("RBA_MODELS_DIR", str(gap_roots[1]))
     out = tmp_path / "r.json"
-    assert main(["eval", "--domain", "toy", "--targets", "1", "--gen-workers", "1", "--gen-budget", "16",
-                 "--json", str(out), *extra]) == 0
+    assert main(["eval", "--domain", "toy", "--targets", "1", "--workers", "1", "--json", str(out), *extra]) == 0
     result = json.loads(out.read_text())
     assert result["generate"] is generates and (result["generation"] is not None) is generates
 
@@ -411,12 +409,12 @@ def test_cli_generate_flag(gap_roots, monkeypatch, capsys, tmp_path):
     monkeypatch.setenv("RBA_DATA_DIR", str(gap_roots[0]))
     monkeypatch.setenv("RBA_MODELS_DIR", str(gap_roots[1]))
     out = tmp_path / "r.json"
-    assert main(["eval", "--domain", "toy", "--targets", "2", "--generate", "--gen-workers", "1",
-                 "--gen-budget", "16", "--json", str(out)]) == 0
+    assert main(["eval", "--domain", "toy", "--targets", "2", "--generate", "--workers", "1",
+                 "--gen-config", str(gen_config_file(tmp_path, {"budget": 16})), "--json", str(out)]) == 0
     assert json.loads(out.read_text())["generate"] is True and "generation: searches" in capsys.readouterr().out
     assert main(["eval", "--domain", "toy", "--all-methods", "--generate"]) == 2
     assert "give --method, not --all-methods" in capsys.readouterr().err
-    assert main(["eval", "--domain", "toy", "--method", "pbrl", "--generate", "--gen-workers", "1"]) == 2
+    assert main(["eval", "--domain", "toy", "--method", "pbrl", "--generate", "--workers", "1"]) == 2
     assert "method 'pbrl' cannot generate behaviours; valid with generation: global" in capsys.readouterr().err
 
 
@@ -450,45 +448,39 @@ def test_evaluate_beyond_the_range_with_and_without_generation(narrow_roots):
     data, models = narrow_roots
     options = dict(targets=4, data_root=data, models_root=models, precision="high", beyond=0.1)
     off = evaluate("toy", "global", **options)
-    on = evaluate("toy", "global", **options, generate=True, generate_options={"config": SearchConfig(budget=16)})
+    on = evaluate("toy", "global", **options, generate=True, gen_config=GenerationConfig(budget=16))
     assert off.split == on.split == "beyond" and off.beyond == 0.1
     assert [t.target for t in on.trials] == [t.target for t in off.trials]
     assert off.success_rate == 0.0  # no serve clip is within the high-precision ε of a target beyond its range
     assert on.success_rate > off.success_rate and on.generation["shown"] > 0
 
 
-def test_cli_gen_spread_option(gap_roots, monkeypatch, capsys, tmp_path):
+def test_cli_generate_spread_setting(gap_roots, monkeypatch, capsys, tmp_path):
     monkeypatch.setenv("RBA_DATA_DIR", str(gap_roots[0]))
     monkeypatch.setenv("RBA_MODELS_DIR", str(gap_roots[1]))
     searches = {}
-    for spread in ("0", None):
+    for spread in (0, None):
         out = tmp_path / f"{spread}.json"
-        extra = ["--gen-spread", spread] if spread else []
-        assert main(["eval", "--domain", "toy", "--targets", "2", "--gen-workers", "1", "--gen-budget", "16",
-                     "--json", str(out), *extra]) == 0
+        settings = {"budget": 16} | ({} if spread is None else {"generate_spread": spread})
+        assert main(["eval", "--domain", "toy", "--targets", "2", "--workers", "1", "--json", str(out),
+                     "--gen-config", str(gen_config_file(tmp_path, settings))]) == 0
         searches[spread] = json.loads(out.read_text())["generation"]["searches"]
-    assert searches["0"] > searches[None]  # spread 0: every clip off by the threshold searches, however unsure
-    for bad in ("-1", "inf"):  # inf would turn generation off without a word
-        with pytest.raises(SystemExit) as exit_:
-            main(["eval", "--domain", "toy", "--gen-spread", bad])
-        assert exit_.value.code == 2
-        assert f"argument --gen-spread: must be a finite number ≥ 0, got {bad}" in capsys.readouterr().err
+    assert searches[0] > searches[None]  # spread 0: every clip off by the threshold searches, however unsure
+    # inf would turn generation off without a word
+    cli_refuses(capsys, tmp_path, "generate_spread", (-1.0, math.inf, "wide"), "a finite number ≥ 0")
 
 
-def test_cli_gen_seconds_option(gap_roots, monkeypatch, capsys, tmp_path):
+def test_cli_seconds_setting(gap_roots, monkeypatch, capsys, tmp_path):
     monkeypatch.setenv("RBA_DATA_DIR", str(gap_roots[0]))
     monkeypatch.setenv("RBA_MODELS_DIR", str(gap_roots[1]))
     out = tmp_path / "r.json"
-    assert main(["eval", "--domain", "toy", "--targets", "2", "--gen-workers", "1", "--gen-budget", "16",
-                 "--gen-spread", "0", "--gen-seconds", "1e-9", "--json", str(out)]) == 0
+    config = gen_config_file(tmp_path, {"budget": 16, "generate_spread": 0, "seconds": 1e-9})
+    assert main(["eval", "--domain", "toy", "--targets", "2", "--workers", "1", "--gen-config", str(config),
+                 "--json", str(out)]) == 0
     generation = json.loads(out.read_text())["generation"]
     # out of time at once: each search ends at its first finished candidate, not after a whole generation of 8
     assert 0 < generation["searches"] <= generation["simulations"] < 8 * generation["searches"]
-    for bad in ("0", "inf", "soon"):
-        with pytest.raises(SystemExit) as exit_:
-            main(["eval", "--domain", "toy", "--gen-seconds", bad])
-        assert exit_.value.code == 2
-        assert f"argument --gen-seconds: must be a number of seconds > 0, got {bad}" in capsys.readouterr().err
+    cli_refuses(capsys, tmp_path, "seconds", (0, math.inf, "soon"), "a number of seconds > 0")
 
 
 def test_cli_beyond_option(narrow_roots, monkeypatch, capsys, tmp_path):
@@ -582,9 +574,27 @@ def test_the_belief_prior_is_the_domains_unless_asked_and_lies_where_the_clips_d
         _gen(ctx, gap_roots, prior_width=1.5)
 
 
-def cli_context_option(gap_roots, monkeypatch, option: str, value: str | None, attribute: str) -> list:
-    """The generating context's ``attribute`` as ``rba eval`` sets it: with ``option value`` (a flag: ``value``
-    None), then without."""
+def gen_config_file(tmp_path, settings: dict, suffix: str = ".toml") -> Path:
+    """A ``--gen-config`` file holding ``settings`` (TOML, or JSON by ``suffix``)."""
+    path = tmp_path / f"gen-{len(list(tmp_path.glob('gen-*')))}{suffix}"
+    if suffix == ".json":
+        path.write_text(json.dumps(settings))
+    else:
+        path.write_text("".join(f"{k} = {_toml(v)}\n" for k, v in settings.items()))
+    return path
+
+
+def _toml(value) -> str:
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)  # inf, nan: TOML's own words
+    return json.dumps(value)
+
+
+def cli_context_option(gap_roots, monkeypatch, tmp_path, settings: dict, attribute: str) -> list:
+    """The generating context's ``attribute`` as ``rba eval --gen-config`` sets it: with ``settings``, then
+    without (a budget of 8 both times)."""
     monkeypatch.setenv("RBA_DATA_DIR", str(gap_roots[0]))
     monkeypatch.setenv("RBA_MODELS_DIR", str(gap_roots[1]))
     asked, load = [], GenerationContext.load.__func__
@@ -595,30 +605,32 @@ def cli_context_option(gap_roots, monkeypatch, option: str, value: str | None, a
         return gen
 
     monkeypatch.setattr(GenerationContext, "load", classmethod(recording_load))
-    for extra in ([option] if value is None else [option, value], []):
-        assert main(["eval", "--domain", "toy", "--targets", "1", "--gen-workers", "1", "--gen-budget", "8",
-                     *extra]) == 0
+    for extra in (settings, {}):
+        config = gen_config_file(tmp_path, {"budget": 8, **extra})
+        assert main(["eval", "--domain", "toy", "--targets", "1", "--workers", "1", "--gen-config", str(config)]) == 0
     return asked
 
 
-def cli_refuses(capsys, option: str, bads: tuple[str, ...], valid: str) -> None:
-    """``rba eval OPTION BAD`` exits 2 saying what is valid, for each of ``bads``."""
+def cli_refuses(capsys, tmp_path, key: str, bads: tuple, valid: str) -> None:
+    """``rba eval --gen-config`` with ``key = BAD`` exits 2 saying what is valid, for each of ``bads``."""
     for bad in bads:
         with pytest.raises(SystemExit) as exit_:
-            main(["eval", "--domain", "toy", option, bad])
+            main(["eval", "--domain", "toy", "--gen-config", str(gen_config_file(tmp_path, {key: bad}))])
         assert exit_.value.code == 2
-        assert f"argument {option}: {valid}, got {bad}" in capsys.readouterr().err
+        err = capsys.readouterr().err
+        assert f"argument --gen-config: generation setting {key} must be {valid}, got {bad!r}" in err, err
 
 
-def test_cli_gen_noise_option(gap_roots, monkeypatch, capsys):
-    assert cli_context_option(gap_roots, monkeypatch, "--gen-noise", "0.05", "zeta_noise") == [0.05, Toy.zeta_noise]
-    cli_refuses(capsys, "--gen-noise", ("-0.1", "1", "wide"), "must be a share in [0, 1)")
+def test_cli_zeta_noise_setting(gap_roots, monkeypatch, capsys, tmp_path):
+    assert cli_context_option(gap_roots, monkeypatch, tmp_path, {"zeta_noise": 0.05}, "zeta_noise") == [
+        0.05, Toy.zeta_noise]
+    cli_refuses(capsys, tmp_path, "zeta_noise", (-0.1, 1.0, "wide"), "a share in [0, 1)")
 
 
-def test_cli_gen_prior_option(gap_roots, monkeypatch, capsys):
-    assert cli_context_option(gap_roots, monkeypatch, "--gen-prior", "0.05", "prior_width") == [0.05,
-                                                                                               Toy.belief_prior]
-    cli_refuses(capsys, "--gen-prior", ("-0.1", "1", "wide"), "must be a share in [0, 1)")
+def test_cli_belief_prior_setting(gap_roots, monkeypatch, capsys, tmp_path):
+    assert cli_context_option(gap_roots, monkeypatch, tmp_path, {"belief_prior": 0.05}, "prior_width") == [
+        0.05, Toy.belief_prior]
+    cli_refuses(capsys, tmp_path, "belief_prior", (-0.1, 1.0, "wide"), "a share in [0, 1)")
 
 
 def test_a_soft_step_keeps_answers_that_contradict_each_other_one_bump():

@@ -17,7 +17,7 @@ from rba.interact.global_agent import GlobalContext
 from rba.interact.refit import fit_head, ordered_pairs, refit_heads
 from rba.interact.users import parse_user
 from rba.learn.common import Ragged
-from tests.test_generate import TARGET, _eps, cli_context_option
+from tests.test_generate import TARGET, _eps, cli_context_option, gen_config_file
 from tests.toy import Toy
 
 
@@ -174,9 +174,10 @@ def test_refit_is_the_domains_unless_asked_and_not_with_a_surface(ctx, gap_roots
         GenerationContext.load(ctx, gap_roots[1], surface=8)
 
 
-def test_cli_gen_refit_option(gap_roots, monkeypatch, capsys):
-    assert cli_context_option(gap_roots, monkeypatch, "--gen-refit", None, "refit") == [True, False]
-    assert cli_context_option(gap_roots, monkeypatch, "--no-gen-refit", None, "refit") == [False, False]
+def test_cli_session_refit_setting(gap_roots, monkeypatch, capsys, tmp_path):
+    assert cli_context_option(gap_roots, monkeypatch, tmp_path, {"session_refit": True}, "refit") == [True, False]
+    assert cli_context_option(gap_roots, monkeypatch, tmp_path, {"session_refit": False}, "refit") == [False, False]
     capsys.readouterr()
-    assert main(["eval", "--domain", "toy", "--targets", "1", "--gen-refit", "--gen-surface", "8"]) == 2
+    both = gen_config_file(tmp_path, {"session_refit": True, "zeta_surface": 8})
+    assert main(["eval", "--domain", "toy", "--targets", "1", "--gen-config", str(both)]) == 2
     assert "a session's re-fit reads ζσ of each clip's states" in capsys.readouterr().err

@@ -150,9 +150,10 @@ def test_the_surface_is_the_domains_unless_asked(ctx, gap_roots, monkeypatch):
             _gen(ctx, gap_roots, surface=bad)
 
 
-def test_cli_gen_surface_option(gap_roots, monkeypatch, capsys):
-    assert cli_context_option(gap_roots, monkeypatch, "--gen-surface", "12", "surface") == [12, Toy.zeta_surface]
-    cli_refuses(capsys, "--gen-surface", ("1", "-2", "many", "2.5"), "must be 0 (no surface) or a whole number of "
+def test_cli_zeta_surface_setting(gap_roots, monkeypatch, capsys, tmp_path):
+    assert cli_context_option(gap_roots, monkeypatch, tmp_path, {"zeta_surface": 12}, "surface") == [
+        12, Toy.zeta_surface]
+    cli_refuses(capsys, tmp_path, "zeta_surface", (1, -2, "many", 2.5, True), "0 (no surface) or a whole number of "
                 "clips ≥ 2")
 
 

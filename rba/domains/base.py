@@ -216,6 +216,10 @@ class Domain(ABC):
     # belief's half interquartile range (and the threshold): while it is unsure where the target is, a library clip
     # there asks as well as a made one, at once (0: by the threshold alone). Decisions 0003 and 0008
     generate_spread: float = 1.0
+    # the app's time bound of a search (s; ``SearchConfig.seconds``): the longest whose made clips a person sees within
+    # 2 s (p95) on 2 cores while val SR holds; ``RBA_GENERATE_SECONDS`` overrides it for every domain. A domain not
+    # measured keeps this one. Decision 0005
+    generate_seconds: float = 2.0
     # the skill's outcome depends on its seed beyond the parameters (the manipulator's tremor is drawn from it): a
     # search then simulates each candidate with a seed of its own (``rba.generate.cma.search``), so the noise is part of
     # what it chooses among, as the library's seeds are. Decision 0007

@@ -266,6 +266,7 @@ class Manipulator(Domain):
     generate_spread = 0.5  # decision 0003
     belief_prior = 0.05  # decision 0010
     noisy_skill = True  # the tremor is drawn from the seed (zeta_residual.md); decision 0007
+    generate_seconds = 1.0  # decision 0005
 
     def __init__(self) -> None:
         self._model: mujoco.MjModel | None = None
@@ -322,6 +323,7 @@ class ManipulatorRaw(Manipulator):
     name = "manipulator_raw"
     raw_states = True
     state_dim = STACK * 2 * N_QPOS
+    generate_seconds = Domain.generate_seconds  # decision 0005 measured the feature view; this one keeps the default
     simulator, skill_policy = Domain.simulator, Domain.skill_policy  # no env: see the module docstring
 
 

@@ -332,6 +332,7 @@ class Snake(Domain):
     zeta_noise = 0.03  # decision 0006
     # ζσ re-fitted on the session's answers (``rba.interact.refit``, from its ``REFIT_AFTER``-th): decision 0011
     session_refit = True
+    generate_seconds = 1.25  # decision 0005
 
     def __init__(self) -> None:
         self._model: mujoco.MjModel | None = None
@@ -406,6 +407,7 @@ class SnakeRaw(Snake):
     name = "snake_raw"
     raw_states = True
     state_dim = 20 + 19
+    generate_seconds = Domain.generate_seconds  # decision 0005 measured the feature view; this one keeps the default
     simulator, skill_policy = Domain.simulator, Domain.skill_policy  # no env: see the module docstring
 
 

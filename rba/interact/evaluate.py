@@ -11,6 +11,7 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -18,6 +19,10 @@ from rba.data.library import HELD_OUT, SkillLibrary
 from rba.domains import domain_target, get_domain, load_domain
 from rba.interact import SATISFIED, Agent, FeedbackKind, Preference, load_context, new_agent
 from rba.interact.users import SKIP, USER_KINDS, PreferenceTeacher, SimulatedUser, UserSpec, parse_user
+
+if TYPE_CHECKING:
+    from rba.generate.cma import Simulate
+    from rba.generate.config import GenerationConfig
 
 log = logging.getLogger(__name__)
 
@@ -205,13 +210,14 @@ def _beyond_params(serve: SkillLibrary, space, rng: np.random.Generator) -> dict
 def evaluate(domain_name: str, method: str, rep: str = "onehot", targets: int = 20, seed: int = 0,
              precision: str = "normal", user: str | UserSpec = "paper", data_root=None, models_root=None,
              context=None, split: str = "test", generate: bool = False,
-             generate_options: dict | None = None, beyond: float | None = None,
-             serve_size: int | None = None) -> EvalResult:
+             gen_config: GenerationConfig | None = None, beyond: float | None = None,
+             serve_size: int | None = None, simulator: Simulate | None = None) -> EvalResult:
     """SR / AF over ``targets`` targets drawn from ``split``: ``val`` for tuning and model selection,
     ``test`` (the default) only for reported numbers; with ``beyond``, instead from beyond the serve range
     (``beyond_targets``). ``generate``: the agent may make clips beyond the serve library
-    (``rba.interact.generating_agent``; ``generate_options`` go to its ``GenerationContext``). ``serve_size``: the
-    agent sees only the serve library's first rollouts (contexts with ``first``: RBA-Global)."""
+    (``rba.interact.generating_agent``), tuned by ``gen_config`` (None: every default), its candidates simulated
+    by ``simulator`` (``Compute.simulate``; None: in this process). ``serve_size``: the agent sees only the serve
+    library's first rollouts (contexts with ``first``: RBA-Global)."""
     if split not in HELD_OUT:
         raise ValueError(f"targets come from a held-out split; got {split!r}, valid: {', '.join(HELD_OUT)}")
     spec = parse_user(user)
@@ -223,7 +229,7 @@ def evaluate(domain_name: str, method: str, rep: str = "onehot", targets: int = 
             raise ValueError(f"a smaller serve library works with method global only, not {method!r}")
         context = context.first(serve_size)
     serve = context.serve
-    make = _agents(method, context, spec, models_root, generate, generate_options)
+    make = _agents(method, context, spec, models_root, generate, gen_config, simulator)
     if beyond is None:
         chosen = held_out_targets(SkillLibrary.load(domain_name, split, data_root), targets, seed)
     else:
@@ -257,17 +263,21 @@ def can_generate(method: str, user: str | UserSpec) -> bool:
     return method in generating_methods() and _judges_generated(parse_user(user))
 
 
-def _agents(method: str, context, spec: UserSpec, models_root, generate: bool,
-            options: dict | None) -> Callable[[], Agent]:
+def _agents(method: str, context, spec: UserSpec, models_root, generate: bool, gen_config: GenerationConfig | None,
+            simulator: Simulate | None) -> Callable[[], Agent]:
     """A maker of fresh agents for the trials: generating ones if asked (and the user can judge their clips)."""
     if not generate:
+        if gen_config is not None:
+            raise ValueError("a generation config tunes how the agent makes clips: it needs generation on")
         return lambda: new_agent(method, context)
+    from rba.generate.config import GenerationConfig
     from rba.interact.generating_agent import generating_agents
 
     if not _judges_generated(spec):
         able = [k for k, kind in USER_KINDS.items() if kind.cls.judges_generated]
         raise ValueError(f"a {spec.kind} user cannot judge generated clips; with generation use: {', '.join(able)}")
-    return generating_agents(method, context, models_root, **(options or {}))
+    options = (gen_config or GenerationConfig()).context_options(get_domain(context.serve.domain), simulator)
+    return generating_agents(method, context, models_root, **options)
 
 
 def generation_summary(agents: list) -> dict:

@@ -8,12 +8,7 @@ from pydantic import Field, model_validator
 
 from rba.core.settings import LibrarySettings
 from rba.core.store import Store
-
-# a search's time bound (s) per domain, chosen on val (generation_seconds_val.md): the walker and the manipulator keep
-# SR (and AF) at 1 s; the snake 1.25 s: at 1.5 s its clips were playable within 2 s (p95) in two of three runs
-# (generation_latency.md), and 1.25 s keeps its val SR (0.60 as at 1.5 s); a domain not named here gets 2 s
-GENERATE_SECONDS = {"walker": 1.0, "manipulator": 1.0, "snake": 1.25}
-GENERATE_SECONDS_OTHERS = 2.0
+from rba.domains import get_domain
 
 
 class Settings(LibrarySettings):
@@ -58,7 +53,7 @@ class Settings(LibrarySettings):
         default=None, gt=0, allow_inf_nan=False, description="a search stops before a CMA-ES generation that would "
         "end later than this many seconds after the search began, and one running past it ends with the candidates "
         "simulated by then (rba.generate.cma.SearchConfig); default: per domain, chosen on val (walker and "
-        "manipulator 1 s, snake 1.25 s, the others 2 s: server.common.app_settings.GENERATE_SECONDS); a value here "
+        "manipulator 1 s, snake 1.25 s, the others 2 s: Domain.generate_seconds, docs/decisions/0005); a value here "
         "bounds every domain's searches, a large one leaves the 48-simulation budget alone to bound them. How long "
         "people then wait: benchmarks/results/generation_latency.md")
     warm_start: bool = Field(default=True, description="load models and render first clips after start-up")
@@ -79,10 +74,11 @@ class Settings(LibrarySettings):
         return self
 
     def search_seconds(self, domain: str) -> float:
-        """The time bound of a search in ``domain``: ``generate_seconds`` if set, else the domain's default."""
+        """The time bound of a search in ``domain``: ``generate_seconds`` (RBA_GENERATE_SECONDS) if set, else the
+        domain's own, chosen on val (``Domain.generate_seconds``, docs/decisions/0005-search-time-bound.md)."""
         if self.generate_seconds is not None:
             return self.generate_seconds
-        return GENERATE_SECONDS.get(domain, GENERATE_SECONDS_OTHERS)
+        return get_domain(domain).generate_seconds
 
     @property
     def replica_name(self) -> str:

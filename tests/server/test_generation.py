@@ -23,7 +23,7 @@ from rba.generate.cma import generated_id, is_generated
 from rba.interact import AttributeFeedback, generating_agent
 from rba.interact.generating_agent import GeneratingGlobalAgent
 from rba.media.clip_cache import ClipKey, render_job
-from server.common.app_settings import GENERATE_SECONDS, GENERATE_SECONDS_OTHERS, Settings
+from server.common.app_settings import Settings
 from server.db.admin_tables import BUILTIN_VERSION
 from server.db.tables import TuningSession
 from server.main import create_app
@@ -178,13 +178,13 @@ def test_a_search_stops_at_its_seconds(gen_settings):
 
 
 def test_each_domain_has_its_own_default_bound(gen_settings, monkeypatch):
-    """Unset, a search's bound is its domain's, chosen on val (docs/decisions/0005): the walker and the
-    manipulator keep SR at 1 s, the snake at 1.25 s; a domain not named gets 2 s."""
+    """Unset, a search's bound is its domain's ``Domain.generate_seconds``, chosen on val (docs/decisions/0005;
+    tests/server/test_app_settings.py): the walker and the manipulator 1 s, the snake 1.25 s, others 2 s."""
     assert Settings.model_fields["generate_seconds"].default is None
     default = Settings(generate_seconds=None)
     assert [default.search_seconds(d) for d in ("walker", "manipulator", "snake")] == [1.0, 1.0, 1.25]
-    assert default.search_seconds("toy") == GENERATE_SECONDS_OTHERS == 2.0
-    monkeypatch.setitem(GENERATE_SECONDS, "toy", 0.2)  # the catalog asks the settings per domain
+    assert default.search_seconds("toy") == Toy.generate_seconds == 2.0
+    monkeypatch.setattr(Toy, "generate_seconds", 0.2)  # the catalog asks the settings per domain
     unset = gen_settings.model_copy(update={"generate_seconds": None})
     progress = first_search(unset)
     assert progress["seconds_at_most"] == 0.2 and progress["generation"] == 1

@@ -73,6 +73,7 @@ class Walker(Domain):
     export_refit = False  # reward-only on 60 val profiles: trained weights 60, re-fitted 54 (reward_refit_val.md)
     generate_spread = 0.5  # with the surface: val AF lower, searches still rare at normal precision (same report)
     zeta_noise = 0.04  # its soft step, chosen with the surface: val AF lowest with SR held (same report)
+    generate_seconds = 1.0  # decision 0005
 
     def __init__(self) -> None:
         self._physics: WalkerPhysics | None = None
@@ -132,6 +133,7 @@ class WalkerRaw(Walker):
     name = "walker_raw"
     raw_states = True
     state_dim = (STATE_EVERY // RAW_EVERY) * 2 * 9
+    generate_seconds = Domain.generate_seconds  # decision 0005 measured the feature view; this one keeps the default
     # no rba.gym env: the gait's policy reads the feature view's observations (foot positions and speeds)
     simulator, skill_policy = Domain.simulator, Domain.skill_policy
 
