@@ -4,7 +4,7 @@ For each domain a fixed spread of ``--clips`` rollouts of the serve library is r
 clip size (320x240 by default) under each configuration, in one run, the configurations taking
 turns clip by clip so that a change in machine load hits them alike:
 
-* ``before``: the code of main before issue 13 item 3 (commit 0c32c5c), mirrored here: a full
+* ``before``: the renderer before its per-frame savings (commit 0c32c5c), mirrored here: a full
   ``mj_forward`` per frame, a copy of every frame, the skybox drawn in every frame, the floor's
   reflection in every MuJoCo domain,
   the snake's floor drawn with quads 0.1 m apart, highway-env's column-major read-back, and

@@ -1,7 +1,7 @@
 """How small a serve library generation needs: SR / AF of RBA-Global over the library's first N clips, alone and
 generating.
 
-Issue 14 asks that no domain need a library larger than 1,200 serve rollouts. Each row is ``rba eval --domain D
+The goal: no domain needs a library larger than 1,200 serve rollouts (decision 0020). Each row is ``rba eval --domain D
 --method global --precision P --split test --targets T --seed S --serve-size N [--no-generate]``: the agent
 chooses among the serve library's first N clips (a random sample: the library's parameters come from one seeded
 stream); ε, the targets and the users are the whole library's, whatever N. Rows of an earlier run in the same

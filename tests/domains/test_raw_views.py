@@ -1,5 +1,5 @@
 """The raw views (``<domain>_raw``, ``--states raw``): the base domain's behaviour, seen through the simulator's
-own positions and velocities instead of hand-made features (issue 15, item 3)."""
+own positions and velocities instead of hand-made features."""
 
 from __future__ import annotations
 
