@@ -46,7 +46,7 @@ def test_shipped_artifacts_serve_a_fresh_clone(domain):
 
 @pytest.mark.parametrize("domain", [d for d in SHIPPED if get_domain(d).state_encoder is None])
 def test_generation_keeps_the_serve_library_at_1200(domain):
-    """The library-size bound (decision 0020): the generating agent makes what a library lacks, so no domain (hand-made or raw states)
+    """Decision 0020: the generating agent makes what a library lacks, so no domain (hand-made or raw states)
     ships more than 1,200 serve rollouts; lane change needed 3,600 before. The image view, the paper's image
     states through a learned encoder, keeps its own library (``LaneChangeImage.serve_size``)."""
     assert get_domain(domain).serve_size <= 1200
