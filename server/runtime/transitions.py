@@ -19,7 +19,7 @@ from collections import OrderedDict
 from typing import Any
 
 from rba.core.methods import Method
-from rba.interact import SATISFIED, Feedback
+from rba.interact import SATISFIED, Agent, Feedback
 
 FeedbackKey = tuple[tuple[str, int], ...] | str
 
@@ -95,6 +95,11 @@ class Transitions:
 
     @staticmethod
     def _step(ctx: Any, method: Method, state: dict, feedback: Feedback) -> tuple[str, dict]:
-        agent = method.agent.from_state(copy.deepcopy(state), ctx)
+        agent = restore_agent(method, copy.deepcopy(state), ctx)
         rollout_id = agent.update(feedback)
         return rollout_id, json.loads(json.dumps(agent.state_dict()))  # exactly what the database will hold
+
+
+def restore_agent(method: Method, state: dict, ctx: Any) -> Agent:
+    """The agent of ``state`` as ``method`` (a registered method, or its generating form) steps it over ``ctx``."""
+    return method.agent.from_state(state, ctx)

@@ -112,9 +112,9 @@ def test_prerendering_renders_every_next_clip_and_leaves_the_agent_alone(make_se
         computed_in: list[str] = []  # threads that ran an agent from now on
         real_restore = transitions.restore_agent
 
-        def spy(state, ctx):
+        def spy(method, state, ctx):
             computed_in.append(threading.current_thread().name)
-            return real_restore(state, ctx)
+            return real_restore(method, state, ctx)
 
         monkeypatch.setattr(transitions, "restore_agent", spy)
         r = client.post(f"/api/sessions/{s['id']}/feedback", json=more("pace", 0, "less"))
