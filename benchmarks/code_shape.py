@@ -174,7 +174,7 @@ def functions(root: Path = REPO_ROOT, package: str | None = None) -> list[Functi
 
 
 # Where a rollout came from (a serve library or a search) is told in one module, the resolver every caller asks
-# (docs/architecture.md §6): an id's kind (``is_generated``), the made clips' key version (``MADE``, once
+# (docs/architecture.md §5): an id's kind (``is_generated``), the made clips' key version (``MADE``, once
 # ``GENERATED``) or a generating context's type checked anywhere else is a caller bypassing it. The generating step
 # alone asks its agent's state what it made (``made_clip``): to store that clip's row and render it at once.
 RESOLVER = "server/runtime/clip_sources.py"

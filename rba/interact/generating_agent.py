@@ -454,7 +454,7 @@ class GeneratingGlobalAgent(Agent):
         Why: the surface search stays near its first start, so made clips then stay in one region of the
         parameters, where ζ̃ and the proxies move together (locally affine: 0.14 / 0.27 high ε off). Started from the
         nearest clip instead, consecutive clips came from regions whose ζ̃ agree but whose proxies differ by
-        several ε, and the agent alternated between them (``benchmarks/results/generation_surface_val.md``)."""
+        several ε, and the agent alternated between them (decision 0008)."""
         base = self.ctx.base
         lib = dist.distances(base.serve_zeta)
         order = np.argsort(lib, kind="stable")[:STARTS]

@@ -42,7 +42,7 @@ class Settings(LibrarySettings):
     generate: bool = Field(default=False, description="RBA-Global sessions make a new behaviour (a CMA-ES "
                            "search on the compute layer) when no serve clip is near the agent's target; a session "
                            "may ask otherwise at creation (`generate`). Off by default: a search makes the person wait "
-                           "(p95 1.3-3.0 s on 2 cores where it searches, benchmarks/results/generation_latency.md)")
+                           "(docs/results.md, Latency: made clips)")
     generate_spread: float | None = Field(default=None, ge=0, allow_inf_nan=False,
                                           description="a generating session searches only "
                                           "where the serve clip misses the agent's target by more than this share of "

@@ -69,9 +69,9 @@ class Walker(Domain):
     param_names = tuple(PARAM_RANGES)
     frame_rate = FRAME_RATE
     feedback_phrases = FEEDBACK_PHRASES
-    zeta_surface = 96  # the generating agent reads clips on ζσ over the parameters (generation_surface_val.md)
-    export_refit = False  # reward-only on 60 val profiles: trained weights 60, re-fitted 54 (reward_refit_val.md)
-    generate_spread = 0.5  # with the surface: val AF lower, searches still rare at normal precision (same report)
+    zeta_surface = 96  # the generating agent reads clips on ζσ over the parameters: decision 0008
+    export_refit = False  # decision 0012
+    generate_spread = 0.5  # with the surface: decisions 0003 and 0008
     zeta_noise = 0.04  # its soft step, chosen with the surface: val AF lowest with SR held (same report)
     generate_seconds = 1.0  # decision 0005
 
