@@ -262,7 +262,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--draws", type=int, default=None,
                    help="rollouts of the budget spent on draws of the skill prior first; CMA-ES then starts from "
                         "the best of them (0: from the box's centre); default: a third of the budget (chosen on "
-                        "val, reward_only_draws_val.md); tune on --split val")
+                        "val: decision 0013); tune on --split val")
     p.add_argument("--ceiling", action="store_true",
                    help="search each profile again by ζσ distance to v* (what rθ was trained to rank by): what the "
                         "labels rθ learns from can tell apart, under the same search")
