@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import os
 import re
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -114,6 +115,12 @@ def problems(pins: dict[str, str], installed: dict[str, str], requirements: list
               for name, version in sorted(installed.items())
               if name in pins and Version(pins[name]) != Version(version)]
     found += [f"{name}=={pins[name]} is pinned but nothing needs it" for name in sorted(pins) if name not in installed]
+    return found + outside_ranges(pins, requirements)
+
+
+def outside_ranges(pins: dict[str, str], requirements: list[Requirement]) -> list[str]:
+    """The pyproject.toml requirements the pins miss or fall outside of."""
+    found = []
     for req in requirements:
         name = canonicalize_name(req.name)
         if name not in pins:
@@ -133,7 +140,7 @@ def check() -> int:
 
 def freeze() -> int:
     pins = resolved()
-    issues = [p for p in problems(pins, pins, declared()) if p.startswith("pyproject")]
+    issues = outside_ranges(pins, declared())
     if issues:
         print("\n".join(issues))
         return 1
@@ -158,7 +165,7 @@ def upgrade(keep: bool) -> int:
             return 1
     status = subprocess.run([str(python), __file__, "freeze"], cwd=REPO_ROOT).returncode
     if status == 0 and not keep:
-        subprocess.run(["rm", "-rf", str(venv)])
+        shutil.rmtree(venv)
     return status
 
 

@@ -258,7 +258,7 @@ def _judges_generated(spec: UserSpec) -> bool:
 def can_generate(method: str, user: str | UserSpec) -> bool:
     """Whether ``evaluate(..., generate=True)`` works: the method has a generating agent and the user can judge
     new clips (``rba eval``'s default for ``--generate``)."""
-    from rba.interact.generating_agent import generating_methods
+    from rba.core.methods import generating_methods
 
     return method in generating_methods() and _judges_generated(parse_user(user))
 

@@ -50,7 +50,6 @@ import numpy as np
 
 from rba.core.artifacts import load_model
 from rba.core.methods import Method, get_method
-from rba.core.methods import generating_methods as registered_generating
 from rba.data.library import SkillLibrary
 from rba.domains import Rollout, get_domain
 from rba.generate.cma import (
@@ -605,16 +604,6 @@ def _load_context(domain: str, rep: str, data_root=None, models_root=None, **opt
 METHOD = Method(agent=GeneratingGlobalAgent, label=GLOBAL.label, load_context=_load_context,
                 model_kinds=GLOBAL.model_kinds, trainer=None, presets=(), reps=GLOBAL.reps,
                 extends=_extend)
-
-
-def generating_methods() -> tuple[str, ...]:
-    """The registered methods whose agents have a generating form."""
-    return registered_generating()
-
-
-def generating_class(method: str) -> type[Agent]:
-    """The generating agent class of ``method``; ValueError naming the methods that can generate."""
-    return get_method(method).form(True).agent
 
 
 def generating_agents(method: str, context, models_root=None, **options) -> Callable[[], Agent]:
