@@ -195,6 +195,8 @@ class Domain(ABC):
     attributes: tuple[AttributeSpec, ...]
     state_dim: int
     param_names: tuple[str, ...]  # keys of sample_params(), in a fixed order
+    # name -> (low, high): the skill's box; a domain that sets it gets sample_params() and param_space() from it
+    param_ranges: Mapping[str, tuple[float, float]] = MappingProxyType({})
     frame_rate: float  # frames per second of ``replay`` (and of rendered clips)
     serve_size: int = 1200  # rollouts in ``serve``: the generating agent makes what it lacks (the image view: 2,400)
     ranker_steps: int | None = None  # ζσ gradient steps of `rba train` where RankerConfig's default underfits
@@ -243,9 +245,11 @@ class Domain(ABC):
         model of its rendered frames, ``state_encoder``); the last two are research views of the same scene."""
         return "raw" if self.raw_states else "image" if self.state_encoder else "features"
 
-    @abstractmethod
     def sample_params(self, rng: np.random.Generator) -> dict[str, float]:
-        """Draw skill parameters that cover the attribute space."""
+        """Draw skill parameters that cover the attribute space: uniform over ``param_ranges`` unless overridden."""
+        if not self.param_ranges:
+            raise NotImplementedError(f"domain {self.name!r} declares no param_ranges: define sample_params()")
+        return {k: float(rng.uniform(lo, hi)) for k, (lo, hi) in self.param_ranges.items()}
 
     @abstractmethod
     def rollout(self, params: dict[str, float], seed: int) -> Rollout:
@@ -269,6 +273,8 @@ class Domain(ABC):
 
     def param_space(self) -> ParamSpace:
         """The skill's parameter space (bounds, what is fixed): what ``rba.generate.cma`` may search."""
+        if self.param_ranges:
+            return ParamSpace.box(self.param_ranges)
         raise NotImplementedError(f"domain {self.name!r} declares no parameter space: behaviours cannot be "
                                   "generated for it (define param_space())")
 

@@ -35,7 +35,6 @@ from rba.domains.base import (
     AttributeSpec,
     Domain,
     FeedbackPhrases,
-    ParamSpace,
     Rollout,
     SkillPolicy,
     SkillSim,
@@ -234,6 +233,7 @@ class LaneChange(Domain):
     )
     state_dim = len(STATE_FEATURES)
     param_names = tuple(PARAM_RANGES)
+    param_ranges = PARAM_RANGES
     frame_rate = float(SIM_HZ)
     feedback_phrases = FEEDBACK_PHRASES
     # serve_size: the default 1,200; the generating agent makes what it lacks (decision 0020)
@@ -248,12 +248,6 @@ class LaneChange(Domain):
         if key not in envs:
             envs[key] = _make_env(*key)
         return envs[key]
-
-    def sample_params(self, rng: np.random.Generator) -> dict[str, float]:
-        return {k: float(rng.uniform(lo, hi)) for k, (lo, hi) in PARAM_RANGES.items()}
-
-    def param_space(self) -> ParamSpace:
-        return ParamSpace.box(PARAM_RANGES)
 
     def rollout(self, params: dict[str, float], seed: int) -> Rollout:
         env = self._env()

@@ -42,7 +42,6 @@ from rba.domains.base import (
     AttributeSpec,
     Domain,
     FeedbackPhrases,
-    ParamSpace,
     Rollout,
     SkillPolicy,
     SkillSim,
@@ -260,6 +259,7 @@ class Manipulator(Domain):
     )
     state_dim = STACK * len(RAW_FEATURES) + 2 * (STACK - 3)
     param_names = tuple(PARAM_RANGES)
+    param_ranges = PARAM_RANGES
     frame_rate = FRAME_RATE
     feedback_phrases = FEEDBACK_PHRASES
     zeta_noise = 0.06  # decisions 0006 and 0003
@@ -285,12 +285,6 @@ class Manipulator(Domain):
             if target >= 0:
                 self._model.geom_rgba[target, 3] = 0.0  # the bring_ball target is not part of this task
         return self._model
-
-    def sample_params(self, rng: np.random.Generator) -> dict[str, float]:
-        return {k: float(rng.uniform(lo, hi)) for k, (lo, hi) in PARAM_RANGES.items()}
-
-    def param_space(self) -> ParamSpace:
-        return ParamSpace.box(PARAM_RANGES)
 
     def rollout(self, params: dict[str, float], seed: int) -> Rollout:
         sim = ManipulatorSim(self._physics())

@@ -17,7 +17,6 @@ from rba.domains.base import (
     AttributeSpec,
     Domain,
     FeedbackPhrases,
-    ParamSpace,
     Reading,
     Rollout,
     SkillPolicy,
@@ -67,6 +66,7 @@ class Walker(Domain):
     )
     state_dim = len(STATE_FEATURES)
     param_names = tuple(PARAM_RANGES)
+    param_ranges = PARAM_RANGES
     frame_rate = FRAME_RATE
     feedback_phrases = FEEDBACK_PHRASES
     zeta_surface = 96  # the generating agent reads clips on ζσ over the parameters: decision 0008
@@ -87,12 +87,6 @@ class Walker(Domain):
         return self._physics
 
     # ------------------------------------------------------------------ skill
-    def sample_params(self, rng: np.random.Generator) -> dict[str, float]:
-        return {k: float(rng.uniform(lo, hi)) for k, (lo, hi) in PARAM_RANGES.items()}
-
-    def param_space(self) -> ParamSpace:
-        return ParamSpace.box(PARAM_RANGES)
-
     def rollout(self, params: dict[str, float], seed: int) -> Rollout:
         physics = self.physics()
         sim, policy = WalkerSim(physics), GaitPolicy(GaitPlan.from_params(params, physics.geometry), physics)
