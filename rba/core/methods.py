@@ -28,10 +28,24 @@ if TYPE_CHECKING:
     from rba.interact.base import Agent, FeedbackKind
     from rba.learn.training import LabelSource, StageProgress
 
-__all__ = ["Method", "Trainer", "UnknownMethodError", "generating_methods", "get_method", "method_names",
+__all__ = ["REPS", "Method", "Rep", "Trainer", "UnknownMethodError", "generating_methods", "get_method", "method_names",
            "method_target", "method_targets", "methods", "register", "train_presets", "trainable"]
 
-_REP_SUFFIX = {"onehot": "", "language": "-L"}  # the paper's row labels: RBA-Global-L is the language rep
+
+@dataclass(frozen=True)
+class Rep:
+    """How an attribute representation shows to people: the paper's row suffix, and whether it is for research."""
+
+    suffix: str  # RBA-Global-L is the language rep
+    description: str  # one line on what the models read, for people picking a method
+    research: bool  # a variant the paper compares: the page offers it behind its "Advanced" choice
+
+
+REPS = {
+    "onehot": Rep("", "", research=False),
+    "language": Rep("-L", "Research variant: the models read each attribute through a sentence embedding of its "
+                    "description rather than as its own input.", research=True),
+}
 
 
 class Trainer(Protocol):
@@ -57,6 +71,7 @@ class Method:
     trainer: Trainer | None  # None when there is nothing to train beforehand
     presets: tuple[str, ...]  # valid ``preset`` names of ``trainer``
     reps: tuple[str, ...]  # attribute representations it learns with; () when it has none
+    description: str = ""  # one line on how it chooses the next clip, for people picking a method (the API lists it)
     reference: Literal["floor", "ceiling"] | None = None  # a reference row of the tables, not a method people use
     # "module:RECORD" of this method's generating form (imported when asked for: it imports this one); None: none
     generating: str | None = None
@@ -87,9 +102,14 @@ class Method:
                              f"{', '.join(generating_methods())}")
         return _form(self.generating)
 
+    def describe(self, rep: str) -> str:
+        """``description``, and with a research representation what its models read: the line the page shows."""
+        note = REPS[rep].description if self.reps else ""
+        return f"{self.description} {note}" if note else self.description
+
     def label_for(self, rep: str) -> str:
         """The paper's row label of this method with ``rep``: "RBA-Global", "RBA-Global-L", "PbRL"."""
-        return self.label + (_REP_SUFFIX[rep] if self.reps else "")
+        return self.label + (REPS[rep].suffix if self.reps else "")
 
 
 class UnknownMethodError(ValueError):

@@ -42,6 +42,13 @@ class AttributeSpec:
     reading: Reading | None = None  # how the page shows the proxy, when not as it is
 
 
+# what the models see under each ``Domain.states_view``: a research view shows the same scene as its base domain
+STATES_VIEWS = MappingProxyType({
+    "features": "",
+    "raw": "Research view: the models see the simulator's raw positions and velocities, not the domain's features.",
+    "image": "Research view: the models see the rendered frames through a learned image encoder (a VAE).",
+})
+
 # ε per precision, as a fraction of a proxy's robust range over the serve library (its 1st to 99th percentile):
 # "normal" splits the range into 7 buckets, "high" (the paper's Table 2) is 6x finer. Robust quantiles, because a
 # few outlying clips stretch the raw range (snake's doubled its ε).
@@ -192,6 +199,7 @@ class Domain(ABC):
     """A simulator plus a scripted skill; subclasses are registered in ``rba.domains``."""
 
     name: str
+    description: str = ""  # one line on the scene and its skill, for people picking a domain (the API lists it)
     attributes: tuple[AttributeSpec, ...]
     state_dim: int
     param_names: tuple[str, ...]  # keys of sample_params(), in a fixed order
@@ -238,6 +246,12 @@ class Domain(ABC):
     raw_states: bool = False
     # attribute name -> FeedbackPhrases: free-text feedback's anchors (an attribute without any is matched by name)
     feedback_phrases: Mapping[str, FeedbackPhrases] = MappingProxyType({})
+
+    @property
+    def summary(self) -> str:
+        """``description``, and for a research view what its models see: the line the page's picker shows."""
+        note = STATES_VIEWS[self.states_view]
+        return f"{self.description} {note}" if note else self.description
 
     @property
     def states_view(self) -> str:

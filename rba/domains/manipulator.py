@@ -253,6 +253,7 @@ FEEDBACK_PHRASES = MappingProxyType({
 
 class Manipulator(Domain):
     name = "manipulator"
+    description = "A robot arm lifts a ball it holds; tune how fast and how steadily."
     attributes = (
         AttributeSpec("speed", "How fast the arm lifts the ball.", "m/s"),
         AttributeSpec("instability", "How shaky and jittery the arm's motion is.", "mm"),

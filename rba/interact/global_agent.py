@@ -239,4 +239,6 @@ def train(domain: str, rep: str, preset: str, seed: int = 0, data_root: Path | N
 
 METHOD = Method(agent=GlobalAgent, label="RBA-Global", load_context=GlobalContext.load,
                 model_kinds=("ranker", "global_reward"), trainer=train, presets=PRESETS, reps=REPRESENTATIONS,
-                generating="rba.interact.generating_agent:METHOD")
+                generating="rba.interact.generating_agent:METHOD",
+                description="Works out from all your answers where you want each attribute and shows the clip "
+                "closest to that (the paper's RBA-Global).")

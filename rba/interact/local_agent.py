@@ -129,4 +129,6 @@ def train(domain: str, rep: str, preset: str, seed: int = 0, data_root: Path | N
 
 
 METHOD = Method(agent=LocalAgent, label="RBA-Local", load_context=LocalContext.load, model_kinds=("local_reward",),
-                trainer=train, presets=LOCAL_PRESETS, reps=REPRESENTATIONS)
+                trainer=train, presets=LOCAL_PRESETS, reps=REPRESENTATIONS,
+                description="Takes each answer as a change to the clip on screen and shows the clip that makes "
+                "that change (the paper's RBA-Local).")

@@ -153,4 +153,5 @@ class PbRLAgent(Agent):
 # PbRL learns its reward online, from the A/B answers: no model files, nothing to train beforehand,
 # no attribute representation.
 METHOD = Method(agent=PbRLAgent, label="PbRL", load_context=PbRLContext.load, model_kinds=(), trainer=None,
-                presets=(), reps=())
+                presets=(), reps=(), description="Asks which of two clips you prefer and learns a reward from "
+                "those choices (a baseline).")

@@ -208,6 +208,11 @@ class AttributePublic(BaseModel):
 class MethodPublic(BaseModel):
     method: str
     rep: str
+    label: str = Field(default="", description="display name, e.g. RBA-Global")
+    description: str = Field(default="", description="one line on how it chooses the next clip (and, for a "
+                             "research representation, what its models read)")
+    advanced: bool = Field(default=False, description="a research variant (the language representation): the page "
+                           "offers it behind its Advanced choice; the API and the CLI take it as any other")
 
 
 class TrainablePublic(BaseModel):
@@ -225,6 +230,10 @@ class DomainPublic(BaseModel):
     states: Literal["features", "raw", "image"] = Field(
         default="features", description="what the agent's models see: the domain's own features, or a research "
         "view of the same scene: the simulator's raw positions and velocities, or a model of its rendered frames")
+    description: str = Field(default="", description="one line on the scene and its skill (and, for a research view, "
+                             "what its models see)")
+    advanced: bool = Field(default=False, description="a research view (`states` raw or image): the page offers it "
+                           "behind its Advanced choice; the API and the CLI take it as any other domain")
 
 
 class DomainsPublic(BaseModel):

@@ -14,7 +14,7 @@ from urllib.parse import quote
 import numpy as np
 from sqlmodel import Session, select
 
-from rba.core.methods import generating_methods, trainable
+from rba.core.methods import REPS, generating_methods, get_method, trainable
 from rba.data.library import LibraryNotFoundError
 from rba.domains import Domain
 from rba.interact import SATISFIED, restore_agent
@@ -162,6 +162,13 @@ def session_public(svc: Services, db: Session, s: TuningSession) -> SessionPubli
                          created_at=s.created_at, updated_at=s.updated_at)
 
 
+def method_public(method: str, rep: str) -> MethodPublic:
+    """A method/rep pair as the picker shows it: its label, its one line, and whether it is a research variant."""
+    m = get_method(method)
+    return MethodPublic(method=method, rep=rep, label=m.label, description=m.describe(rep),
+                        advanced=REPS[rep].research)
+
+
 def domains_public(svc: Services, db: Session) -> DomainsPublic:
     """Every domain with its attributes and the method/rep pairs new sessions can get."""
     domains = []
@@ -175,9 +182,10 @@ def domains_public(svc: Services, db: Session) -> DomainsPublic:
             row = db.get(ModelVersion, active)  # its other models were carried over (``Store.carry_over``)
             trained = (row.method, row.rep) if row is not None else served[0]
             specs = svc.catalog.card_attributes(name, *trained, active)
-        available = [MethodPublic(method=m, rep=r) for m, r in pairs]
+        available = [method_public(m, r) for m, r in pairs]
         domains.append(DomainPublic(name=name, attributes=attributes_public(domain, specs=specs),
                                     frame_rate=domain.frame_rate, states=domain.states_view,
+                                    description=domain.summary, advanced=domain.states_view != "features",
                                     available=available, missing=svc.catalog.missing_reason(name)))
     return DomainsPublic(domains=domains, methods=list(attribute_methods()), reps=list(REPRESENTATIONS),
                          trainable=[TrainablePublic(method=m.name, label=m.label, presets=list(m.presets))

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import pytest
 
-from rba.core.methods import trainable
+from rba.core.methods import get_method, trainable
+from rba.domains import domain_names, get_domain
 from rba.learn.embed import REPRESENTATIONS
+from server.ops.views import method_public
 from server.runtime.catalog import attribute_methods
 from tests.server.conftest import more
 
@@ -19,7 +21,7 @@ def test_domains_lists_attributes_and_available_models(client):
     assert [a["name"] for a in toy["attributes"]] == ["amplitude", "pace"]
     assert toy["attributes"][0] == {"name": "amplitude", "description": "How far the dot swings from side to side.",
                                     "unit": "m", "low": None, "high": None, "decimals": 2, "reading": None}
-    assert toy["available"] == [{"method": "global", "rep": "onehot"}]  # only these models were trained
+    assert [(m["method"], m["rep"]) for m in toy["available"]] == [("global", "onehot")]  # only these were trained
     assert toy["missing"] is None
     walker = next(d for d in body["domains"] if d["name"] == "walker")
     assert walker["available"] == [] and "run `rba build walker`" in walker["missing"]
@@ -29,6 +31,27 @@ def test_domains_lists_attributes_and_available_models(client):
     assert body["methods"] == list(attribute_methods()) and body["reps"] == list(REPRESENTATIONS)
     assert body["trainable"] == [{"method": m.name, "label": m.label, "presets": list(m.presets)} for m in trainable()]
     assert [m["method"] for m in body["trainable"]] == ["global", "local"]  # PbRL learns online: nothing to train
+
+
+def test_domains_carry_descriptions_and_mark_research_choices_advanced(client):
+    """The page's picker shows each domain and method with its one line, the research views and representations
+    behind "Advanced": the lines come from the definitions, and the listing still has every name (the API and the
+    CLI take them all)."""
+    body = client.get("/api/domains").json()
+    by_name = {d["name"]: d for d in body["domains"]}
+    assert set(by_name) == set(domain_names())
+    for name, d in by_name.items():
+        assert d["description"] == get_domain(name).summary and d["description"]
+        assert d["advanced"] == (d["states"] != "features")
+    assert sorted(n for n, d in by_name.items() if not d["advanced"]) == [
+        "lane_change", "manipulator", "snake", "toy", "walker"]
+    assert by_name["walker_raw"]["description"].startswith(by_name["walker"]["description"] + " Research view:")
+    assert by_name["toy"]["available"] == [{"method": "global", "rep": "onehot", "label": "RBA-Global",
+                                            "description": get_method("global").description, "advanced": False}]
+    language = method_public("local", "language")
+    assert language.advanced and language.label == "RBA-Local"
+    assert language.description.startswith(get_method("local").description + " Research variant:")
+    assert all(get_method(m).description for m in ("global", "local", "pbrl"))
 
 
 # -- creating and reading sessions -----------------------------------------------------------------

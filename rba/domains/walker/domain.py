@@ -51,6 +51,7 @@ class Walker(Domain):
     """dm_control walker taking three scripted, assisted steps (the skill: ``rba.domains.walker.gait``)."""
 
     name = "walker"
+    description = "A two-legged robot walks three steps; tune how long and how softly it steps."
     attributes = (
         AttributeSpec(
             name="step_size",
