@@ -5,8 +5,9 @@ import { $, api, el, hideToast, pretty, toast } from "./common.js";
 
 const WATCH_SECONDS = 1;  // a clip counts as seen once it has played this long (or 90 % of a shorter clip)
 const ANSWERS = ["left-more", "skip", "right-more"];
+const TOKEN_KEY = "rba-admin-token";  // in this tab's session storage until "Lock" or the tab closes
 const state = {
-  token: sessionStorage.getItem("rba-admin-token") || "", clips: [], watched: new Set(), failed: false,
+  token: sessionStorage.getItem(TOKEN_KEY) || "", clips: [], watched: new Set(), failed: false,
   busy: false, job: null, jobState: "", labels: 0, trainable: [], versions: [],
 };
 
@@ -29,10 +30,11 @@ async function unlock(event) {
     toast(e.message);
     return;
   }
-  sessionStorage.setItem("rba-admin-token", state.token);
+  sessionStorage.setItem(TOKEN_KEY, state.token);
   hideToast();  // a refused token's message is stale once the right one unlocks the page
   $("login").hidden = true;
   $("admin").hidden = false;
+  $("lock").hidden = false;
   $("h-what").focus();  // the form that had focus is gone: keyboard users start at the first panel
   const { domains, trainable, reps } = await api("/api/domains");
   $("domain").replaceChildren(...domains.map((d) => el("option", { value: d.name }, d.name)));
@@ -41,6 +43,22 @@ async function unlock(event) {
   $("rep").replaceChildren(...reps.map((r) => el("option", { value: r }, r)));
   showPresets();
   await loadDomain();
+}
+
+/** Forget the token (this tab's storage and memory), stop following the job and show the token form again: a
+ * shared screen keeps no admin access. */
+function lock() {
+  sessionStorage.removeItem(TOKEN_KEY);
+  state.token = "";
+  state.job = null;  // the poll stops at its next turn
+  state.clips = [];
+  $("pair").replaceChildren();  // stops the videos
+  $("admin").hidden = true;
+  $("lock").hidden = true;
+  $("login").hidden = false;
+  $("token").value = "";
+  $("token").focus();
+  toast("Locked: this tab has forgotten the admin token.", "info");
 }
 
 // The presets the chosen method's trainer knows (the server's method registry says which).
@@ -288,9 +306,11 @@ function showJob(job) {
 async function pollJob() {
   if (!running(state.job)) return;
   try {
-    showJob(await adminApi(`/api/admin/jobs/${state.job.id}`));
+    const job = await adminApi(`/api/admin/jobs/${state.job.id}`);
+    if (!state.token) return;  // locked while asking
+    showJob(job);
   } catch (e) {
-    toast(e.message);
+    if (state.token) toast(e.message);
   }
   if (running(state.job)) setTimeout(pollJob, 1000);
   else await loadVersions();
@@ -315,8 +335,18 @@ async function train() {
   }
 }
 
+/** Stop the job once the admin confirms: minutes of training are lost on one click otherwise. */
 async function cancel() {
-  try { showJob(await adminApi(`/api/admin/jobs/${state.job.id}/cancel`, { method: "POST" })); } catch (e) { toast(e.message); }
+  const job = state.job;
+  if (!running(job)) return;
+  $("confirm-cancel-text").textContent = `Job ${job.id.slice(0, 8)} (${job.method}/${job.rep}, ${job.preset}) is `
+    + `${Math.round(100 * (job.progress || 0))} % done. Stopping it keeps nothing it made; the served models stay.`;
+  if ((await ask($("confirm-cancel"))) !== "stop") { $("cancel").focus(); return; }
+  try {
+    showJob(await adminApi(`/api/admin/jobs/${job.id}/cancel`, { method: "POST" }));
+  } catch (e) {
+    toast(e.message);
+  }
 }
 
 // ---------------------------------------------------------------- versions
@@ -355,17 +385,23 @@ async function loadVersions() {
   $("versions").replaceChildren(...state.versions.map(versionItem));
 }
 
+/** Open a confirming ``dialog`` with its safe choice (value "keep") focused; resolves to the value of the button
+ * that closed it ("" for Escape). */
+function ask(dialog) {
+  dialog.returnValue = "";
+  dialog.showModal();
+  dialog.querySelector("[value=keep]").focus();  // the safe choice is the default
+  return new Promise((resolve) => {
+    dialog.addEventListener("close", () => resolve(dialog.returnValue), { once: true });
+  });
+}
+
 /** Resolves true when the admin confirms activating ``v`` despite its concerns. */
-function confirmActivation(v) {
+async function confirmActivation(v) {
   $("confirm-title").textContent = `Activate ${v.version}? It may serve worse than ${v.baseline}`;
   $("confirm-concerns").replaceChildren(...v.concerns.map((c) => el("li", {}, pretty(c))));
   $("confirm-table").replaceChildren(scoreTable(v));
-  $("confirm").returnValue = "";
-  $("confirm").showModal();
-  $("confirm").querySelector("[value=keep]").focus();  // the safe choice is the default
-  return new Promise((resolve) => {
-    $("confirm").addEventListener("close", () => resolve($("confirm").returnValue === "activate"), { once: true });
-  });
+  return (await ask($("confirm"))) === "activate";
 }
 
 async function activate(v) {
@@ -384,6 +420,7 @@ async function activate(v) {
 
 // ---------------------------------------------------------------- wiring
 $("login").addEventListener("submit", unlock);
+$("lock").addEventListener("click", lock);
 $("domain").addEventListener("change", loadDomain);
 $("attribute").addEventListener("change", nextClips);
 $("mode").addEventListener("change", nextClips);
@@ -397,7 +434,7 @@ $("train").addEventListener("click", train);
 $("cancel").addEventListener("click", cancel);
 document.addEventListener("keydown", (e) => {
   // keys of their own: form fields, a video's controls (← → seek), the training log (↓ scrolls)
-  if ($("admin").hidden || $("confirm").open || e.target.closest("input, select, textarea, summary, video, pre")) return;
+  if ($("admin").hidden || document.querySelector("dialog[open]") || e.target.closest("input, select, textarea, summary, video, pre")) return;
   const act = { ArrowLeft: () => answer("left"), ArrowRight: () => answer("right"), ArrowDown: skip }[e.key];
   if (!act) return;
   e.preventDefault();  // ↓ would scroll the page away from the clips

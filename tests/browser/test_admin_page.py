@@ -259,3 +259,69 @@ def test_activating_a_worse_version_asks_first_and_the_intro_follows(live_server
     assert "foot lift" in page.locator("#toast").inner_text()
     page.goto(url)  # the user page's intro lists the active version's attributes
     page.wait_for_function("() => document.body.innerText.includes('foot lift')", timeout=15_000)
+
+
+def _running_job(db_url: str, domain: str = "walker") -> str:
+    """A running job's row as its process would leave it (no process: cancelling it only marks the row)."""
+    now = dt.datetime.now(dt.UTC)
+    engine = create_engine(db_url)
+    with Session(engine) as db:
+        job = TrainJob(domain=domain, busy_domain=domain, method="global", rep="onehot", preset="tiny", datasets=[],
+                       state="running", stage="ranker[onehot]", step=50, total=200, created_at=now, updated_at=now,
+                       heartbeat_at=now)
+        db.add(job)
+        db.commit()
+        job_id = job.id
+    engine.dispose()
+    return job_id
+
+
+@pytest.fixture
+def own_server(live_server, tmp_path) -> tuple[str, str]:
+    """(URL, database URL) of a server with a database of its own (its jobs are this test's)."""
+    db_url = f"sqlite:///{tmp_path}/rba.db"
+    url = live_server(Settings(data_dir=REPO / "data", models_dir=REPO / "models", database_url=db_url,
+                               cache_dir=tmp_path / "c", warm_start=False, prerender=False, admin_token=TOKEN))
+    return url, db_url
+
+
+def test_cancelling_a_job_asks_first(own_server, page, tmp_path):
+    url, db_url = own_server
+    httpx.get(f"{url}/api/admin/jobs", headers=AUTH).raise_for_status()  # the app made its tables
+    job_id = _running_job(db_url)
+    unlock(page, url)
+    page.get_by_role("button", name="Cancel").wait_for()
+    page.get_by_role("button", name="Cancel").click()
+    dialog = page.get_by_role("dialog", name="Stop this training job?")
+    dialog.wait_for()
+    assert "nothing it made" in dialog.inner_text()
+    assert page.evaluate("() => document.activeElement.textContent") == "Keep training"  # the safe choice
+    assert axe_violations(page) == []
+    page.screenshot(path=str(tmp_path / "admin-confirm-cancel.png"))
+    page.keyboard.press("Escape")  # as "Keep training"
+    assert dialog.is_hidden()
+    assert page.evaluate("() => document.activeElement.id") == "cancel"
+    page.get_by_role("button", name="Cancel").click()
+    page.get_by_role("button", name="Keep training").click()
+    state = httpx.get(f"{url}/api/admin/jobs/{job_id}", headers=AUTH).json()["state"]
+    assert state == "running"  # two refusals stopped nothing
+
+    page.get_by_role("button", name="Cancel").click()
+    page.get_by_role("button", name="Stop the job").click()
+    page.wait_for_function("() => document.getElementById('job-status').textContent.includes('cancelled')")
+    assert httpx.get(f"{url}/api/admin/jobs/{job_id}", headers=AUTH).json()["state"] == "cancelled"
+
+
+def test_lock_forgets_the_token_and_shows_the_token_form(url, page):
+    unlock(page, url)
+    assert page.evaluate("() => sessionStorage.getItem('rba-admin-token')") == TOKEN
+    page.get_by_role("button", name="Lock").click()
+    assert page.locator("#admin").is_hidden() and page.locator("#login").is_visible()
+    assert page.evaluate("() => sessionStorage.getItem('rba-admin-token')") is None
+    assert page.evaluate("() => document.activeElement.id") == "token"
+    assert page.locator("#pair video").count() == 0
+    page.reload()  # nothing remembered: the form again, not the panels
+    page.locator("#login").wait_for()
+    assert page.locator("#admin").is_hidden() and page.locator("#token").input_value() == ""
+    unlock(page, url)  # the same tab unlocks again
+    assert page.get_by_role("button", name="Lock").is_visible()
