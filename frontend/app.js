@@ -37,6 +37,7 @@ const state = {
   played: new Set(), // rollout ids that have played for at least a second
   announced: null,
   clipToken: 0,
+  loading: null, // the rollout load() gave the video, until it can play: only its events take the overlay away
   understood: null, // the feedback the text box's sentence was understood as, awaiting confirmation
 };
 
@@ -344,6 +345,7 @@ async function waitForRender(clip, token) {
 
 function load(url, rolloutId, label) {
   state.shownUrl = url;
+  state.loading = rolloutId;
   overlay(label);
   els.video.dataset.ready = "false";
   delete els.video.dataset.played;
@@ -377,6 +379,9 @@ function stopWaiting() {
 }
 
 function clipStarted() {
+  // a looping clip fires canplay / playing again: only the clip being waited for ends the wait
+  if (state.loading !== els.video.dataset.rollout) return;
+  state.loading = null;
   els.video.dataset.ready = "true";
   const s = state.session;
   if (state.viewing || !s || els.video.dataset.rollout !== s.clip.rollout_id) { overlay(null); return; }
