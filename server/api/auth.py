@@ -2,7 +2,9 @@
 
 ``AdminGate`` checks it in front of the app: FastAPI reads and parses a JSON body before any dependency
 runs, so a dependency would check the token only after a stranger's 50 MB body was read. The gate also
-makes a client that keeps sending wrong tokens wait (``FailureLimiter``: 429 with ``Retry-After``).
+makes a client that keeps sending wrong tokens wait (``FailureLimiter``: 429 with ``Retry-After``); the right
+token still gets in from that address, so a guesser sharing an admin's address (a NAT, a proxy) cannot lock the
+admin out.
 """
 
 from __future__ import annotations
@@ -56,9 +58,6 @@ class FailureLimiter:
         if len(self._times) > self.max_clients:
             del self._times[next(iter(self._times))]
 
-    def forget(self, client: str) -> None:
-        self._times.pop(client, None)
-
 
 def is_admin_path(path: str) -> bool:
     return path == ADMIN_PREFIX or path.startswith(ADMIN_PREFIX + "/")
@@ -83,19 +82,18 @@ class AdminGate:
     def refusal(self, scope: Scope) -> Response | None:
         if not self.token:
             return error_response(503, "admin disabled: set RBA_ADMIN_TOKEN to enable the admin routes")
+        scheme, _, given = Headers(scope=scope).get("authorization", "").partition(" ")
+        if scheme.lower() != "bearer" or not given.strip():
+            return error_response(401, "admin token required: send 'Authorization: Bearer <token>'", CHALLENGE)
         client = (scope.get("client") or ("unknown",))[0]
+        if hmac.compare_digest(given.strip().encode(), self.token.encode()):
+            return None  # even while wrong ones from its address wait, which they still do after it
         wait = self.failures.retry_after(client)
         if wait:
             return error_response(429, f"too many wrong admin tokens from {client}: try again in {wait} s",
                                   {"Retry-After": str(wait)})
-        scheme, _, given = Headers(scope=scope).get("authorization", "").partition(" ")
-        if scheme.lower() != "bearer" or not given.strip():
-            return error_response(401, "admin token required: send 'Authorization: Bearer <token>'", CHALLENGE)
-        if not hmac.compare_digest(given.strip().encode(), self.token.encode()):
-            self.failures.failed(client)
-            return error_response(401, "wrong admin token", CHALLENGE)
-        self.failures.forget(client)
-        return None
+        self.failures.failed(client)
+        return error_response(401, "wrong admin token", CHALLENGE)
 
 
 def require_admin(request: Request,

@@ -12,9 +12,11 @@ from collections.abc import Callable
 from pathlib import Path
 
 from sqlalchemy import event, text
+from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.engine import Engine, make_url
 from sqlalchemy.exc import IntegrityError
-from sqlmodel import Session, create_engine
+from sqlalchemy.sql.dml import Insert
+from sqlmodel import Session, SQLModel, create_engine
 
 from server.common.errors import conflict
 from server.db import migrations
@@ -97,3 +99,10 @@ def commit_or_conflict(db: Session, detail: str | Callable[[], str]) -> None:
     except IntegrityError as exc:
         db.rollback()
         raise conflict(detail() if callable(detail) else detail) from exc
+
+
+def dialect_insert(db: Session, table: type[SQLModel]) -> Insert:
+    """An INSERT in ``db``'s own dialect, whose ``on_conflict_do_*`` makes an insert-or-update one statement: no
+    read-then-write that two requests can interleave (SQLite and PostgreSQL spell it alike)."""
+    dialect = postgresql if db.get_bind().dialect.name == "postgresql" else sqlite
+    return dialect.insert(table)

@@ -9,12 +9,13 @@ from __future__ import annotations
 import logging
 from typing import Any
 
-from sqlmodel import Session, select
+from sqlmodel import Session, delete, select
 
 from rba.core.methods import UnknownMethodError, get_method
 from rba.domains import Domain
 from server.common.errors import conflict, invalid, not_found
 from server.db.admin_tables import BUILTIN_VERSION, ActiveModel, ModelVersion, VersionPublic
+from server.db.engine import dialect_insert
 from server.db.tables import utcnow
 from server.runtime.services import Services
 
@@ -22,8 +23,9 @@ log = logging.getLogger(__name__)
 
 
 def active_version(db: Session, domain: str) -> str:
-    row = db.get(ActiveModel, domain)
-    return row.version if row is not None else BUILTIN_VERSION
+    """Read afresh, never from the session's identity map: activations write the row with core statements."""
+    version = db.exec(select(ActiveModel.version).where(ActiveModel.domain == domain)).first()
+    return version if version is not None else BUILTIN_VERSION
 
 
 def serving_version(svc: Services, db: Session, domain: str, method: str, rep: str) -> str:
@@ -115,12 +117,10 @@ def activate_builtin(svc: Services, db: Session, domain: str | None) -> VersionP
         raise invalid("say which domain goes back to its built-in models: "
                       "POST /api/admin/models/builtin/activate?domain=<name>")
     d = svc.catalog.domain(domain)
-    current = db.get(ActiveModel, d.name)
-    if current is not None:
-        db.delete(current)
-        db.commit()
-    log.info("%s: new sessions get the built-in models again (was %s)", d.name,
-             current.version if current is not None else BUILTIN_VERSION)
+    before = active_version(db, d.name)
+    db.exec(delete(ActiveModel).where(ActiveModel.domain == d.name))  # a no-op if another request deleted it first
+    db.commit()
+    log.info("%s: new sessions get the built-in models again (was %s)", d.name, before)
     return _builtin_public(d, "global", "onehot", True)
 
 
@@ -138,9 +138,11 @@ def activate_version(svc: Services, db: Session, version: str, domain: str | Non
     if (row.method, row.rep) not in svc.catalog.available(row.domain, row.version):
         raise conflict(f"the files of version {version} are missing under {svc.catalog.models(version).root}; "
                        "it cannot be served")
-    current = db.get(ActiveModel, row.domain) or ActiveModel(domain=row.domain, version=BUILTIN_VERSION)
-    before, current.version, current.updated_at = current.version, version, utcnow()
-    db.add(current)
+    before = active_version(db, row.domain)
+    # One upsert: activations at once each succeed (the last one wins), none trips over the other's new row.
+    values = {"domain": row.domain, "version": version, "updated_at": utcnow()}
+    db.exec(dialect_insert(db, ActiveModel).values(**values)
+            .on_conflict_do_update(index_elements=["domain"], set_=values))
     db.commit()
     log.info("%s: new sessions get version %s (%s/%s; was %s)", row.domain, version, row.method, row.rep, before)
     return VersionPublic.model_validate(row, update={"active": True})

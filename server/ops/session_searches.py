@@ -25,13 +25,13 @@ from concurrent.futures import FIRST_COMPLETED, Future, InvalidStateError, wait
 from dataclasses import dataclass, field, replace
 
 from fastapi import HTTPException
-from sqlalchemy.dialects import postgresql, sqlite
 from sqlmodel import Session
 
 from rba.compute import SimJob
 from rba.domains import Rollout
 from rba.interact.generating_agent import GenerationContext, made_clip
 from server.common.errors import not_found
+from server.db.engine import dialect_insert
 from server.db.tables import GeneratedClip, GenerationPublic, TuningSession
 from server.runtime.clip_sources import ClipRef, ResolvedClip
 from server.runtime.services import Services
@@ -212,5 +212,4 @@ def made_shown(svc: Services, db: Session, domain: str, rollout_id: str, state: 
 
 def add_generated(db: Session, row: GeneratedClip) -> None:
     """Insert ``row`` in the caller's transaction unless its id is there already (ids are content: equal rows)."""
-    dialect = postgresql if db.get_bind().dialect.name == "postgresql" else sqlite
-    db.exec(dialect.insert(GeneratedClip).values(**row.model_dump()).on_conflict_do_nothing(index_elements=["id"]))
+    db.exec(dialect_insert(db, GeneratedClip).values(**row.model_dump()).on_conflict_do_nothing(index_elements=["id"]))

@@ -5,7 +5,7 @@ person waits).
 The rollout id is resolved by ``server.runtime.clip_sources`` (404 if unknown) and never used as a path; a
 generated rollout no longer in memory is simulated again from its params and seed, unless its clip is stored. The
 file is rendered on first request and cached; responses carry a content ETag and honour
-``If-None-Match`` (304) and ``Range`` (206, so browsers can seek and stream).
+``If-None-Match`` (304), ``Range`` (206, so browsers can seek and stream) and ``If-Range`` (RFC 9110).
 """
 
 from __future__ import annotations
@@ -30,8 +30,21 @@ from server.runtime.clip_sources import UnknownRollout
 router = APIRouter(prefix="/api/clips", tags=["clips"], responses=responses(413, 422))
 
 
+def none_match(header: str, etag: str) -> bool:
+    """``If-None-Match`` matches: ``*`` (the clip exists) or one of its tags by weak comparison (RFC 9110 §13.1.2),
+    as browsers may send back ``W/"…"`` after a proxy weakened the tag."""
+    tags = {t.strip().removeprefix("W/") for t in header.split(",")}
+    return "*" in tags or etag in tags
+
+
 class ClipFile(FileResponse):
     """A FileResponse whose refusals of a ``Range`` header (400, 416) have the app's error body, not plain text."""
+
+    def _should_use_range(self, http_if_range: str) -> bool:
+        """Serve the range only if ``If-Range`` is the clip's current strong ETag (RFC 9110 §13.1.5); a weak tag, an
+        other tag or a date gets the whole clip. (Starlette's own check also reads Last-Modified, set only once the
+        response starts: the range checks below run before that.)"""
+        return http_if_range.strip() == self.headers["etag"]
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         headers = Headers(scope=scope)
@@ -69,7 +82,7 @@ async def get_clip(domain: Annotated[DomainName, Path()], rollout_id: Annotated[
     key = clip.key
     # The URL outlives a library rebuild; the ETag (a hash of the key) does not: browsers revalidate.
     headers = {"ETag": key.etag, "Cache-Control": "no-cache"}
-    if if_none_match and key.etag in {t.strip() for t in if_none_match.split(",")}:
+    if if_none_match and none_match(if_none_match, key.etag):
         return Response(status_code=304, headers=headers)
     source = clip.source(simulate=False)
     if source is None and not svc.clips.cached(key):
