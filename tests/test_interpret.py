@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import functools
 import json
+import threading
 from pathlib import Path
 
 import pytest
 
 from rba.core.registry import import_object
 from rba.domains import domain_names, domain_target, get_domain
+from rba.interact import free_text
 from rba.interact.free_text import FLIPS, KEEPS, Interpreter, NotUnderstood, clauses, stem, understood
 
 PHRASINGS = json.loads((Path(__file__).parent / "data" / "interpret_phrasings.json").read_text())
@@ -44,6 +47,49 @@ def test_stems_match_comparatives_and_adverbs():
     assert {stem(w) for w in ("stomp", "stomps", "stomping", "stompy", "stompier")} == {"stomp"}
     assert {stem(w) for w in ("heavy", "heavier", "heavily")} == {"heav"}
     assert stem("bigger") == stem("big") and stem("wider") == stem("wide") and stem("speed") == "speed"
+    assert stem("gently") == stem("gentle") and stem("wobbly") == stem("wobble") and stem("simply") == stem("simple")
+    assert stem("small") == "small" and stem("careful") == "careful"
+
+
+def test_two_readings_are_offered_only_when_unsure():
+    more, less = (("gap", "more"),), (("gap", "less"),)
+    sure, unsure = free_text.Understood(more, 0.9, less), free_text.Understood(more, 0.5, less)
+    assert not sure.low_confidence and sure.alternatives == []
+    assert unsure.low_confidence and unsure.alternatives == [more, less]
+    assert free_text.Understood(more, 0.5).alternatives == []  # nothing else to offer
+
+
+@pytest.mark.parametrize("name", domain_names())
+def test_examples_come_from_the_domains_own_anchors(name):
+    cls = _domain_class(name)
+    shown = free_text.examples(cls)
+    assert 2 <= len(shown) <= 3 and len(set(shown)) == len(shown)
+    sides = [(p.less, p.more)[i % 2] for i, p in enumerate(cls.feedback_phrases[a.name] for a in cls.attributes)]
+    assert all(text in side for text, side in zip(shown, sides, strict=False))
+
+
+def test_a_request_during_the_background_load_waits_for_it_and_never_builds_twice(monkeypatch):
+    built, building, release = [], threading.Event(), threading.Event()
+
+    @functools.cache
+    def slow(phrases):
+        built.append(phrases)
+        building.set()
+        release.wait(30)
+        return object()
+
+    monkeypatch.setattr(free_text, "_interpreter", slow)
+    walker = _domain_class("walker")
+    loading = free_text.load_in_background([walker])
+    assert building.wait(30)
+    got: list = []
+    request = threading.Thread(target=lambda: got.append(free_text.interpreter_for(walker)))
+    request.start()
+    request.join(0.5)  # the request is under way (and would build its own without the lock) ...
+    release.set()  # ... before the load ends
+    loading.join(30)
+    request.join(30)
+    assert built == [free_text.anchors(walker)] and got == [slow(free_text.anchors(walker))]
 
 
 @pytest.mark.parametrize("name", domain_names())
@@ -100,6 +146,30 @@ def test_negations_antonyms_and_several_attributes(interpreters, text, expected)
     result = interpreters["walker"].interpret(text)
     assert list(result.feedback) == expected
     assert 0.4 <= result.confidence <= 1.0
+
+
+@pytest.mark.parametrize(("name", "text", "expected"), [
+    ("lane_change", "turn more gently", [("sharpness", "less")]),
+    ("lane_change", "change lanes more gently", [("sharpness", "less")]),
+    ("lane_change_image", "turn more gently", [("sharpness", "less")]),
+    ("lane_change_raw", "change lanes more gently", [("sharpness", "less")]),
+    ("snake", "stay narrow", [("bend_width", "less")]),
+    ("snake_raw", "stay narrow", [("bend_width", "less")]),
+    ("walker", "softer landings please", [("softness", "more")]),
+    ("walker_raw", "softer landings please", [("softness", "more")]),
+    ("toy", "stay narrow", [("amplitude", "less")]),
+])
+def test_natural_phrasings_that_were_read_backwards(name, text, expected):
+    from rba.learn.common import torch_threads
+
+    with torch_threads(1):
+        assert list(free_text.interpreter_for(get_domain(name)).interpret(text).feedback) == expected
+
+
+def test_an_unsure_reading_has_a_second_one(interpreters):
+    result = interpreters["manipulator"].interpret("steadier please")
+    assert result.low_confidence and result.alternatives == [(("instability", "less"),), (("instability", "more"),)]
+    assert interpreters["walker"].interpret("stomp less").alternatives == []
 
 
 def test_nothing_close_enough_says_so_and_names_the_attributes(interpreters):

@@ -24,14 +24,17 @@ FEEDBACK_PHRASES = MappingProxyType({
               "barely move to the sides"),
         names=("swing width", "how far it swings")),
     "pace": FeedbackPhrases(
-        more=("fast oscillation", "quick rhythm", "rapid back and forth", "hurry", "brisk", "frantic"),
-        less=("slow oscillation", "relaxed rhythm", "lazy back and forth", "calm", "leisurely", "sluggish"),
+        more=("fast oscillation", "quick rhythm", "rapid back and forth", "hurry", "brisk", "frantic",
+              "quick swings"),
+        less=("slow oscillation", "relaxed rhythm", "lazy back and forth", "calm", "leisurely", "sluggish",
+              "slow swings"),
         names=("frequency", "tempo", "how often it swings")),
 })
 
 
 class Toy(Domain):
     name = "toy"
+    description = "A dot swinging from side to side: a tiny domain for fast tests."
     attributes = (
         AttributeSpec("amplitude", "How far the dot swings from side to side.", "m"),
         AttributeSpec("pace", "How quickly the dot oscillates back and forth.", "Hz"),

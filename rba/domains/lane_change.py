@@ -210,10 +210,10 @@ def _draw(env) -> np.ndarray:
 FEEDBACK_PHRASES = MappingProxyType({
     "sharpness": FeedbackPhrases(
         more=("sharp turn", "swerve abruptly", "quick lane change", "snap into the lane", "jerk the wheel",
-              "aggressive swerve", "sudden move across", "hard steering"),
+              "aggressive swerve", "sudden move across", "hard steering", "switch lanes sharply"),
         less=("smooth turn", "gradual lane change", "ease into the lane", "gentle swerve", "drift slowly across",
-              "wide sweeping move across", "relaxed steering", "soft steering"),
-        names=("steering sharpness", "how sharp the swerve is")),
+              "wide sweeping move across", "relaxed steering", "soft steering", "switch lanes gently"),
+        names=("steering sharpness", "sharpness of the swerve")),
     "gap": FeedbackPhrases(
         more=("leave plenty of room", "big gap", "wait for a wide gap", "keep far from the car behind",
               "generous space", "safe distance", "wait longer before changing lanes", "roomy"),
@@ -225,6 +225,7 @@ FEEDBACK_PHRASES = MappingProxyType({
 
 class LaneChange(Domain):
     name = "lane_change"
+    description = "A car on a highway changes lanes in front of another car; tune how sharply and with how much room."
     attributes = (
         AttributeSpec("sharpness", "How sharply the car swerves into the other lane: a quick, abrupt turn is sharp.",
                       "rad/s"),

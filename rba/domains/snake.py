@@ -297,9 +297,9 @@ def measure(rec: SnakeRecording, period: float, data: mujoco.MjData,
 FEEDBACK_PHRASES = MappingProxyType({
     "bend_width": FeedbackPhrases(
         more=("wide bends", "big sideways curves", "swing the body out wide", "broad waves", "large wiggles",
-              "sweeping curves", "deep zigzag"),
+              "sweeping curves", "deep zigzag", "wide body"),
         less=("narrow bends", "small sideways curves", "keep the body straight", "slight wiggles",
-              "shallow waves", "flat zigzag", "stay in line"),
+              "shallow waves", "flat zigzag", "stay in line", "narrow body"),
         names=("bend width", "width of the bends", "sideways bend")),
     "compression": FeedbackPhrases(
         more=("bunch up tightly", "scrunch together", "compress the body", "coil up", "squeeze together",
@@ -316,6 +316,7 @@ FEEDBACK_PHRASES = MappingProxyType({
 
 class Snake(Domain):
     name = "snake"
+    description = "A robot snake crawls forward by folding and stretching its body; tune its bends and its speed."
     attributes = (
         AttributeSpec("bend_width", "How wide the snake's body bends sideways as it folds.", "m"),
         AttributeSpec("compression", "How tightly the snake bunches its body together before stretching out.",

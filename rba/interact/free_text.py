@@ -9,14 +9,19 @@ clause's direction words are read as rules ("less", "not", "too", "reduce" flip 
 direction comes from the clause's cue words (stems found in one side's anchors only: "stomp" is
 less softness), else from the side of the attribute's more/less axis the clause lies on, else
 "more" when the clause just names the attribute ("more step size"). One encode per request; anchor
-embeddings are computed once per domain.
+embeddings are computed once per set of anchors (a domain and its views share one).
+
+A sentence read with a low confidence also gets its second likeliest reading, so a person can choose
+(decision 0021): the weakest clause read as the runner-up attribute when that one scored within a cue
+bonus of the best (one cue word would have swapped them), else as the same attribute the other way.
 """
 
 from __future__ import annotations
 
+import logging
 import re
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, replace
 from functools import cache
 
@@ -25,11 +30,14 @@ import numpy as np
 from rba.domains.base import Domain, FeedbackPhrases
 from rba.learn.embed import sentence_embeddings
 
+log = logging.getLogger(__name__)
 MAX_TEXT = 200  # characters: a sentence or two, not an essay
 # tuned on tests/data/interpret_phrasings.json's "val" set only (never on "test"): the lowest clause
 # score accepted, and what a cue word of an attribute adds to that attribute's score
 THRESHOLD = 0.40
 CUE_BONUS = 0.15
+LOW_CONFIDENCE = 0.60  # below it, the second likeliest reading is offered too (decision 0021)
+EXAMPLES = 3  # example sentences per domain, at most: one per attribute
 
 Encode = Callable[[list[str]], np.ndarray]  # texts -> float32[n, E], L2-normalised rows
 
@@ -57,21 +65,28 @@ _SUFFIXES = ("ingly", "ily", "iest", "ier", "ies", "ied", "ing", "edly", "ed", "
              "e")
 _Y_SUFFIXES = frozenset({"ily", "iest", "ier", "ies", "ied"})  # "heavier" -> "heavy"
 _MIN_BASE = {"ed": 4, "s": 4, "es": 4, "y": 4}  # "speed", "gas", "tiny" stay whole
+_VOWELS = "aeiou"
+
+
+def _undouble(base: str) -> str:
+    """"bigg" -> "big", "slamm" -> "slam" (never "ll", "ss": "small", "less")."""
+    return base[:-1] if len(base) > 3 and base[-1] == base[-2] and base[-1] not in _VOWELS + "ls" else base
 
 
 def stem(word: str) -> str:
-    """A crude stemmer, enough to match "stompier", "stomping" and "stomps" to "stomp"; no dictionary."""
+    """A crude stemmer, enough to match "stompier", "stomping" and "stomps" to "stomp"; no dictionary.
+
+    A "-le" word loses its "l" too, so that "gentle" and "gently", "wobble" and "wobbly" meet.
+    """
     while True:
         for suffix in _SUFFIXES:
             base = word[: -len(suffix)]
             if word.endswith(suffix) and len(base) >= _MIN_BASE.get(suffix, 3):
-                if suffix in _Y_SUFFIXES:
-                    base += "y"
-                elif len(base) > 3 and base[-1] == base[-2] and base[-1] not in "aeiouls":
-                    base = base[:-1]  # "bigg" -> "big", "slamm" -> "slam"
-                word = base
+                word = base + "y" if suffix in _Y_SUFFIXES else _undouble(base)
                 break
         else:
+            if len(word) > 3 and word[-1] == "l" and word[-2] not in _VOWELS + "lrw":
+                return _undouble(word[:-1])
             return word
 
 
@@ -126,6 +141,16 @@ class Understood:
 
     feedback: tuple[tuple[str, str], ...]
     confidence: float  # the weakest understood clause's score (cosine similarity plus cue bonus), in [0, 1]
+    second: tuple[tuple[str, str], ...] | None = None  # the second likeliest reading, if there is one
+
+    @property
+    def low_confidence(self) -> bool:
+        return self.confidence < LOW_CONFIDENCE
+
+    @property
+    def alternatives(self) -> list[tuple[tuple[str, str], ...]]:
+        """The two likeliest readings, likeliest first, for a person to choose from when unsure; else none."""
+        return [self.feedback, self.second] if self.low_confidence and self.second is not None else []
 
 
 class NotUnderstood(ValueError):
@@ -178,8 +203,7 @@ class Interpreter:
 
     @classmethod
     def for_domain(cls, domain: Domain, encode: Encode = sentence_embeddings) -> Interpreter:
-        empty = FeedbackPhrases((), ())
-        return cls([(a.name, domain.feedback_phrases.get(a.name, empty)) for a in domain.attributes], encode)
+        return cls(anchors(domain), encode)
 
     def _with_axis(self, a: _Attribute) -> _Attribute:
         rows = self.anchors[a.rows]
@@ -200,30 +224,42 @@ class Interpreter:
         if not parts:
             raise NotUnderstood(text, self.names)
         vectors = self.encode([c.text for c in parts])  # the request's one encode
-        found: dict[str, tuple[str, float]] = {}  # attribute -> (direction, score), first mention first
+        found: dict[str, _Match] = {}  # attribute -> its clearest clause's match, first mention first
         for clause, vector in zip(parts, vectors, strict=True):
             match = self._match(clause, vector)
-            if match is not None and (match[0] not in found or found[match[0]][1] < match[2]):
-                found[match[0]] = match[1:]  # a contradiction keeps the clearer clause
+            if match is not None and (match.attribute not in found or found[match.attribute].score < match.score):
+                found[match.attribute] = match  # a contradiction keeps the clearer clause
         if not found:
             raise NotUnderstood(text, self.names)
-        return Understood(tuple((a, d) for a, (d, _) in found.items()), min(s for _, s in found.values()))
+        feedback = tuple((a, m.direction) for a, m in found.items())
+        weakest = min(found.values(), key=lambda m: m.score)
+        second = None  # the sentence with its weakest clause read the second likeliest way
+        if weakest.second[0] == weakest.attribute or weakest.second[0] not in found:
+            second = tuple(weakest.second if a == weakest.attribute else (a, d) for a, d in feedback)
+        return Understood(feedback, weakest.score, second)
 
-    def _match(self, clause: Clause, vector: np.ndarray) -> tuple[str, str, float] | None:
-        """(attribute, direction, score) of the clause's closest attribute, or None below the threshold."""
+    def _match(self, clause: Clause, vector: np.ndarray) -> _Match | None:
+        """The clause's closest attribute, its direction and its second likeliest reading; None below the
+        threshold."""
         stems = {stem(w) for w in clause.words}
         sims = self.anchors @ vector
-        best: tuple[float, _Attribute, tuple[int, int]] | None = None
-        for a in self.attributes:
+        ranked: list[tuple[float, int, tuple[int, int]]] = []  # (score, attribute index, cue hits), best first
+        for i, a in enumerate(self.attributes):
             hits = (len(stems & a.more_cues), len(stems & a.less_cues))
-            score = float(sims[a.rows].max()) + self.cue_bonus * (hits != (0, 0))
-            if best is None or score > best[0]:
-                best = (score, a, hits)
-        if best is None or best[0] < self.threshold:
+            ranked.append((float(sims[a.rows].max()) + self.cue_bonus * (hits != (0, 0)), i, hits))
+        ranked.sort(reverse=True)
+        if not ranked or ranked[0][0] < self.threshold:
             return None
-        score, a, hits = best
-        sign = self._direction(a, sims[a.rows], hits, vector) * (-1) ** clause.flips
-        return a.name, "more" if sign > 0 else "less", min(score, 1.0)
+
+        def reading(rank: int, turn: int = 1) -> tuple[str, str]:
+            _, i, hits = ranked[rank]
+            a = self.attributes[i]
+            sign = self._direction(a, sims[a.rows], hits, vector) * (-1) ** clause.flips * turn
+            return a.name, "more" if sign > 0 else "less"
+
+        close = len(ranked) > 1 and ranked[0][0] - ranked[1][0] < self.cue_bonus
+        best = reading(0)
+        return _Match(*best, min(ranked[0][0], 1.0), reading(1) if close else reading(0, -1))
 
     @staticmethod
     def _direction(a: _Attribute, sims: np.ndarray, hits: tuple[int, int], vector: np.ndarray) -> int:
@@ -235,18 +271,64 @@ class Interpreter:
         return 1 if float(vector @ a.axis) >= a.offset else -1
 
 
+@dataclass(frozen=True)
+class _Match:
+    """How one clause was read: the attribute, its direction, the score, and the second likeliest reading."""
+
+    attribute: str
+    direction: str
+    score: float
+    second: tuple[str, str]
+
+
+Anchors = tuple[tuple[str, FeedbackPhrases], ...]
+
+
+def anchors(domain: Domain) -> Anchors:
+    """The domain's attributes with their anchor phrases (none: matched by name), in the domain's order."""
+    empty = FeedbackPhrases((), ())
+    return tuple((a.name, domain.feedback_phrases.get(a.name, empty)) for a in domain.attributes)
+
+
+def examples(domain: Domain) -> list[str]:
+    """Sentences to show a person what to type, from the domain's own anchors (read back exactly): the first
+    anchor of one attribute each, sides alternating less / more; an attribute without anchors by its name."""
+    out = []
+    for i, (name, phrases) in enumerate(anchors(domain)[:EXAMPLES]):
+        side = phrases.more if i % 2 else phrases.less
+        out.append(side[0] if side else f"{'more' if i % 2 else 'less'} {name.replace('_', ' ')}")
+    return out
+
+
 _build_lock = threading.Lock()
 
 
 @cache
-def _interpreter(domain: Domain) -> Interpreter:
-    return Interpreter.for_domain(domain)
+def _interpreter(phrases: Anchors) -> Interpreter:
+    return Interpreter(phrases)
 
 
 def interpreter_for(domain: Domain) -> Interpreter:
-    """The domain's interpreter, built once per process (the sentence model and the anchors' one encode)."""
+    """The domain's interpreter, built once per process (the sentence model and the anchors' one encode); a
+    caller while another builds waits for that build rather than starting its own."""
     with _build_lock:
-        return _interpreter(domain)
+        return _interpreter(anchors(domain))
+
+
+def load_in_background(domains: Iterable[Domain]) -> threading.Thread:
+    """Build ``domains``' interpreters in a daemon thread, in order: loading the sentence model takes seconds
+    (tens on a busy machine), so a server does it at start-up, and its first sentence is read as fast as the
+    next ones."""
+    def load() -> None:
+        try:
+            for domain in domains:
+                interpreter_for(domain)
+        except Exception:  # a request then tries again and answers the error
+            log.exception("loading the sentence model or a domain's anchors failed")
+
+    thread = threading.Thread(target=load, name="rba-sentence-model", daemon=True)
+    thread.start()
+    return thread
 
 
 def understood(interpreter: Interpreter, text: str) -> frozenset[str]:

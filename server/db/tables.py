@@ -227,6 +227,8 @@ class DomainPublic(BaseModel):
     frame_rate: float
     available: list[MethodPublic] = Field(description="method/rep pairs whose models and serve library exist")
     missing: str | None = Field(default=None, description="why nothing is available, if so")
+    examples: list[str] = Field(default_factory=list, description="feedback in one's own words that POST "
+                                "/api/domains/{domain}/interpret reads right: hints for the text box")
     states: Literal["features", "raw", "image"] = Field(
         default="features", description="what the agent's models see: the domain's own features, or a research "
         "view of the same scene: the simulator's raw positions and velocities, or a model of its rendered frames")

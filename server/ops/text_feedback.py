@@ -10,7 +10,8 @@ from server.runtime.services import Services
 def interpret(svc: Services, domain: str, text: str) -> Understood:
     """What ``text`` asks of ``domain``'s attributes; 422 when nothing is close enough (the route checks the domain).
 
-    The first call per domain loads the sentence model (once per process) and embeds the domain's anchors.
+    The sentence model and the anchors load at start-up (``Services.reading``); a request before that ends waits
+    for it (or, without a warm start, loads them itself, once per process).
     """
     interpreter = interpreter_for(svc.catalog.domain(domain))
     try:

@@ -18,6 +18,7 @@ from rba.core.methods import REPS, generating_methods, get_method, trainable
 from rba.data.library import LibraryNotFoundError
 from rba.domains import Domain
 from rba.interact import SATISFIED, restore_agent
+from rba.interact.free_text import examples
 from rba.learn.embed import REPRESENTATIONS
 from server.common.errors import not_found
 from server.db.admin_tables import BUILTIN_VERSION, ModelVersion
@@ -185,6 +186,7 @@ def domains_public(svc: Services, db: Session) -> DomainsPublic:
         available = [method_public(m, r) for m, r in pairs]
         domains.append(DomainPublic(name=name, attributes=attributes_public(domain, specs=specs),
                                     frame_rate=domain.frame_rate, states=domain.states_view,
+                                    examples=examples(domain),
                                     description=domain.summary, advanced=domain.states_view != "features",
                                     available=available, missing=svc.catalog.missing_reason(name)))
     return DomainsPublic(domains=domains, methods=list(attribute_methods()), reps=list(REPRESENTATIONS),

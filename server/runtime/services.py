@@ -29,6 +29,7 @@ from sqlalchemy.engine import Engine
 from rba.compute import Compute, make_compute
 from rba.core.locks import KeyedLocks
 from rba.core.store import Store
+from rba.interact.free_text import load_in_background
 from rba.media.clip_cache import ClipCache
 from server.common.app_settings import Settings
 from server.db.engine import make_engine
@@ -65,6 +66,7 @@ class Services:
     search_lock: threading.Lock = field(default_factory=threading.Lock)
     prerendering: dict[str, int] = field(default_factory=dict)  # session id -> step being prerendered
     warming: threading.Thread | None = None  # the warm-up (server.ops.prerender.warm_up), while it runs
+    reading: threading.Thread | None = None  # loads free text's sentence model and every domain's anchors
 
     @classmethod
     def start(cls, settings: Settings, compute: Compute | None = None) -> Services:
@@ -89,6 +91,9 @@ class Services:
         prefetch = Prefetcher(clips, sources.guess, window, settings.background_nice)
         svc = cls(settings, engine, catalog, compute, clips, sources, Transitions(), thinker, prefetch, jobs, owns)
         prefetch.hold = svc.someone_waits  # the queue is made first: it has to exist in the Services
+        if settings.warm_start:  # with the other models, in the background: the first sentence reads as fast
+            names = sorted(catalog.names(), key=lambda n: n != settings.default_domain)
+            svc.reading = load_in_background(catalog.domain(n) for n in names)
         return svc
 
     def someone_waits(self) -> bool:

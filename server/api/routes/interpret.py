@@ -7,7 +7,7 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, Path
 from pydantic import BaseModel, Field, field_validator
 
-from rba.interact.free_text import MAX_TEXT, Understood
+from rba.interact.free_text import LOW_CONFIDENCE, MAX_TEXT, Understood
 from server.api.deps import ServicesDep
 from server.common.errors import responses
 from server.db.tables import STRICT_BODY, DomainName
@@ -40,19 +40,30 @@ class InterpretedChoice(BaseModel):
     direction: Literal["more", "less"]
 
 
+Reading = list[InterpretedChoice]
+
+
 class InterpretPublic(BaseModel):
-    """What the sentence was understood as: send ``feedback`` as the session's feedback once confirmed."""
+    """What the sentence was understood as: send ``feedback`` (or the chosen one of ``alternatives``) as the
+    session's feedback once confirmed."""
 
     model_config = STRICT_BODY
 
-    feedback: list[InterpretedChoice] = Field(description="in the sentence's order; never empty")
+    feedback: Reading = Field(description="the likeliest reading, in the sentence's order; never empty")
     confidence: float = Field(ge=0.0, le=1.0, description="the least certain clause's score: cosine similarity "
                               "to the closest anchor phrase, plus a bonus for a cue word, at most 1")
+    low_confidence: bool = Field(description=f"confidence below {LOW_CONFIDENCE}: ask which reading was meant "
+                                 "rather than for a yes / no (docs/decisions/0021-free-text-low-confidence.md)")
+    alternatives: list[Reading] = Field(description="when low_confidence: the two likeliest readings to choose "
+                                        "from, likeliest first (the first is `feedback`); otherwise empty")
 
     @classmethod
     def of(cls, understood: Understood) -> InterpretPublic:
-        return cls(feedback=[InterpretedChoice(attribute=a, direction=d) for a, d in understood.feedback],
-                   confidence=round(understood.confidence, 3))
+        def reading(pairs: tuple[tuple[str, str], ...]) -> Reading:
+            return [InterpretedChoice(attribute=a, direction=d) for a, d in pairs]
+
+        return cls(feedback=reading(understood.feedback), confidence=round(understood.confidence, 3),
+                   low_confidence=understood.low_confidence, alternatives=list(map(reading, understood.alternatives)))
 
 
 ERRORS = responses(413, 422, said={
