@@ -256,6 +256,17 @@ class Store:
         folder = self.data_dir / "jobs"
         return sorted(p.stem for p in folder.glob("*.json")) if folder.is_dir() else []
 
+    def job_touched(self, job_id: str) -> float | None:
+        """When anything the job left (its staging folder's files, its process record) last changed (a Unix time);
+        None if it left nothing."""
+        staging = self.staging(job_id)
+        paths = [self.job_record(job_id), staging, *(staging.rglob("*") if staging.is_dir() else [])]
+        times = []
+        for path in paths:
+            with contextlib.suppress(OSError):
+                times.append(path.stat().st_mtime)
+        return max(times, default=None)
+
     def sweep_job_records(self, older_than: float) -> int:
         """Remove half-written process records a crash left (older than ``older_than`` seconds); how many."""
         cutoff, removed = time.time() - older_than, 0

@@ -12,10 +12,11 @@ job of another replica. A job cancelled through another replica is stopped by it
 next heartbeat. The database's unique ``busy_domain`` keeps one job per domain across replicas.
 
 A job's process dies with its server (``server.runtime.processes``). A restart fails the jobs its previous
-process ran, kills their processes if they still run, and sweeps every staging folder and process
-record no live job owns. A process whose job was taken away (failed by a restart or another replica,
-cancelled) writes nothing more: every write of the child is conditional on its server still owning
-an unfinished job, and its models become a version only in the transaction that records its success.
+process ran, kills their processes if they still run, and sweeps the staging folders, process records
+and versions of jobs its database knows are dead (``JobRunner.sweep``). A process whose job was taken
+away (failed by a restart or another replica, cancelled) writes nothing more: every write of the child
+is conditional on its server still owning an unfinished job, and its models become a version only in
+the transaction that records its success.
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ JOB_VERSION = re.compile(r".+-\d{8}-\d{6}-(?P<job>[0-9a-f]{6})")  # how a job na
 LOG_LINES = 40  # lines of the child's log kept in the job row
 STOP_SECONDS = 10.0  # how long a stopping server waits for its cancelled jobs' processes
 RECORD_WRITE_SECONDS = 60.0  # a process record's temporary file older than this was left by a crash
+STAGING_GRACE_SECONDS = 24 * 3600.0  # a job no row here names may be another database's, still training
 
 
 def update_job(engine, job_id: str, *where, **changes) -> bool:
@@ -122,24 +124,44 @@ class JobRunner:
         return reaped
 
     def sweep(self) -> None:
-        """Kill recorded processes and remove staging folders of every job no server runs (a crash's leftovers).
+        """Kill recorded processes and remove staging folders and versions of jobs this database knows are dead.
 
-        The folders are listed before the live jobs are read: a job's row is written before its folder,
-        so a job starting meanwhile is seen as live.
+        Another server may use the same models folder with another database (a staging server beside a live one,
+        a benchmark): its jobs and versions have no rows here, and what this database does not know is not known
+        dead. So a version goes only when its job's row here ended without recording it, and leftovers of a job
+        no row here names (another database's, or one since replaced) only when no process of it runs on this
+        host and nothing of it changed for ``STAGING_GRACE_SECONDS``. Sweeping by knowledge rather than refusing
+        to start on a shared folder keeps replicas (one database, one folder) and such neighbours working, and
+        needs no lock that a network volume might not honour.
+
+        The folders are listed before the jobs are read: a job's row is written before its folder, so a job
+        starting meanwhile is seen as live.
         """
         staged, recorded, published = self.store.staged_jobs(), self.store.recorded_jobs(), self.store.published()
         with Session(self.engine) as db:
-            live = set(db.exec(select(TrainJob.id).where(TrainJob.busy_domain.is_not(None))).all())  # type: ignore[union-attr]
+            known = dict(db.exec(select(TrainJob.id, TrainJob.busy_domain)).all())
             versions = set(db.exec(select(ModelVersion.version)).all())
+        live = {job for job, busy in known.items() if busy is not None}
         for job_id in sorted((set(staged) | set(recorded)) - live):
-            log.warning("job %s: no server runs it; removing what it left", job_id)
-            self._remove_leftovers(job_id)
+            if job_id in known or self._abandoned(job_id):
+                log.warning("job %s: no server runs it; removing what it left", job_id)
+                self._remove_leftovers(job_id)
         for version in published:  # renamed into place, then killed before its row was committed
             made = JOB_VERSION.fullmatch(version)  # a job's name for it: folders put there by hand are not ours
-            if made and version not in versions and not any(job.startswith(made["job"]) for job in live):
+            jobs = [job for job in known if made and job.startswith(made["job"])]
+            if jobs and version not in versions and not set(jobs) & live:
                 log.warning("version %s: no row names it (its job died while recording it); removing it", version)
                 self.store.unpublish(version)
         self.store.sweep_job_records(older_than=RECORD_WRITE_SECONDS)
+
+    def _abandoned(self, job_id: str) -> bool:
+        """Whether a job no row here names left its files for good: no process of it runs on this host and nothing
+        of it changed within the grace period (a job on another host is known alive by nothing else)."""
+        record = ProcessRecord.load(self.store.job_record(job_id))
+        if record is not None and record.running():
+            return False
+        touched = self.store.job_touched(job_id)
+        return touched is not None and touched < time.time() - STAGING_GRACE_SECONDS
 
     def _remove_leftovers(self, job_id: str) -> None:
         """Kill the job's recorded process (if it still runs on this machine), then remove its files."""
@@ -297,11 +319,14 @@ def run_job(job_id: str, owner: str, parent_pid: int, settings_json: dict, regis
 
 def _train_and_publish(engine, store: Store, settings: Settings, job_id: str, mine, tail: _Tail) -> None:
     """Train into the staging folder, then rename it to the version's name and record both, or raise."""
+    from rba.learn.training import StageClock
     from server.runtime.stored_labels import job_sources
+
+    clock = StageClock()  # each stage's rate, for the estimate of the time left
 
     def progress(stage: str, step: int, total: int, loss: float) -> None:
         if not update_job(engine, job_id, mine, stage=stage, step=step, total=total, loss=float(loss),
-                          log_tail="\n".join(tail.lines)):
+                          stages=clock.mark(stage, step, total), log_tail="\n".join(tail.lines)):
             raise JobLost(job_id)
 
     with Session(engine) as db:

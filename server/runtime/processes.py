@@ -118,14 +118,32 @@ class ProcessRecord:
         except (OSError, ValueError, KeyError, TypeError):
             return None
 
-    def kill(self, timeout: float = 5.0) -> bool:
-        """Kill the recorded process and its group if it is still here; True if it was running (not a zombie)."""
+    def _process(self) -> psutil.Process | None:
+        """The recorded process if it is still here: on this host, and not another that reused its pid."""
         if self.host != socket.gethostname():
-            return False
+            return None
         try:
             proc = psutil.Process(self.pid)
-            if abs(proc.create_time() - self.started) > START_TIME_SLACK:
-                return False  # the pid was reused
+            return proc if abs(proc.create_time() - self.started) <= START_TIME_SLACK else None
+        except psutil.NoSuchProcess:
+            return None
+
+    def running(self) -> bool:
+        """Whether the recorded process still runs on this host (a zombie does not); one we may not inspect does."""
+        try:
+            proc = self._process()
+            return proc is not None and proc.status() != psutil.STATUS_ZOMBIE
+        except psutil.NoSuchProcess:
+            return False
+        except psutil.Error:
+            return True
+
+    def kill(self, timeout: float = 5.0) -> bool:
+        """Kill the recorded process and its group if it is still here; True if it was running (not a zombie)."""
+        try:
+            proc = self._process()
+            if proc is None:
+                return False
             running = proc.status() != psutil.STATUS_ZOMBIE
             if os.getpgid(self.pid) == self.pid:  # a zombie leader's group may still have live members
                 os.killpg(self.pid, signal.SIGKILL)

@@ -8,6 +8,7 @@ those of the rows.
 from __future__ import annotations
 
 import datetime as dt
+import os
 import shutil
 import subprocess
 import threading
@@ -21,8 +22,9 @@ from server.common.app_settings import Settings
 from server.db.admin_tables import JobState, ModelVersion, TrainJob
 from server.db.engine import make_engine
 from server.db.tables import as_utc, utcnow
-from server.runtime.job_runner import JobLost, JobRunner, _record_success, update_job
+from server.runtime.job_runner import STAGING_GRACE_SECONDS, JobLost, JobRunner, _record_success, update_job
 from server.runtime.processes import ProcessRecord
+from tests.conftest import own_copy
 from tests.server.test_processes import alive, wait_dead
 
 # The heartbeat tests' timings. A live job must look alive however busy the machine: 20 beats may be missed
@@ -223,14 +225,17 @@ def test_a_restart_kills_what_its_previous_process_left_and_sweeps_what_no_live_
     ProcessRecord.of(survivor := sleepers()).save(a.store.job_record(finished))
     elsewhere = add_job(a, "walker", "b#11ve11ve", beat_age=1)  # replica b's live job, on another machine
     ProcessRecord(sleepers(), 0.0, "b-host").save(a.store.job_record(elsewhere))
-    a.store.staging("0123456789abcdef").mkdir()  # a staging folder no job row knows
+    unknown, foreign = "0123456789abcdef", "fedcba9876543210"  # staging folders no job row here knows
+    a.store.staging(unknown).mkdir()
+    age(a.store.staging(unknown), STAGING_GRACE_SECONDS + 60)  # untouched for longer than the grace period
+    a.store.staging(foreign).mkdir()  # another database's job, training now
 
     restarted = replica("a")
     restarted.recover()
     assert wait_dead(orphan, 0.5) and wait_dead(survivor, 0.5)
     assert (row(a, orphaned).state, row(a, orphaned).error) == ("failed", "the server stopped while the job ran")
     assert (row(a, elsewhere).state, row(a, elsewhere).busy_domain) == ("running", "walker")
-    assert a.store.staged_jobs() == [elsewhere]  # its models in progress stay, and so does its record
+    assert a.store.staged_jobs() == sorted([elsewhere, foreign])  # models in progress stay, and so does a record
     assert a.store.recorded_jobs() == [elsewhere]
 
 
@@ -238,15 +243,59 @@ def test_a_restart_removes_a_published_version_no_row_names_unless_its_job_is_li
     """Killed between renaming its folder into place and committing its row, a job leaves a version nobody lists."""
     a = replica("a")
     live = add_job(a, "walker", "b#11ve11ve", beat_age=1)  # replica b, recording its version right now
-    for name in ("toy-20260101-000000-dead00", f"walker-20260101-000000-{live[:6]}", "toy-20260101-000000-beef00",
-                 "toy-by-hand"):
+    dead = add_job(a, "toy", "b#11ve11ve", beat_age=1)  # failed while recording its version
+    update_job(a.engine, dead, state=JobState.failed.value, error="the server running the job stopped")
+    for name in (f"toy-20260101-000000-{dead[:6]}", f"walker-20260101-000000-{live[:6]}",
+                 "toy-20260101-000000-beef00", "toy-20260101-000000-f0e1d2", "toy-by-hand"):
         (a.store.versions_dir / name).mkdir(parents=True)
     with Session(a.engine) as db:
         db.add(ModelVersion(version="toy-20260101-000000-beef00", domain="toy", method="global", rep="onehot",
                             attributes=["pace"], held_out={}, job_id="beef00"))
         db.commit()
     replica("a").recover()
-    assert a.store.published() == ["toy-20260101-000000-beef00", "toy-by-hand", f"walker-20260101-000000-{live[:6]}"]
+    assert a.store.published() == ["toy-20260101-000000-beef00", "toy-20260101-000000-f0e1d2",  # no row: not ours
+                                   "toy-by-hand", f"walker-20260101-000000-{live[:6]}"]
+
+
+def test_a_server_on_another_database_leaves_the_first_ones_versions_jobs_and_processes(
+        make_settings, toy_roots, tmp_path, sleepers):
+    """Two servers, one models (and data) folder, two databases: the second's start-up sweep knows nothing of the
+    first's version, its job in progress or that job's process, so it leaves them all."""
+    from fastapi.testclient import TestClient
+
+    from server.main import create_app
+
+    data, models = own_copy(toy_roots, tmp_path)
+
+    def app(db: str) -> TestClient:
+        return TestClient(create_app(make_settings(data_dir=data, models_dir=models,
+                                                   database_url=f"sqlite:///{tmp_path / db}")))
+
+    with app("first.db") as first:
+        runner = first.app.state.services.jobs
+        published = add_job(runner, "toy", runner.owner, beat_age=0)
+        version = f"toy-20260101-000000-{published[:6]}"
+        runner.store.publish(published, version)
+        with Session(runner.engine) as db:
+            db.add(ModelVersion(version=version, domain="toy", method="global", rep="onehot", attributes=["pace"],
+                                held_out={}, job_id=published))
+            db.commit()
+        update_job(runner.engine, published, state=JobState.succeeded.value, version=version)
+        training = add_job(runner, "walker", runner.owner, beat_age=0)
+        run_here(runner, training)
+        ProcessRecord.of(pid := sleepers()).save(runner.store.job_record(training))
+        age(runner.store.staging(training), STAGING_GRACE_SECONDS + 60)  # a long job: its live process vouches
+        with app("second.db") as second:
+            assert second.get("/healthz").status_code == 200
+        assert runner.store.published() == [version]
+        assert runner.store.staged_jobs() == [training] and runner.store.recorded_jobs() == [training]
+        assert alive(pid)
+
+
+def age(path, seconds: float) -> None:
+    """Set ``path``'s modification time ``seconds`` into the past."""
+    then = time.time() - seconds
+    os.utime(path, (then, then))
 
 
 def test_a_record_whose_pid_was_reused_kills_nothing(replica, sleepers):
