@@ -16,6 +16,7 @@ from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
 
 from rba.compute import Compute
+from server.api.admission import Admission
 from server.api.auth import AdminGate, FailureLimiter
 from server.api.deps import known_query
 from server.api.limits import BodyLimit, Cap
@@ -59,7 +60,9 @@ def create_app(settings: Settings | None = None, compute: Compute | None = None)
     errors.install(app)
     docs.install(app)  # /docs and /redoc on the app's own copies of their scripts: no CDN
     # The last added runs first: the admin token before anything reads a body, then the body cap (the upload
-    # streams under its own limit).
+    # streams under its own limit), then the heavy routes' slots (server.api.admission).
+    app.add_middleware(Admission, workers=settings.heavy_workers, queue=settings.heavy_queue,
+                       per_client=settings.heavy_per_client)
     json_cap = Cap(settings.json_max_bytes, "RBA_JSON_MAX_BYTES", hint="; datasets go to POST /api/admin/datasets")
     upload_cap = Cap(settings.upload_max_bytes, "RBA_UPLOAD_MAX_BYTES", what="upload")
     app.add_middleware(BodyLimit, default=json_cap, routes={("POST", admin_datasets.router.prefix): upload_cap})

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import socket
 
 from pydantic import Field, model_validator
@@ -9,6 +10,11 @@ from pydantic import Field, model_validator
 from rba.core.settings import LibrarySettings
 from rba.core.store import Store
 from rba.domains import get_domain
+
+
+def cores() -> int:
+    """The cores this process may run on (its CPU affinity where the system tells it)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
 class Settings(LibrarySettings):
@@ -64,6 +70,21 @@ class Settings(LibrarySettings):
                                          "training jobs it runs alive in the database")
     job_stale_seconds: float = Field(default=30.0, gt=0, description="a training job not marked alive for this "
                                      "long lost its server: any replica fails it and frees its domain")
+    heavy_workers: int = Field(default_factory=lambda: max(2, cores()), ge=1, le=32, description="heavy requests "
+                               "(interpreting text, starting or answering sessions, clips, exports, uploads: "
+                               "server.api.admission) running at once; default: the cores, at least 2. At most 32 "
+                               "of the 40 request threads, so light requests always find one")
+    heavy_queue: int = Field(default_factory=lambda: 8 * max(2, cores()), ge=0, le=10_000, description="heavy "
+                             "requests waiting for a running one to end; beyond them the server answers 503 with "
+                             "Retry-After; default: 8 per heavy worker")
+    heavy_per_client: int = Field(default_factory=lambda: 4 * max(2, cores()), ge=1, le=10_000, description="heavy "
+                                  "requests one client (address) may have running or waiting; beyond them it gets "
+                                  "429 with Retry-After; default: 4 per heavy worker, so no one client fills the queue")
+    train_max_jobs: int = Field(default_factory=lambda: max(1, cores() // 2), ge=1, le=64, description="training "
+                                "jobs this server runs at once; more wait, queued, for one to end; default: one per "
+                                "two cores, at least 1")
+    train_nice: int = Field(default=10, ge=0, le=19, description="CPU niceness of training processes: requests "
+                            "(niceness 0) go first")
     log_level: str = "info"
 
     @model_validator(mode="after")
