@@ -21,6 +21,8 @@ const els = {
   history: $("history"), historyEmpty: $("history-empty"), historyCount: $("history-count"), keyList: $("key-list"),
   words: $("words"), wordsText: $("words-text"), wordsGo: $("words-go"), wordsConfirm: $("words-confirm"),
   wordsUnderstood: $("words-understood"), wordsYes: $("words-yes"), wordsNo: $("words-no"), wordsError: $("words-error"),
+  wordsExamples: $("words-examples"), wordsStatus: $("words-status"), wordsSure: $("words-sure"),
+  wordsChoices: $("words-choices"),
 };
 
 const state = {
@@ -39,6 +41,7 @@ const state = {
   clipToken: 0,
   loading: null, // the rollout load() gave the video, until it can play: only its events take the overlay away
   understood: null, // the feedback the text box's sentence was understood as, awaiting confirmation
+  reading: false, // the server is reading the text box's sentence: Interpret (and Enter) wait for it
 };
 
 const PLAYED_SECONDS = 1;
@@ -92,6 +95,7 @@ function refreshControls() {
   for (const b of els.attributes.querySelectorAll("button")) lock(b, !open);
   lock(els.satisfied, !open);
   lock(els.wordsYes, !open);
+  for (const b of els.wordsChoices.querySelectorAll("[data-reading]")) lock(b, !open);
   lock(els.start, state.busy);
   document.body.dataset.state = state.searching ? "searching" : state.busy || state.waiting ? "busy" : (s ? "ready" : "idle");
   if (s && s.status === "active") {
@@ -519,6 +523,7 @@ function renderStatus(session) {
     + ` · model `, el("code", {}, session.model_version), ` (${session.model_set})`);
   els.satisfied.hidden = !active;
   els.words.hidden = !active;
+  if (active) showExamples(session.domain);
   els.attributes.hidden = !active;  // no dead buttons to tab through before the download
   els.done.hidden = active;
   els.exportLink.hidden = session.status !== "satisfied";
@@ -556,39 +561,80 @@ els.replayBack.addEventListener("click", backToCurrent);
 function resetWords() {
   state.understood = null;
   els.wordsConfirm.hidden = true;
+  els.wordsChoices.replaceChildren();
   els.wordsError.hidden = true;
+}
+
+/** The domain's example sentences (its anchors, from GET /api/domains): the placeholder, and buttons that read one. */
+function showExamples(domain) {
+  if (els.wordsExamples.dataset.domain === domain) return;
+  const d = state.domains.find((x) => x.name === domain);
+  const examples = (d && d.examples) || [];
+  els.wordsExamples.dataset.domain = domain;
+  els.wordsText.placeholder = examples.length ? `e.g. ${examples[0]}` : "";
+  els.wordsExamples.replaceChildren("Try:", ...examples.map((text) => el("button", {
+    type: "button", class: "words-example", onclick: () => { els.wordsText.value = text; els.words.requestSubmit(); },
+  }, text)));
+  els.wordsExamples.hidden = !examples.length;
+}
+
+/** While the server reads a sentence (the first after a restart can take seconds): say so, announced, and keep
+ * Interpret and Enter from sending it again. */
+function setReading(on) {
+  state.reading = on;
+  lock(els.wordsGo, on);
+  els.words.setAttribute("aria-busy", String(on));
+  els.wordsStatus.textContent = on ? "Reading…" : "";
+}
+
+/** What the sentence was read as: one reading to confirm, or (when the server is unsure) two to choose from. */
+function offerReadings(r) {
+  const choose = (r.alternatives || []).length > 1;  // (a server before the field: one reading)
+  state.understood = r.feedback;
+  const shown = (reading) => reading.map(choiceText).join(", ");
+  els.wordsUnderstood.textContent = choose ? "Not sure what you meant. Which one?"
+    : `${r.low_confidence ? "Not sure: " : ""}${shown(r.feedback)} — right?`;
+  els.wordsSure.hidden = choose;
+  els.wordsChoices.hidden = !choose;
+  els.wordsChoices.replaceChildren(...(choose ? [
+    ...r.alternatives.map((reading, i) => el("button", {
+      type: "button", class: i ? "btn btn-light btn-outline" : "btn btn-primary", "data-reading": String(i),
+      onclick: (e) => sendWords(reading, e.currentTarget),
+    }, shown(reading))),
+    el("button", { type: "button", class: "btn btn-light btn-outline", onclick: () => els.wordsNo.click() }, "Neither"),
+  ] : []));
+  els.wordsConfirm.hidden = false;
+  refreshControls();  // the choices unlock with the other answers
+  (choose ? els.wordsChoices.firstElementChild : els.wordsYes).focus();
+}
+
+async function sendWords(reading, button) {
+  if (await sendFeedback({ feedback: reading }, button)) {
+    els.wordsText.value = "";
+    resetWords();
+    els.wordsText.focus();
+  }
 }
 
 els.words.addEventListener("submit", async (e) => {
   e.preventDefault();
   const s = state.session;
   const text = els.wordsText.value.trim();
-  if (!s || !text) return;
+  if (!s || !text || state.reading) return;
   resetWords();
-  els.wordsGo.setAttribute("aria-busy", "true");
+  setReading(true);
   try {
-    const r = await api(`/api/domains/${encodeURIComponent(s.domain)}/interpret`,
-      { method: "POST", body: JSON.stringify({ text }) });
-    state.understood = r.feedback;
-    els.wordsUnderstood.textContent = `${r.feedback.map(choiceText).join(", ")} — right?`;
-    els.wordsConfirm.hidden = false;
-    els.wordsYes.focus();
+    offerReadings(await api(`/api/domains/${encodeURIComponent(s.domain)}/interpret`,
+      { method: "POST", body: JSON.stringify({ text }) }));
   } catch (err) {
     els.wordsError.textContent = err.status === 404 ? "This server cannot read sentences yet; use the buttons."
       : err.message;
     els.wordsError.hidden = false;
   } finally {
-    els.wordsGo.removeAttribute("aria-busy");
+    setReading(false);
   }
 });
-els.wordsYes.addEventListener("click", async () => {
-  if (!state.understood) return;
-  if (await sendFeedback({ feedback: state.understood }, els.wordsYes)) {
-    els.wordsText.value = "";
-    resetWords();
-    els.wordsText.focus();
-  }
-});
+els.wordsYes.addEventListener("click", () => { if (state.understood) sendWords(state.understood, els.wordsYes); });
 els.wordsNo.addEventListener("click", () => { resetWords(); els.wordsText.focus(); });
 
 // ---------------------------------------------------------------- keyboard
