@@ -43,13 +43,18 @@ def init_worker(nice: int = 0, render_threads: int = 1) -> None:
         os.environ.setdefault(var, "1")
     os.environ.setdefault("LP_NUM_THREADS", str(render_threads))  # Mesa llvmpipe
     global _ready
-    if nice:
-        with contextlib.suppress(OSError):  # not allowed to lower it further: run as we are
-            os.nice(nice)
+    lower_priority(nice)
     sweep_temporaries()
     # a pool killed outright (SIGKILL, OOM) never shuts its workers down: they would idle on, holding their models
     watch_parent(os.getppid(), lambda: os._exit(0), PARENT_POLL_SECONDS)
     _ready = True
+
+
+def lower_priority(nice: int) -> None:
+    """Raise this process's niceness by ``nice``: its work then yields the CPU to the API's requests."""
+    if nice:
+        with contextlib.suppress(OSError):  # not allowed to lower it further: run as we are
+            os.nice(nice)
 
 
 def watch_parent(parent_pid: int, on_gone: Callable[[], None], poll: float) -> None:

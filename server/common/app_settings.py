@@ -83,8 +83,8 @@ class Settings(LibrarySettings):
     train_max_jobs: int = Field(default_factory=lambda: max(1, cores() // 2), ge=1, le=64, description="training "
                                 "jobs this server runs at once; more wait, queued, for one to end; default: one per "
                                 "two cores, at least 1")
-    train_nice: int = Field(default=10, ge=0, le=19, description="CPU niceness of training processes: requests "
-                            "(niceness 0) go first")
+    train_nice: int = Field(default=10, ge=0, le=19, description="niceness a training process adds to its "
+                            "server's: the server's requests go first")
     log_level: str = "info"
 
     @model_validator(mode="after")

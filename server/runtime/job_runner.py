@@ -38,6 +38,7 @@ from sqlalchemy import func, update
 from sqlalchemy.exc import SQLAlchemyError
 from sqlmodel import Session, select
 
+from rba.compute.tasks import lower_priority
 from rba.core.store import Store
 from server.common.app_settings import Settings
 from server.db.admin_tables import FINISHED, ActiveModel, JobState, ModelVersion, TrainJob
@@ -77,7 +78,9 @@ class JobRunner:
         self.replica = settings.replica_name
         self.owner = f"{self.replica}#{uuid.uuid4().hex[:8]}"  # this process: a restart is a new owner
         self._procs: dict[str, multiprocessing.process.BaseProcess] = {}
+        self._waiting: collections.deque[str] = collections.deque()  # queued for a free slot (train_max_jobs)
         self._lock = threading.Lock()
+        self._starting = threading.Lock()  # one start at a time: the slot count holds
         self._stopped = False
         self._halt = threading.Event()
         self._keeper: threading.Thread | None = None
@@ -105,7 +108,7 @@ class JobRunner:
             q = select(TrainJob).where(TrainJob.busy_domain.is_not(None))  # type: ignore[union-attr]
             jobs = db.exec(q if domain is None else q.where(TrainJob.busy_domain == domain)).all()
         with self._lock:
-            running_here = set(self._procs)
+            running_here = set(self._procs) | set(self._waiting)
         reaped = []
         for job in jobs:
             if job.id in running_here:
@@ -185,10 +188,10 @@ class JobRunner:
     def heartbeat(self) -> None:
         """Mark the jobs this server runs alive; stop the processes of jobs finished elsewhere (cancelled)."""
         with self._lock:
-            live = dict(self._procs)
-        if not live:
+            live, waiting = dict(self._procs), list(self._waiting)
+        ids = [*live, *waiting]  # a queued job is alive too: its server will start it
+        if not ids:
             return
-        ids = list(live)
         with Session(self.engine) as db:
             db.exec(update(TrainJob)
                     .where(TrainJob.id.in_(ids), TrainJob.owner == self.owner,  # type: ignore[attr-defined]
@@ -198,23 +201,47 @@ class JobRunner:
             ended = db.exec(select(TrainJob.id).where(TrainJob.id.in_(ids),  # type: ignore[attr-defined]
                                                       TrainJob.busy_domain.is_(None))).all()  # type: ignore[union-attr]
         for job_id in ended:
-            if live[job_id].is_alive():
+            self._unqueue(job_id)
+            if job_id in live and live[job_id].is_alive():
                 log.info("job %s was finished by another server: stopping its process", job_id)
                 live[job_id].terminate()
 
     def start(self, job_id: str) -> None:
-        """Start the job's process (on the launcher's thread, see ``server.runtime.processes``), record it and watch
-        it."""
-        ctx = multiprocessing.get_context("spawn")
-        from rba.core.methods import method_targets
-        from rba.domains import domain_targets
+        """Start the job's process, or queue the job while ``train_max_jobs`` of this server's run: training takes
+        every core it is given, so more at once only slows each and the requests; the next starts as one ends."""
+        cap = self.settings.train_max_jobs
+        with self._starting:
+            with self._lock:
+                full = len(self._procs) >= cap
+                if full:
+                    self._waiting.append(job_id)
+            if full:
+                log.info("job %s waits: %d training jobs run on this server (RBA_TRAIN_MAX_JOBS)", job_id, cap)
+                update_job(self.engine, job_id, stage=f"waiting for one of {cap} training slots (RBA_TRAIN_MAX_JOBS)")
+                return
+            self._launch(job_id)
 
-        registry, method_registry = domain_targets(), method_targets()  # plugins registered at run time too
-        proc = ctx.Process(target=run_job, args=(job_id, self.owner, os.getpid(), self.settings.model_dump(mode="json"),
-                                                 registry, method_registry),
-                           name=f"rba-train-{job_id[:8]}", daemon=True)
+    def _start_next(self) -> None:
+        """Start queued jobs while slots are free (a failed start is recorded on its job: the next is tried)."""
+        with self._starting:
+            while True:
+                with self._lock:
+                    if self._stopped or not self._waiting or len(self._procs) >= self.settings.train_max_jobs:
+                        return
+                    job_id = self._waiting.popleft()
+                try:
+                    self._launch(job_id)
+                except Exception:
+                    log.exception("job %s: its training process could not start", job_id)
+
+    def _unqueue(self, job_id: str) -> None:
+        with self._lock, contextlib.suppress(ValueError):
+            self._waiting.remove(job_id)
+
+    def _launch(self, job_id: str) -> None:
+        """Start the job's process, record it and watch it; on failure mark the job failed and raise."""
         try:
-            self._launcher.start(proc)
+            proc = self._spawn(job_id)
         except Exception as exc:  # no process: release the domain at once rather than when the heartbeat goes stale
             update_job(self.engine, job_id, state=JobState.failed.value,
                        error=f"the training process could not start: {type(exc).__name__}: {exc}")
@@ -224,6 +251,19 @@ class JobRunner:
         with contextlib.suppress(psutil.NoSuchProcess):  # it ended already: the watch below records how
             ProcessRecord.of(proc.pid).save(self.store.job_record(job_id))
         threading.Thread(target=self._watch, args=(job_id, proc), name=f"rba-watch-{job_id[:8]}", daemon=True).start()
+
+    def _spawn(self, job_id: str) -> multiprocessing.process.BaseProcess:
+        """The job's process, started on the launcher's thread (see ``server.runtime.processes``)."""
+        ctx = multiprocessing.get_context("spawn")
+        from rba.core.methods import method_targets
+        from rba.domains import domain_targets
+
+        registry, method_registry = domain_targets(), method_targets()  # plugins registered at run time too
+        proc = ctx.Process(target=run_job, args=(job_id, self.owner, os.getpid(), self.settings.model_dump(mode="json"),
+                                                 registry, method_registry),
+                           name=f"rba-train-{job_id[:8]}", daemon=True)
+        self._launcher.start(proc)
+        return proc
 
     def _watch(self, job_id: str, proc) -> None:
         proc.join()
@@ -238,9 +278,11 @@ class JobRunner:
         except SQLAlchemyError:
             log.exception("could not record the end of job %s", job_id)
         self.store.discard(job_id)
+        self._start_next()
 
     def cancel(self, job_id: str) -> None:
         update_job(self.engine, job_id, state=JobState.cancelled.value, error="cancelled by an admin")
+        self._unqueue(job_id)
         with self._lock:
             proc = self._procs.get(job_id)
         if proc is not None and proc.is_alive():
@@ -258,8 +300,8 @@ class JobRunner:
         if self._keeper is not None:
             self._keeper.join(timeout=10)
         with self._lock:
-            procs = dict(self._procs)
-        for job_id in procs:
+            procs, waiting = dict(self._procs), list(self._waiting)
+        for job_id in [*procs, *waiting]:
             self.cancel(job_id)
         deadline = time.monotonic() + STOP_SECONDS
         for proc in procs.values():
@@ -298,6 +340,7 @@ def run_job(job_id: str, owner: str, parent_pid: int, settings_json: dict, regis
     from server.db.engine import make_engine
 
     settings = Settings(**settings_json)
+    lower_priority(settings.train_nice)  # training yields the cores to the requests its server answers
     tail = _Tail()
     logging.basicConfig(level=logging.INFO, handlers=[tail])
     engine = make_engine(settings.db_url)

@@ -14,6 +14,7 @@ import subprocess
 import threading
 import time
 
+import psutil
 import pytest
 from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session, select
@@ -332,6 +333,7 @@ def test_a_training_process_whose_job_was_taken_stops_by_itself(replica, toy_roo
     while row(a, job).step == 0 and proc.is_alive() and time.monotonic() < deadline:
         time.sleep(0.2)
     assert row(a, job).state == "running" and row(a, job).step > 0, row(a, job)
+    assert psutil.Process(proc.pid).nice() == os.nice(0) + a.settings.train_nice  # requests go first
     assert update_job(a.engine, job, state=JobState.failed.value, error="taken by another replica")
     taken = row(a, job)
     # Its next report is 50 steps on: a second or two, unless the machine is crowded. The server's watch thread
@@ -348,6 +350,38 @@ def test_a_training_process_whose_job_was_taken_stops_by_itself(replica, toy_roo
     while a.store.recorded_jobs() and time.monotonic() < deadline:  # the watch removes the record on exit
         time.sleep(0.05)
     assert a.store.recorded_jobs() == []
+
+
+def test_jobs_past_the_cap_wait_queued_alive_and_start_as_one_ends(replica, sleepers, monkeypatch):
+    a = replica("a", train_max_jobs=1)
+    spawned: dict[str, StandInProcess] = {}
+
+    def spawn(runner: JobRunner, job_id: str) -> StandInProcess:
+        spawned[job_id] = proc = StandInProcess()
+        proc.pid = sleepers()  # what the process record names
+        return proc
+
+    monkeypatch.setattr(JobRunner, "_spawn", spawn)
+    first, second, third = (add_job(a, domain, a.owner, beat_age=0) for domain in ("toy", "walker", "snake"))
+    for job_id in (second, third):
+        update_job(a.engine, job_id, state=JobState.queued.value, heartbeat_at=utcnow() - dt.timedelta(seconds=20))
+    for job_id in (first, second, third):
+        a.start(job_id)
+    assert list(spawned) == [first]
+    waiting = row(a, second)
+    assert (waiting.state, waiting.stage) == ("queued", "waiting for one of 1 training slots (RBA_TRAIN_MAX_JOBS)")
+    a.heartbeat()  # a queued job is kept alive: no replica fails it while it waits
+    assert (utcnow() - as_utc(row(a, second).heartbeat_at)).total_seconds() < 10
+    a.cancel(third)
+
+    spawned[first].terminate()  # the first job's process ends: the next queued one starts
+    deadline = time.monotonic() + 30
+    while second not in spawned and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert list(spawned) == [first, second]
+    spawned[second].terminate()
+    a.wait(second, 30)
+    assert list(spawned) == [first, second] and row(a, third).state == "cancelled"
 
 
 def test_heartbeat_must_be_well_inside_the_staleness_limit():
