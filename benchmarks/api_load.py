@@ -101,6 +101,9 @@ class ServerOptions:
     database_url: str | None = None  # default: a fresh SQLite file in the configuration's folder
     generate: bool = False  # RBA_GENERATE: RBA-Global sessions make new behaviours (benchmarks/generation_latency.py)
     generate_seconds: float | None = None  # RBA_GENERATE_SECONDS (None: the server's default)
+    # RBA_HEAVY_PER_CLIENT: the simulated users all come from 127.0.0.1 but each stands for a person, so no share of
+    # the heavy slots per address (None: the server's default, server/api/admission.py)
+    heavy_per_client: int | None = 10_000
 
 
 def server_env(opts: ServerOptions, workdir: Path, cache_dir: Path) -> dict[str, str]:
@@ -111,6 +114,8 @@ def server_env(opts: ServerOptions, workdir: Path, cache_dir: Path) -> dict[str,
            "RBA_GENERATE": str(opts.generate).lower(),
            **({} if opts.generate_seconds is None else {"RBA_GENERATE_SECONDS": str(opts.generate_seconds)}),
            "RBA_LOG_LEVEL": "info", "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}  # info: renders are logged
+    if opts.heavy_per_client is not None:
+        env["RBA_HEAVY_PER_CLIENT"] = str(opts.heavy_per_client)
     if opts.data_dir:
         env["RBA_DATA_DIR"] = str(opts.data_dir)
     if opts.models_dir:

@@ -114,7 +114,7 @@ def run_config(name: str, args) -> dict:
     workdir = Path(tempfile.mkdtemp(prefix=f"rba-heavy-{name}-"))
     try:
         with environment(CONFIGS[name]):
-            server = LiveServer(ServerOptions(prerender=False), workdir, workdir / "clips")
+            server = LiveServer(ServerOptions(prerender=False, heavy_per_client=None), workdir, workdir / "clips")
         try:
             with httpx.Client(base_url=server.url, timeout=args.timeout) as c:
                 session = c.post("/api/sessions", json={"domain": "walker", "method": "global", "rep": "onehot"})
