@@ -136,7 +136,7 @@ def _bad_cases(exported: Path, tmp_path: Path) -> dict[str, tuple[Path, str]]:
         path = tmp_path / f"{name.replace(' ', '_')}.zip"
         path.write_bytes(data)
         out[name] = (path, message)
-    out["foreign"] = (foreign, "missing member profile.json: not an RBA export")
+    out["foreign"] = (foreign, "member 'readme.txt' is no export member (valid: profile.json, clip.mp4, README.md")
     twice = tmp_path / "twice.zip"  # a second clip.mp4 before the real one: unzip and the reader would differ
     with zipfile.ZipFile(exported) as src, zipfile.ZipFile(twice, "w") as zf:
         zf.writestr("clip.mp4", b"\0\0\0\x20ftypisom-other")
@@ -179,15 +179,15 @@ def test_bad_zips_exit_2_with_a_message(exported, tmp_path, case, capsys):
         "unlisted member": ({"replace": {"notes.txt": b"hi"}},
                             "member notes.txt is not listed in profile.json's members, so nothing checks it"),
         "text proxy": ({"profile": lambda p: {**p, "proxies": {**p["proxies"], "pace": "fast"}}},
-                       "profile.json proxies must map attribute names to numbers"),
+                       "profile.json proxies must map attribute names to finite numbers"),
         "arrays not a mapping": ({"profile": lambda p: {**p, "reward": {**p["reward"], "arrays": ["a.npy"]}}},
                                  "profile.json reward arrays must map names to members listed in its members"),
         "array not a member": ({"profile": lambda p: {**p, "reward": {**p["reward"], "arrays": {"a": "a.npy"}}}},
                                "profile.json reward arrays must map names to members listed in its members"),
         "no v_star": ({"profile": lambda p: {**p, "reward": {**p["reward"], "condition": {}}}},
-                      "reward condition v_star must be 2 numbers, one per attribute (amplitude, pace)"),
+                      "reward condition v_star must be 2 finite numbers, one per attribute (amplitude, pace)"),
         "short v_star": ({"profile": lambda p: {**p, "reward": {**p["reward"], "condition": {"v_star": [0.1]}}}},
-                         "reward condition v_star must be 2 numbers, one per attribute (amplitude, pace)"),
+                         "reward condition v_star must be 2 finite numbers, one per attribute (amplitude, pace)"),
     }
     if case in edits:
         kwargs, message = edits[case]
@@ -203,6 +203,18 @@ def test_bad_zips_exit_2_with_a_message(exported, tmp_path, case, capsys):
     ("MAX_MEMBER_BYTES", "unpacks to more than 0 MiB; not an RBA export"),
     ("MAX_EXPORT_BYTES", "the members unpack to more than 0 MiB; not an RBA export"),
 ])
+def test_every_export_holds_a_readme_naming_each_member(exported, tmp_path):
+    """README.md says what each member is and how to use the zip; an export without one (older) still reads."""
+    with zipfile.ZipFile(exported) as zf:
+        names, readme = zf.namelist(), zf.read("README.md").decode()
+    assert "README.md" in names and read_export(exported).profile.members["README.md"]
+    assert all(f"`{name}`" in readme for name in names)
+    assert "rba replay" in readme and "rba.gym.ExportedReward" in readme and "rba.gym.skill_policy" in readme
+    old = _rewrite(exported, tmp_path, drop="README.md", profile=lambda p: {
+        **p, "members": {k: v for k, v in p["members"].items() if k != "README.md"}})
+    assert read_export(old).reward is not None
+
+
 def test_an_export_unpacking_beyond_its_caps_is_refused_before_unpacking(exported, monkeypatch, cap, message):
     monkeypatch.setattr(export_module, cap, 1000)
     monkeypatch.setattr(zipfile.ZipFile, "read", lambda *args: pytest.fail("a member was unpacked"))
