@@ -9,10 +9,10 @@ import { describe, renderMeters, renderPath } from "./meters.js";
 
 const els = {
   domain: $("domain"), method: $("method"), setup: $("setup"), start: $("start"),
-  generate: $("generate"), generateField: $("generate-field"),
+  generate: $("generate"), generateField: $("generate-field"), advanced: $("advanced"), about: $("setup-about"),
   player: $("player"), video: $("video"), overlay: $("overlay"), overlayText: $("overlay-text"),
   progress: $("progress"), progressFill: $("progress-fill"), progressText: $("progress-text"),
-  welcome: $("welcome"), welcomeStart: $("welcome-start"), welcomeNote: $("welcome-note"),
+  welcome: $("welcome"), welcomeNote: $("welcome-note"),
   stepBadge: $("step-badge"), replayBanner: $("replay-banner"), replayText: $("replay-text"), replayBack: $("replay-back"),
   measured: $("measured"), path: $("path"), pathPlots: $("path-plots"), announce: $("announce"),
   attributes: $("attributes"), satisfied: $("satisfied"),
@@ -97,6 +97,8 @@ function refreshControls() {
   lock(els.wordsYes, !open);
   for (const b of els.wordsChoices.querySelectorAll("[data-reading]")) lock(b, !open);
   lock(els.start, state.busy);
+  els.start.textContent = s ? "New session" : "Start tuning";
+  document.body.classList.toggle("in-session", Boolean(s));
   document.body.dataset.state = state.searching ? "searching" : state.busy || state.waiting ? "busy" : (s ? "ready" : "idle");
   if (s && s.status === "active") {
     els.controlsHint.textContent = open ? "Press more or less — or “This is it”."
@@ -115,21 +117,52 @@ function setBusy(busy) {
 function selectedDomain() { return state.domains.find((d) => d.name === els.domain.value); }
 
 function methodLabel(m) {
-  const name = state.labels[m.method] || `${m.method.charAt(0).toUpperCase()}${m.method.slice(1)}`;
+  const name = m.label || state.labels[m.method] || `${m.method.charAt(0).toUpperCase()}${m.method.slice(1)}`;
   return m.rep === "onehot" ? name : `${name} · ${m.rep}`;
 }
 
+/** The domain picker: the domains people tune, and with "Advanced" the research views of their scenes too. */
+function fillDomains() {
+  const keep = els.domain.value;
+  const shown = state.domains.filter((d) => els.advanced.checked || !d.advanced);
+  const option = (d) => el("option", { value: d.name, title: d.description },
+    pretty(d.name) + (d.available.length ? "" : " (not built)"));
+  const views = shown.filter((d) => d.advanced);  // the same scenes, other states for the models
+  els.domain.replaceChildren(...shown.filter((d) => !d.advanced).map(option),
+    ...(views.length ? [el("optgroup", { label: "Research views: raw or image states" }, ...views.map(option))] : []));
+  const first = shown.find((d) => d.name === keep) || shown.find((d) => d.available.length && !d.advanced)
+    || shown.find((d) => d.available.length) || shown[0];
+  if (first) els.domain.value = first.name;
+  fillMethods();
+}
+
+/** The method picker: the selected domain's trained methods, research variants only with "Advanced". */
 function fillMethods() {
   const d = selectedDomain();
-  els.method.replaceChildren();
-  for (const m of d ? d.available : []) els.method.append(el("option", { value: `${m.method}/${m.rep}` }, methodLabel(m)));
-  if (d && !d.available.length) els.method.append(el("option", { value: "", disabled: true }, "not trained yet"));
-  const ok = Boolean(d && d.available.length);
+  const keep = els.method.value;
+  const offered = d ? d.available.filter((m) => els.advanced.checked || !m.advanced) : [];
+  els.method.replaceChildren(...offered.map((m) => el("option", { value: `${m.method}/${m.rep}`, title: m.description },
+    methodLabel(m))));
+  if (d && !offered.length) {
+    els.method.append(el("option", { value: "", disabled: true },
+      d.available.length ? "research variants only: tick Advanced" : "not trained yet"));
+  }
+  if (offered.some((m) => `${m.method}/${m.rep}` === keep)) els.method.value = keep;
+  const ok = offered.length > 0;
   fillGenerate();
   lock(els.start, !ok);
-  lock(els.welcomeStart, !ok);
   els.welcomeNote.textContent = ok ? `${pretty(d.name)}: ${d.attributes.map((a) => pretty(a.name)).join(", ")}`
     : (d && d.missing) || "";
+  describeChoice();
+}
+
+/** One line each on the chosen domain and method, from their definitions (GET /api/domains). */
+function describeChoice() {
+  const d = selectedDomain();
+  const m = d && d.available.find((a) => `${a.method}/${a.rep}` === els.method.value);
+  const line = (name, text) => el("span", {}, el("b", {}, name), ` — ${text}`);
+  els.about.replaceChildren(...(d ? [line(pretty(d.name), d.description)] : []),
+    ...(m ? [" ", line(methodLabel(m), m.description)] : []));
 }
 
 /** The "make new behaviours" option: offered for the methods that can, the server's default ticked. */
@@ -143,6 +176,8 @@ function fillGenerate() {
     + "(takes longer)" : "Only RBA-Global can make new behaviours";
 }
 els.method.addEventListener("change", fillGenerate);
+els.method.addEventListener("change", describeChoice);
+els.advanced.addEventListener("change", fillDomains);
 
 async function loadDomains() {
   const body = await api("/api/domains");
@@ -151,14 +186,7 @@ async function loadDomains() {
   state.generateDefault = body.generate;
   els.generate.checked = body.generate;
   state.labels = Object.fromEntries(body.trainable.map((t) => [t.method, t.label]));
-  const option = (d) => el("option", { value: d.name }, pretty(d.name) + (d.available.length ? "" : " (not built)"));
-  const views = state.domains.filter((d) => d.states !== "features");  // the same scenes, other states for the models
-  els.domain.replaceChildren(...state.domains.filter((d) => d.states === "features").map(option),
-    ...(views.length ? [el("optgroup", { label: "Research views: raw or image states" }, ...views.map(option))] : []));
-  const first = state.domains.find((d) => d.available.length && d.states === "features")
-    || state.domains.find((d) => d.available.length) || state.domains[0];
-  if (first) els.domain.value = first.name;
-  fillMethods();
+  fillDomains();
 }
 els.domain.addEventListener("change", fillMethods);
 
@@ -189,7 +217,6 @@ async function startSession(event) {
   }
 }
 els.setup.addEventListener("submit", startSession);
-els.welcomeStart.addEventListener("click", () => startSession());
 els.again.addEventListener("click", () => startSession());
 
 async function sendFeedback(payload, pressed) {
@@ -421,10 +448,17 @@ function showSession(session, { fresh = false } = {}) {
   state.session = session;
   showWelcome(false);
   if (fresh || !previous || previous.id !== session.id) {
+    const d = state.domains.find((x) => x.name === session.domain);
+    const pair = d && d.available.find((m) => m.method === session.method && m.rep === session.rep);
+    if (d && (d.advanced || (pair && pair.advanced)) && !els.advanced.checked) {
+      els.advanced.checked = true;  // a research session (an address, the API): the pickers show what it is
+      fillDomains();
+    }
     els.domain.value = session.domain;
     fillMethods();
     els.method.value = `${session.method}/${session.rep}`;
     fillGenerate();
+    describeChoice();
     if (!els.generate.disabled) els.generate.checked = session.generate;  // the form says what this session does
     buildControls(session);
     state.played.clear(); // another session: its clip must be watched again, even one seen before

@@ -4,11 +4,14 @@ phone shows the clip, the answers, "This is it" and the measured values without 
 
 from __future__ import annotations
 
+import re
 import time
 from pathlib import Path
 
 import pytest
 
+from rba.core.methods import get_method
+from rba.domains import get_domain
 from server.common.app_settings import Settings
 from server.runtime.catalog import Catalog
 from tests.browser.conftest import PLAYED, PLAYING
@@ -73,5 +76,71 @@ def test_the_waiting_text_stays_until_the_next_clip_plays(url, browser):
     assert log[0] == [False, first]  # shown at the answer
     hidden = [rollout for is_hidden, rollout in log if is_hidden]
     assert hidden and first not in hidden, log  # hidden only once the next clip is in the video
+    assert not errors, errors
+    page.close()
+
+
+def start_buttons(page):
+    return page.get_by_role("button", name=re.compile(r"start|new session", re.IGNORECASE))
+
+
+def test_the_picker_offers_the_domains_with_their_lines_research_behind_advanced(url, browser):
+    """The four domains and their methods, each with its line from GET /api/domains (an option's title, the
+    chosen pair's line beside the pickers); "Advanced" reveals the research views and the language variants;
+    one start button, before and during a session."""
+    page, errors = new_page(browser, url)
+    domains = page.eval_on_selector_all("#domain option", "os => os.map((o) => [o.value, o.title])")
+    assert [n for n, _ in domains if n != "toy"] == ["walker", "lane_change", "manipulator", "snake"]  # toy: tests'
+    assert all(title == get_domain(n).description != "" for n, title in domains)
+    assert page.locator("#domain optgroup").count() == 0
+    methods = page.eval_on_selector_all("#method option", "os => os.map((o) => [o.value, o.title])")
+    assert [m for m, _ in methods] == ["global/onehot", "local/onehot"]
+    assert all(title == get_method(m.split("/")[0]).description != "" for m, title in methods)
+    about = page.locator("#setup-about").inner_text()
+    assert get_domain("walker").description in about and get_method("global").description in about
+    assert start_buttons(page).count() == 1 and page.locator("#welcome button").count() == 0
+
+    page.get_by_label("Advanced").check()
+    views = page.locator("#domain optgroup[label='Research views: raw or image states'] option")
+    assert "walker_raw" in [o.get_attribute("value") for o in views.all()]
+    assert all("Research view:" in o.get_attribute("title") for o in views.all())
+    assert "global/language" in page.eval_on_selector_all("#method option", "os => os.map((o) => o.value)")
+    page.get_by_label("Domain").select_option("walker_raw")
+    assert "Research view:" in page.locator("#setup-about").inner_text()
+    page.get_by_label("Advanced").uncheck()
+    assert page.get_by_label("Domain").input_value() == "walker"  # a hidden choice is not kept
+    assert page.locator("#domain optgroup").count() == 0
+
+    start(page)
+    assert start_buttons(page).count() == 1 and start_buttons(page).inner_text() == "New session"
+    raw = page.request.post(f"{url}/api/sessions", data={"domain": "walker_raw", "method": "global", "rep": "onehot"})
+    assert raw.status == 201
+    page.evaluate("id => { location.hash = 'session=' + id; }", raw.json()["id"])  # a research session, by address
+    page.wait_for_function("() => document.getElementById('domain').value === 'walker_raw'")
+    assert page.get_by_label("Advanced").is_checked()
+    assert not errors, errors
+    page.close()
+
+
+def test_a_phone_shows_the_clip_the_answers_and_the_values_without_scrolling(url, browser):
+    """At 390x844, after an answer (the meters then carry the agent's target and the path plots appear): the clip,
+    every answer button, "This is it" and every measured value lie inside the window, the page not scrolled."""
+    page, errors = new_page(browser, url, 390, 844, touch=True)
+    page.get_by_role("button", name="Start tuning").tap()
+    page.wait_for_function(PLAYING, arg="", timeout=90_000)
+    page.wait_for_function(PLAYED, timeout=30_000)
+    first = page.eval_on_selector("#video", "v => v.dataset.rollout")
+    page.get_by_role("button", name="more step size").tap()
+    page.wait_for_function(PLAYING, arg=first, timeout=90_000)
+    page.wait_for_function(PLAYED, timeout=30_000)
+    assert page.evaluate("window.scrollY") == 0
+    parts = ["#video", "#attributes .btn-less", "#attributes .btn-more", "#satisfied", "#measured .meter"]
+    for selector in parts:
+        boxes = [b.bounding_box() for b in page.locator(selector).all()]
+        assert boxes, selector
+        for box in boxes:
+            assert box["x"] >= 0 and box["x"] + box["width"] <= 390, (selector, box)
+            assert box["y"] >= 0 and box["y"] + box["height"] <= 844, (selector, box)
+    assert page.evaluate("document.documentElement.scrollWidth") <= 390  # nothing overflows sideways
     assert not errors, errors
     page.close()

@@ -234,6 +234,7 @@ def test_the_make_new_behaviours_box_is_off_for_a_method_that_cannot(url, browse
     box.check()
     page.get_by_label("Method").select_option(label="RBA-Local")
     assert box.is_disabled() and not box.is_checked()  # not ticked while it cannot apply
+    page.get_by_label("Advanced").check()  # the research views are listed apart, behind it
     views = page.locator("#domain optgroup[label='Research views: raw or image states'] option")
     assert "walker raw" in views.all_inner_texts() and "walker" not in views.all_inner_texts()  # listed apart
     page.get_by_label("Method").select_option(label="RBA-Global")
@@ -308,7 +309,7 @@ def test_another_domain_in_the_page(live_server, browser, tmp_path):
     assert page.locator("#domain option").count() >= 4  # walker, lane_change, manipulator, snake
     page.select_option("#domain", "lane_change")
     page.select_option("#method", "global/onehot")
-    page.get_by_role("button", name="New session").click()
+    page.get_by_role("button", name="Start tuning").click()
     page.wait_for_function(PLAYING, arg="", timeout=90_000)
     first = page.eval_on_selector("#video", "v => v.dataset.rollout")
     page.wait_for_function(PLAYED, timeout=30_000)
