@@ -258,7 +258,8 @@ def cmd_export(args) -> int:
 
 
 def cmd_replay(args) -> int:
-    """Simulate an export's behaviour again from its params and seed: 0 if its attributes match, 1 if not."""
+    """Simulate an export's behaviour again from its params and seed: 0 if its attributes match, 1 if not (an
+    invalid zip is an ``ExportError``, exit 2, before anything is simulated)."""
     from rba.data.export_zip import replay
 
     result = replay(Path(args.zip))
@@ -400,7 +401,7 @@ def _export_commands(sub) -> None:
     e.add_argument("out", help="output .zip path (written atomically)")
     e.set_defaults(func=cmd_export)
     r = sub.add_parser("replay", help="re-simulate an export's behaviour and compare its attributes (exit 1 if "
-                                      "they differ)")
+                                      "they differ, 2 if the zip is not a valid export: nothing is simulated)")
     r.add_argument("zip", help="a zip `rba export` or the page wrote")
     r.set_defaults(func=cmd_replay)
 
