@@ -199,10 +199,6 @@ def test_bad_zips_exit_2_with_a_message(exported, tmp_path, case, capsys):
     assert err.startswith("rba: error: ") and message in err and err.count("\n") == 1
 
 
-@pytest.mark.parametrize("cap, message", [
-    ("MAX_MEMBER_BYTES", "unpacks to more than 0 MiB; not an RBA export"),
-    ("MAX_EXPORT_BYTES", "the members unpack to more than 0 MiB; not an RBA export"),
-])
 def test_every_export_holds_a_readme_naming_each_member(exported, tmp_path):
     """README.md says what each member is and how to use the zip; an export without one (older) still reads."""
     with zipfile.ZipFile(exported) as zf:
@@ -215,6 +211,10 @@ def test_every_export_holds_a_readme_naming_each_member(exported, tmp_path):
     assert read_export(old).reward is not None
 
 
+@pytest.mark.parametrize("cap, message", [
+    ("MAX_MEMBER_BYTES", "unpacks to more than 0 MiB; not an RBA export"),
+    ("MAX_EXPORT_BYTES", "the members unpack to more than 0 MiB; not an RBA export"),
+])
 def test_an_export_unpacking_beyond_its_caps_is_refused_before_unpacking(exported, monkeypatch, cap, message):
     monkeypatch.setattr(export_module, cap, 1000)
     monkeypatch.setattr(zipfile.ZipFile, "read", lambda *args: pytest.fail("a member was unpacked"))
