@@ -122,15 +122,18 @@ def test_the_picker_offers_the_domains_with_their_lines_research_behind_advanced
     page.close()
 
 
-def test_a_phone_shows_the_clip_the_answers_and_the_values_without_scrolling(url, browser):
+@pytest.mark.parametrize(("domain", "answer"), [("walker", "more step size"), ("snake", "more speed")])
+def test_a_phone_shows_the_clip_the_answers_and_the_values_without_scrolling(url, browser, domain, answer):
     """At 390x844, after an answer (the meters then carry the agent's target and the path plots appear): the clip,
-    every answer button, "This is it" and every measured value lie inside the window, the page not scrolled."""
+    every answer button, "This is it" and every measured value lie inside the window, the page not scrolled; with
+    two attributes and with three (the snake's, one of them in a long unit)."""
     page, errors = new_page(browser, url, 390, 844, touch=True)
+    page.get_by_label("Domain").select_option(domain)
     page.get_by_role("button", name="Start tuning").tap()
     page.wait_for_function(PLAYING, arg="", timeout=90_000)
     page.wait_for_function(PLAYED, timeout=30_000)
     first = page.eval_on_selector("#video", "v => v.dataset.rollout")
-    page.get_by_role("button", name="more step size").tap()
+    page.get_by_role("button", name=answer).tap()
     page.wait_for_function(PLAYING, arg=first, timeout=90_000)
     page.wait_for_function(PLAYED, timeout=30_000)
     assert page.evaluate("window.scrollY") == 0
