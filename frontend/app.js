@@ -4,7 +4,7 @@
 // refuses (409) an answer about a clip the session no longer shows. An answer that makes the agent search for a
 // new behaviour returns at once (202); the page then polls the search's progress with the buttons locked.
 
-import { $, api, el, pretty, toast } from "./common.js";
+import { $, api, el, patientFetch, pretty, toast } from "./common.js";
 import { describe, renderMeters, renderPath } from "./meters.js";
 
 const els = {
@@ -364,7 +364,7 @@ function renderProgress(st) {
 /** Ask for the clip (HEAD: the server renders it, urgently) and show the render's status until it is stored. */
 async function waitForRender(clip, token) {
   let rendered = false;
-  const head = fetch(clip.url, { method: "HEAD" }).catch(() => null).finally(() => { rendered = true; });
+  const head = patientFetch(clip.url, { method: "HEAD" }).catch(() => null).finally(() => { rendered = true; });
   while (!rendered && token === state.clipToken) {
     try {
       const res = await fetch(statusUrl(clip));

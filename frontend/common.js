@@ -6,11 +6,32 @@ export const $ = (id) => document.getElementById(id);
 /** Attribute names as people read them: "step_size" -> "step size". */
 export const pretty = (name) => name.replace(/_/g, " ");
 
+const BUSY = new Set([429, 503]);
+const PATIENCE = { tries: 4, longestWait: 15 }; // a longer Retry-After (e.g. wrong admin tokens) is shown at once
+
+/** Seconds a busy answer (429 / 503) asks the client to wait, or null if it is not one worth waiting for. */
+function busyWait(res) {
+  const seconds = Number(res.headers.get("Retry-After"));
+  return BUSY.has(res.status) && seconds > 0 && seconds <= PATIENCE.longestWait ? seconds : null;
+}
+
+/** fetch, waiting out a busy server: the server refuses heavy requests it has no room for before doing any of
+ * their work (429 / 503 with Retry-After), so sending the same request again is safe. */
+export async function patientFetch(path, options = {}) {
+  for (let attempt = 1; ; attempt += 1) {
+    const res = await fetch(path, options);
+    const wait = busyWait(res);
+    if (wait === null || attempt >= PATIENCE.tries) return res;
+    toast(`The server is busy: trying again in ${wait} s…`, "info");
+    await new Promise((resolve) => { setTimeout(resolve, wait * 1000); });
+  }
+}
+
 /** JSON in and out; a failed call throws an Error whose message is the server's one-sentence `detail`. */
 export async function api(path, options = {}) {
   let res;
   try {
-    res = await fetch(path, { ...options, headers: { "Content-Type": "application/json", ...options.headers } });
+    res = await patientFetch(path, { ...options, headers: { "Content-Type": "application/json", ...options.headers } });
   } catch {
     throw Object.assign(new Error("The server cannot be reached. Is `rba serve` running?"), { status: 0 });
   }

@@ -147,3 +147,29 @@ def test_a_phone_shows_the_clip_the_answers_and_the_values_without_scrolling(url
     assert page.evaluate("document.documentElement.scrollWidth") <= 390  # nothing overflows sideways
     assert not errors, errors
     page.close()
+
+
+def test_a_busy_server_is_waited_out_not_shown_as_an_error(url, browser):
+    """The server refuses an answer it has no room for (429 with Retry-After, before doing any of its work): the page
+    says it is busy, sends the answer again after the wait, and the session goes on."""
+    page, errors = new_page(browser, url)
+    first = start(page)
+    refused: list[str] = []
+
+    def busy_once(route) -> None:
+        if refused:
+            route.continue_()
+            return
+        refused.append(route.request.method)
+        route.fulfill(status=429, headers={"Retry-After": "1", "Content-Type": "application/json"},
+                      body='{"detail": "too many heavy requests from this client at once"}')
+
+    page.route("**/feedback", busy_once)
+    page.get_by_role("button", name="more step size").click()
+    page.wait_for_function("() => document.getElementById('toast-text').textContent.includes('busy')",
+                           timeout=10_000)
+    page.wait_for_function(PLAYING, arg=first, timeout=90_000)
+    assert refused == ["POST"]
+    assert "too many heavy requests" not in page.inner_text("#toast-text")
+    assert not errors, errors
+    page.close()
