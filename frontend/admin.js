@@ -8,7 +8,7 @@ const ANSWERS = ["left-more", "skip", "right-more"];
 const TOKEN_KEY = "rba-admin-token";  // in this tab's session storage until "Lock" or the tab closes
 const state = {
   token: sessionStorage.getItem(TOKEN_KEY) || "", clips: [], watched: new Set(), failed: false,
-  busy: false, job: null, jobState: "", labels: 0, trainable: [], versions: [],
+  busy: false, job: null, jobState: "", labels: 0, trainable: [], versions: [], presets: [],
 };
 
 /** The shared call with the admin token the /api/admin routes need. */
@@ -61,10 +61,24 @@ function lock() {
   toast("Locked: this tab has forgotten the admin token.", "info");
 }
 
-// The presets the chosen method's trainer knows (the server's method registry says which).
+// The presets the chosen method's trainer knows (the server's method registry says which), each described.
 function showPresets() {
   const method = state.trainable.find((m) => m.method === $("train-method").value);
+  const keep = $("preset").value;
   $("preset").replaceChildren(...(method ? method.presets : []).map((p) => el("option", { value: p }, p)));
+  if (method?.presets.includes(keep)) $("preset").value = keep;
+  aboutPreset();
+}
+
+function aboutPreset() {
+  const p = state.presets.find((x) => x.method === $("train-method").value && x.preset === $("preset").value);
+  $("preset-about").textContent = p
+    ? `${p.preset}: ${p.description}. Typically about ${duration(p.typical_seconds)} on 2 CPU cores.` : "";
+}
+
+async function loadPresets() {
+  state.presets = await adminApi(`/api/admin/presets?${query({ domain: domain() })}`);
+  aboutPreset();
 }
 
 async function loadAttributes() {
@@ -77,9 +91,10 @@ async function loadAttributes() {
 
 async function loadDomain() {
   $("upload-domain").textContent = domain();
+  $("example-domain").textContent = domain();
   $("upload-result").replaceChildren();
   await loadAttributes();
-  await Promise.all([nextClips(), loadDatasets(), loadVersions(), loadLatestJob()]);
+  await Promise.all([nextClips(), loadDatasets(), loadVersions(), loadLatestJob(), loadPresets()]);
 }
 
 // ---------------------------------------------------------------- labelling
@@ -258,6 +273,21 @@ async function upload(event) {
   await Promise.all([loadAttributes(), loadDatasets()]);
 }
 
+/** Save the server's example label file for this domain (the route needs the token, so no plain link). */
+async function downloadExample() {
+  try {
+    const labels = await adminApi(`/api/admin/datasets/example?${query({ domain: domain() })}`);
+    const url = URL.createObjectURL(new Blob([JSON.stringify(labels, null, 2)], { type: "application/json" }));
+    const link = el("a", { href: url, download: `labels-example-${domain()}.json` });
+    document.body.append(link);
+    link.click();
+    link.remove();
+    setTimeout(() => URL.revokeObjectURL(url), 1000);
+  } catch (e) {
+    toast(e.message);
+  }
+}
+
 async function loadDatasets() {
   const datasets = await adminApi(`/api/admin/datasets?${query({ domain: domain() })}`);
   $("datasets-none").hidden = datasets.length > 0;
@@ -291,8 +321,7 @@ function showJob(job) {
   const result = job.version ? ` → version ${job.version}` : job.error ? ` — ${job.error}` : "";
   const status = `Job ${job.id.slice(0, 8)} (${job.method}/${job.rep}, ${job.preset}): ${job.state}${result}`;
   if (state.jobState !== status) { $("job-status").textContent = status; state.jobState = status; }
-  const eta = job.eta_seconds == null ? (running(job) ? " · estimating the time left…" : "")
-    : ` · about ${duration(job.eta_seconds)} left`;
+  const eta = job.eta_seconds == null ? "" : ` · about ${duration(job.eta_seconds)} left`;
   const loss = job.loss == null ? "" : `, loss ${job.loss.toFixed(4)}`;
   const where = job.total && running(job) ? ` · ${job.stage} step ${job.step}/${job.total}${loss}` : "";
   $("job-detail").textContent = running(job) || job.state === "succeeded" ? `${pct} % done${eta}${where}` : "";
@@ -425,6 +454,8 @@ $("domain").addEventListener("change", loadDomain);
 $("attribute").addEventListener("change", nextClips);
 $("mode").addEventListener("change", nextClips);
 $("train-method").addEventListener("change", showPresets);
+$("preset").addEventListener("change", aboutPreset);
+$("example").addEventListener("click", downloadExample);
 $("attribute-form").addEventListener("submit", addAttribute);
 $("upload-form").addEventListener("submit", upload);
 $("left-more").addEventListener("click", () => answer("left"));

@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, field_validator
 from scipy.optimize import brentq
 from scipy.special import expit
 
@@ -50,7 +50,13 @@ log = logging.getLogger(__name__)
 
 ATTRIBUTE_NAME = re.compile(r"^[a-z][a-z0-9_]{0,31}$")
 MAX_LABELS = 100_000  # label records per set
-MAX_PROBLEMS = 20  # problems listed one by one when a label set does not parse
+MAX_PROBLEMS = 50  # problems listed one by one; the rest are counted
+
+
+def capped(problems: list[str], limit: int = MAX_PROBLEMS) -> list[str]:
+    """At most ``limit`` problems, then how many more there are: a broken file of 100,000 labels stays readable."""
+    extra = len(problems) - limit
+    return problems if extra <= 0 else [*problems[:limit], f"and {extra} more problem(s)"]
 
 
 # --- pairwise labels (RBA-Global's ζσ) ---
@@ -369,12 +375,15 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
-ClipRef = Field(min_length=1, max_length=128)
-
-
 class NewAttribute(_Strict):
-    name: str = Field(description="lower-case identifier, e.g. speed")
-    description: str = Field(description="one sentence (3-300 characters): what more of it looks like")
+    """An attribute the domain does not have yet; labels in the same file (or later) may use it."""
+
+    name: str = Field(description="lower case letters, digits and _, starting with a letter, at most 32 characters "
+                                  "(e.g. foot_lift); not one of the domain's own attributes",
+                      examples=["foot_lift"])
+    description: str = Field(description="one sentence (3-300 characters) saying what more of it looks like: the "
+                                         "language representation embeds it",
+                             examples=["How high the walker lifts its feet while stepping."])
 
     @field_validator("name")
     @classmethod
@@ -392,9 +401,18 @@ class NewAttribute(_Strict):
         return v
 
 
+ATTRIBUTE_FIELD = ("a domain's own attribute (GET /api/admin/attributes), one an admin added, or one this file "
+                   "declares in new_attributes")
+CLIP_FIELD = ("a clip: a train or serve rollout id of the domain (e.g. train-00012, serve-00086) or the name of a "
+              "trajectory in the .npz uploaded with the labels")
+
+
 class Ordering(_Strict):
-    attribute: str = Field(max_length=32)
-    clips: list[str] = Field(min_length=2, max_length=1000, description="least to most of the attribute")
+    """Clips ordered by how much of one attribute they show."""
+
+    attribute: str = Field(max_length=32, description=ATTRIBUTE_FIELD)
+    clips: list[str] = Field(min_length=2, max_length=1000, description=(
+        f"2-1000 distinct clips from least to most of the attribute; each is {CLIP_FIELD}"))
 
     @field_validator("clips")
     @classmethod
@@ -407,43 +425,81 @@ class Ordering(_Strict):
 
 
 class Comparison(_Strict):
-    attribute: str = Field(max_length=32)
-    more: str = ClipRef
-    less: str = ClipRef
+    """One clip shows more of an attribute than another."""
+
+    attribute: str = Field(max_length=32, description=ATTRIBUTE_FIELD)
+    more: str = Field(min_length=1, max_length=128, description=f"the clip with more of it: {CLIP_FIELD}")
+    less: str = Field(min_length=1, max_length=128, description=f"the clip with less of it: {CLIP_FIELD}")
 
 
 class LocalChange(_Strict):
-    attribute: str = Field(max_length=32)
-    anchor: str = ClipRef
-    changed: str = ClipRef
-    direction: Literal["more", "less"]
+    """``changed`` is ``anchor`` with a little more (or less) of an attribute and otherwise the same (RBA-Local)."""
+
+    attribute: str = Field(max_length=32, description=ATTRIBUTE_FIELD)
+    anchor: str = Field(min_length=1, max_length=128, description=f"the clip changed from: {CLIP_FIELD}")
+    changed: str = Field(min_length=1, max_length=128, description=f"the changed clip: {CLIP_FIELD}")
+    direction: Literal["more", "less"] = Field(description="whether changed shows a little more or a little less")
 
 
 class LabelSet(_Strict):
-    """One batch of labels; ``problems`` checks it against what the domain and the upload hold."""
+    """A label file (POST /api/admin/datasets): a JSON object with any of these four lists, no other keys.
 
-    new_attributes: list[NewAttribute] = Field(default_factory=list, max_length=16)
-    orderings: list[Ordering] = Field(default_factory=list, max_length=MAX_LABELS)
-    comparisons: list[Comparison] = Field(default_factory=list, max_length=MAX_LABELS)
-    local_changes: list[LocalChange] = Field(default_factory=list, max_length=MAX_LABELS)
+    ``problems`` checks it against what the domain and the upload hold.
+    """
+
+    new_attributes: list[NewAttribute] = Field(default_factory=list, max_length=16, description=(
+        "attributes to add to the domain (at most 16), each named and described"))
+    orderings: list[Ordering] = Field(default_factory=list, max_length=MAX_LABELS, description=(
+        "clips from least to most of an attribute (every pair in an ordering counts as a comparison)"))
+    comparisons: list[Comparison] = Field(default_factory=list, max_length=MAX_LABELS, description=(
+        "pairs of clips: which shows more of an attribute"))
+    local_changes: list[LocalChange] = Field(default_factory=list, max_length=MAX_LABELS, description=(
+        "a clip and a minimal change of it in one attribute (RBA-Local learns from these)"))
+    _positions: dict[str, list[int]] = PrivateAttr(default_factory=dict)  # a salvaged item's place in the file
 
     @classmethod
     def parse(cls, obj: object) -> tuple[LabelSet | None, list[str]]:
-        """The label set, or None and one readable line per problem."""
+        """The label set and no problems; or, when it does not parse, what of it does (``salvage``, or None) and one
+        line per problem, each naming where it is and what is valid."""
         try:
             return cls.model_validate(obj), []
         except ValidationError as e:
-            errors = e.errors()
-            lines = [f"labels.{'.'.join(map(str, err['loc'])) or 'root'}: "
-                     f"{str(err['msg']).removeprefix('Value error, ')}" for err in errors[:MAX_PROBLEMS]]
-            extra = len(errors) - MAX_PROBLEMS
-            return None, lines + ([f"labels: {extra} more problem(s) of the same kinds"] if extra > 0 else [])
+            return cls.salvage(obj), [_problem(err) for err in e.errors()]
+
+    @classmethod
+    def salvage(cls, obj: object) -> LabelSet | None:
+        """The items of the known lists that parse on their own (None if none does): checked against the domain too,
+        so that a misspelt key in one label does not hide an unknown attribute or clip in another."""
+        if not isinstance(obj, dict):
+            return None
+        kept: dict[str, list] = {}
+        positions: dict[str, list[int]] = {}
+        for group, model in GROUP_MODELS.items():
+            items = obj.get(group)
+            if isinstance(items, list):
+                parsed = [(i, x) for i, x in enumerate(_parsed(model, item) for item in items[:MAX_LABELS])
+                          if x is not None]
+                positions[group] = [i for i, _ in parsed]
+                kept[group] = [x for _, x in parsed]
+        kept["new_attributes"] = kept.get("new_attributes", [])[:16]
+        labels = cls(**kept)
+        labels._positions = positions
+        return labels if labels.size() or labels.new_attributes else None
+
+    def located(self) -> Iterable[tuple[str, str, list[str]]]:
+        """(where, attribute, clips) of every label, where as in ``comparisons[3]`` (its place in the file)."""
+        def where(group: str, i: int) -> str:
+            return f"{group}[{self._positions[group][i] if group in self._positions else i}]"
+
+        for i, o in enumerate(self.orderings):
+            yield where("orderings", i), o.attribute, o.clips
+        for i, p in enumerate(self.comparisons):
+            yield where("comparisons", i), p.attribute, [p.more, p.less]
+        for i, c in enumerate(self.local_changes):
+            yield where("local_changes", i), c.attribute, [c.anchor, c.changed]
 
     def references(self) -> set[str]:
-        refs = {c for o in self.orderings for c in o.clips}
-        refs |= {c for p in self.comparisons for c in (p.more, p.less)}
-        refs |= {c for p in self.local_changes for c in (p.anchor, p.changed)}
-        return refs
+        return {c for _, _, clips in self.located() for c in clips}
 
     def attributes_used(self) -> set[str]:
         return {x.attribute for group in (self.orderings, self.comparisons, self.local_changes) for x in group}
@@ -461,14 +517,18 @@ class LabelSet(_Strict):
         out += [f"new attribute {name!r} is declared {k} times; declare each once"
                 for name, k in sorted(declared.items()) if k > 1]
         valid = set(known_attributes) | builtin | {a.name for a in self.new_attributes}
-        for name in sorted(self.attributes_used() - valid):
-            out.append(f"unknown attribute {name!r}; valid: {', '.join(sorted(valid))} "
-                       "(declare a new one: new_attributes in an upload, or POST /api/admin/attributes)")
-        missing = sorted(self.references() - set(known_clips))
-        if missing:
-            shown = ", ".join(repr(m) for m in missing[:10]) + (f" and {len(missing) - 10} more" if len(missing) > 10
-                                                                 else "")
-            out.append(f"{len(missing)} clip reference(s) match no uploaded trajectory and no library rollout: {shown}")
+        seen: set[str] = set()  # each unknown attribute and clip once, where it first appears
+        for where, attribute, clips in self.located():
+            if attribute not in valid and f"attribute {attribute}" not in seen:
+                seen.add(f"attribute {attribute}")
+                out.append(f"labels.{where}.attribute: unknown attribute {attribute!r}; valid: "
+                           f"{', '.join(sorted(valid))} (declare a new one: new_attributes in an upload, or POST "
+                           "/api/admin/attributes)")
+            for ref in clips:
+                if ref not in known_clips and ref not in seen:
+                    seen.add(ref)
+                    out.append(f"labels.{where}: clip {ref!r} is no train or serve rollout id of the domain (ids "
+                               "look like train-00012 or serve-00086) and no trajectory name of the uploaded .npz")
         out += [f"comparison {i}: 'more' and 'less' are the same clip" for i, p in enumerate(self.comparisons)
                 if p.more == p.less]
         out += [f"local change {i}: anchor and changed are the same clip" for i, p in enumerate(self.local_changes)
@@ -484,3 +544,32 @@ class LabelSet(_Strict):
             if o.attribute == attribute:
                 out += [(o.clips[j], o.clips[i]) for i in range(len(o.clips)) for j in range(i + 1, len(o.clips))]
         return out
+
+
+GROUP_MODELS: dict[str, type[_Strict]] = {"new_attributes": NewAttribute, "orderings": Ordering,
+                                          "comparisons": Comparison, "local_changes": LocalChange}
+"""The lists of a label file and the model of each item."""
+
+
+def _parsed(model: type[_Strict], item: object) -> _Strict | None:
+    try:
+        return model.model_validate(item)
+    except ValidationError:
+        return None
+
+
+def _where(loc: tuple) -> str:
+    """``labels.comparisons[3].more`` for pydantic's ("comparisons", 3, "more")."""
+    return "labels" + "".join(f"[{part}]" if isinstance(part, int) else f".{part}" for part in loc)
+
+
+def _problem(err: dict) -> str:
+    """One line for a pydantic error: where it is and, for a wrong or missing key, the keys that are valid there."""
+    loc = tuple(err["loc"])
+    model = GROUP_MODELS.get(loc[0], LabelSet) if len(loc) > 2 else LabelSet
+    keys = ", ".join(model.model_fields)
+    if err["type"] == "extra_forbidden":
+        return f"{_where(loc[:-1])}: unknown key {loc[-1]!r}; valid keys: {keys}"
+    if err["type"] == "missing":
+        return f"{_where(loc[:-1])}: key {loc[-1]!r} is missing; an item of {loc[0]} has the keys {keys}"
+    return f"{_where(loc)}: {str(err['msg']).removeprefix('Value error, ')}"

@@ -55,9 +55,27 @@ T = TypeVar("T")
 
 
 @dataclass(frozen=True)
-class Preset:
-    """One named training size: every trainer's config (the seed is set when the preset is used)."""
+class Typical:
+    """How long a preset's phases take, as ``benchmarks/training_presets.py`` measured them on walker with 2 CPU
+    cores: the estimate of a job's time left takes them for the phases it has not measured yet
+    (``server.ops.training_jobs``), and the presets' descriptions their durations."""
 
+    setup: float  # seconds before the first step: loading the libraries, making the labels
+    step: dict[str, float]  # model kind -> seconds per gradient step
+    measure: dict[str, float]  # model kind -> seconds from its last step on: held-out numbers on val, saving
+
+    def seconds(self, steps: dict[str, int]) -> float:
+        """A whole run fitting each kind of ``steps`` (kind -> gradient steps)."""
+        return self.setup + sum(n * self.step[kind] + self.measure[kind] for kind, n in steps.items())
+
+
+@dataclass(frozen=True)
+class Preset:
+    """One named training size: every trainer's config (the seed is set when the preset is used), what it is for
+    and how long its phases typically take."""
+
+    description: str  # one line: what it trains and how big (the admin page and GET /api/admin/presets show it)
+    typical: Typical
     ranker: RankerConfig = field(default_factory=RankerConfig)
     global_reward: GlobalRewardConfig = field(default_factory=GlobalRewardConfig)
     local_reward: LocalRewardConfig = field(default_factory=LocalRewardConfig)
@@ -66,15 +84,31 @@ class Preset:
 
 
 _SHORT_LOCAL = LocalRewardConfig(steps=150, hidden=64, lstm_hidden=32)
+# typical: benchmarks/results/training_presets.md (walker, CPU seconds; docs/decisions/0024-training-time-estimate.md)
 _PRESETS = {
-    "default": Preset(domain_ranker_steps=True),
-    # ζσ from what a person can give: 1,000 pairs of 200 clips, 10 % flipped, 10 % "can't tell"
-    "pairwise": Preset(RankerConfig(labels=GlobalLabelConfig(mode="pairwise")), domain_ranker_steps=True,
-                       global_only=True),
-    "quick": Preset(global_reward=GlobalRewardConfig(steps=300, hidden=128), local_reward=_SHORT_LOCAL),  # full ζσ
-    "tiny": Preset(RankerConfig(steps=200, hidden=64), GlobalRewardConfig(steps=120, hidden=64), _SHORT_LOCAL),  # CI
+    "default": Preset(
+        "the shipped models' size: ζσ 800 steps (or the domain's own) at width 256, rθ 1,000 steps at width 256 "
+        "(RBA-Local: 1,500 steps at width 128)",
+        Typical(3.1, dict(ranker=0.364, global_reward=0.729, local_reward=0.232),
+                dict(ranker=1.6, global_reward=61.2, local_reward=39.5)), domain_ranker_steps=True),
+    "pairwise": Preset(
+        "as default, but ζσ learns from a simulated person's answers: 1,000 pairs of 200 clips, 10 % flipped, "
+        "10 % \"can't tell\"",
+        Typical(8.3, dict(ranker=0.379, global_reward=0.524), dict(ranker=1.6, global_reward=55.2)),
+        RankerConfig(labels=GlobalLabelConfig(mode="pairwise")), domain_ranker_steps=True, global_only=True),
+    "quick": Preset(
+        "the full ζσ, a shorter rθ: 300 steps at width 128 (RBA-Local: 150 steps at width 64)",
+        Typical(2.2, dict(ranker=0.274, global_reward=0.372, local_reward=0.081),
+                dict(ranker=1.4, global_reward=19.4, local_reward=30.7)),
+        global_reward=GlobalRewardConfig(steps=300, hidden=128), local_reward=_SHORT_LOCAL),
+    "tiny": Preset(
+        "a smoke run that checks the pipeline, not models to serve: ζσ 200 steps, rθ 120 steps, both at width 64 "
+        "(RBA-Local: 150 steps at width 64)",
+        Typical(18.3, dict(ranker=0.127, global_reward=0.394, local_reward=0.088),
+                dict(ranker=0.7, global_reward=16.8, local_reward=24.5)),
+        RankerConfig(steps=200, hidden=64), GlobalRewardConfig(steps=120, hidden=64), _SHORT_LOCAL),
 }
-PRESETS = tuple(_PRESETS)  # 'quick': full ζσ, a shorter rθ; 'tiny': seconds-long smoke runs
+PRESETS = tuple(_PRESETS)
 LOCAL_PRESETS = tuple(name for name, p in _PRESETS.items() if not p.global_only)
 
 
@@ -82,6 +116,12 @@ def get_preset(name: str, valid: tuple[str, ...] = PRESETS) -> Preset:
     if name not in valid:
         raise ValueError(f"unknown preset {name!r}; valid: {', '.join(valid)}")
     return _PRESETS[name]
+
+
+def about_preset(name: str, kinds: Iterable[str], domain: str | None = None) -> tuple[str, float]:
+    """``name``'s description and its typical seconds when it fits ``kinds`` for ``domain`` (on 2 CPU cores)."""
+    p = get_preset(name)
+    return p.description, round(p.typical.seconds(plan_steps(name, kinds, domain)), 1)
 
 
 # What was chosen by measuring, per model kind. Every such measurement used ``val``: it holds the rollouts of the
@@ -129,6 +169,14 @@ class LocalTrainConfig:
         return cls(LocalLabelConfig(seed=seed), replace(get_preset(name, LOCAL_PRESETS).local_reward, seed=seed))
 
 
+def plan_steps(preset: str, kinds: Iterable[str], domain: str | None = None) -> dict[str, int]:
+    """The gradient steps ``preset`` fits each model kind with (in ``kinds``' order): the stages a job will report."""
+    p = get_preset(preset)
+    ranker_steps = GlobalTrainConfig.preset(preset, domain=domain).ranker.steps
+    steps = {"ranker": ranker_steps, "global_reward": p.global_reward.steps, "local_reward": p.local_reward.steps}
+    return {kind: steps[kind] for kind in kinds}
+
+
 def argmax_match_rate(scorer: LibraryScorer, serve: SkillLibrary, target_zeta: np.ndarray,
                       target_proxies: np.ndarray, eps: np.ndarray) -> float:
     """Fraction of targets for which argmax_serve Σ rθ(·|ζ(target)) is within ε on every attribute."""
@@ -140,6 +188,24 @@ def argmax_match_rate(scorer: LibraryScorer, serve: SkillLibrary, target_zeta: n
 def stage_name(kind: str, rep: str) -> str:
     """The stage a trainer reports while it fits the ``kind`` model of ``rep`` (the server weighs stages by it)."""
     return f"{kind}[{rep}]"
+
+
+class StageClock:
+    """Each stage's first and latest progress report (its step and the seconds since the clock started), in the
+    order the stages ran: the rate a stage's steps are going at, which the estimate of a job's time left needs
+    (``server.ops.training_jobs``). The training process keeps one per job and stores ``mark``'s result."""
+
+    def __init__(self) -> None:
+        self.start = time.monotonic()
+        self.stages: list[dict] = []
+
+    def mark(self, stage: str, step: int, total: int) -> list[dict]:
+        """Record a report; returns every stage's record so far (JSON)."""
+        at = round(time.monotonic() - self.start, 3)
+        if not self.stages or self.stages[-1]["stage"] != stage:
+            self.stages.append({"stage": stage, "total": total, "first_step": step, "first_at": at})
+        self.stages[-1].update(total=total, step=step, at=at)
+        return [dict(s) for s in self.stages]
 
 
 def _progress(name: str, on_progress: StageProgress | None = None) -> Progress:

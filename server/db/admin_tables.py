@@ -186,6 +186,9 @@ class TrainJobBase(SQLModel):
     step: int = 0
     total: int = 0
     loss: float | None = None
+    stages: list[dict[str, Any]] | None = Field(default=None, sa_column=Column(JSON), description=(
+        "each stage reported so far, in order: total steps, and the step and seconds (since the training process "
+        "started) of its first report (first_step, first_at) and its latest (step, at); the time estimate's rates"))
     held_out: dict[str, Any] | None = Field(default=None, sa_column=Column(JSON))
     log_tail: str = Field(default="", sa_column=Column(Text, nullable=False))
     error: str | None = Field(default=None, sa_column=Column(Text))
@@ -285,21 +288,39 @@ class TrainCreate(BaseModel):
 class JobPublic(TrainJobBase):
     id: str
     state: JobState
-    progress: float = Field(description="share of the whole job done, 0-1 (stages weighted by how long the "
-                                        "shipped models took to fit); stage, step and total are the current stage's")
-    eta_seconds: float | None = Field(default=None, description="estimated seconds left (from the elapsed time); "
-                                                                "null when finished or too early to tell")
+    progress: float = Field(description="share of the whole job done, 0-1 (its phases weighted by how long they "
+                                        "typically take at its preset); stage, step and total are the current "
+                                        "stage's")
+    eta_seconds: float | None = Field(default=None, description=(
+        "estimated seconds left: the current stage's remaining steps at the rate its steps went so far, plus the "
+        "typical durations (GET /api/admin/presets) of the phases not started, their steps scaled by how much "
+        "faster or slower this job's steps went than typical; null when finished or its method's stages are "
+        "unknown"))
     created_at: dt.datetime
     updated_at: dt.datetime
 
     _utc = field_validator("created_at", "updated_at")(as_utc)
 
 
+class PresetPublic(BaseModel):
+    """A training preset of a method: GET /api/admin/presets."""
+
+    method: str
+    preset: str
+    description: str = Field(description="what it trains and how big")
+    steps: dict[str, int] = Field(description="gradient steps per model kind, for the domain asked about")
+    typical_seconds: float = Field(description="how long a job typically takes on 2 CPU cores (measured on walker "
+                                               "by benchmarks/training_presets.py)")
+
+
 class DatasetUpload(BaseModel):
     """The form of POST /api/admin/datasets, for the OpenAPI document (the route parses the stream itself)."""
 
     domain: DomainName
-    labels: bytes = BodyField(description="a JSON file: orderings, comparisons, local_changes, new_attributes")
+    labels: bytes = BodyField(description=(
+        "a JSON file holding a LabelSet (see Schemas): an object with any of the lists new_attributes, orderings, "
+        "comparisons and local_changes, and no other key; a clip is a train or serve rollout id of the domain or a "
+        "trajectory name in the .npz. GET /api/admin/datasets/example gives one for a domain"))
     trajectories: Annotated[bytes | None, WithJsonSchema({"type": "string", "format": "binary"})] = BodyField(
         default=None, description="an .npz of float32 [T, state_dim] arrays, one per trajectory name",
         json_schema_extra=lambda schema: schema.pop("default"))  # optional, not null: a form has no null

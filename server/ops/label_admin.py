@@ -31,7 +31,7 @@ from starlette.formparsers import MultiPartException, MultiPartParser
 
 from rba.core.fileio import save_npz, save_text
 from rba.core.store import UploadFiles
-from rba.data.labels import LabelSet
+from rba.data.labels import Comparison, LabelSet, LocalChange, NewAttribute, Ordering, capped
 from rba.data.library import SkillLibrary
 from rba.domains import Domain
 from server.common.app_settings import Settings
@@ -58,11 +58,11 @@ log = logging.getLogger(__name__)
 
 
 class UploadProblems(HTTPException):
-    """422 listing every problem found in an upload."""
+    """422 listing every problem found in an upload (up to ``MAX_PROBLEMS``, then how many more)."""
 
     def __init__(self, problems: list[str]) -> None:
-        super().__init__(422, detail="; ".join(problems))
-        self.problems = problems
+        self.problems = capped(problems)
+        super().__init__(422, detail="; ".join(self.problems))
 
 
 # -- attributes -----------------------------------------------------------------------------------
@@ -149,6 +149,30 @@ def clips_to_label(svc: Services, db: Session, domain: str, size: int, anchor: b
 
 
 # -- uploads --------------------------------------------------------------------------------------
+
+EXAMPLE_ATTRIBUTE = NewAttribute(name="my_attribute", description="Say in one sentence what more of it looks like.")
+
+
+def example_labels(svc: Services, domain: str) -> LabelSet:
+    """A label file ``domain`` accepts, with one label of each kind about its serve clips, true by their measured
+    attributes, and a new attribute declared and used: what the upload form offers to download."""
+    d = svc.catalog.domain(domain)
+    lib = svc.catalog.library(d.name)
+    first, second = d.attribute_names[0], d.attribute_names[-1]
+    picks = random.Random(0).sample(range(len(lib)), 3)
+    by_first = sorted(picks, key=lambda i: lib.proxies[i, 0])
+    a, b = sorted(picks[:2], key=lambda i: -lib.proxies[i, -1])
+    anchor = picks[2]
+    near = nearest(lib.proxies, anchor, 1)[0]
+    name = EXAMPLE_ATTRIBUTE.name if EXAMPLE_ATTRIBUTE.name not in d.attribute_names else f"{EXAMPLE_ATTRIBUTE.name}_2"
+    return LabelSet(
+        new_attributes=[EXAMPLE_ATTRIBUTE.model_copy(update={"name": name})],
+        orderings=[Ordering(attribute=first, clips=[lib.ids[i] for i in by_first]),
+                   Ordering(attribute=name, clips=[lib.ids[picks[0]], lib.ids[picks[1]]])],
+        comparisons=[Comparison(attribute=second, more=lib.ids[a], less=lib.ids[b])],
+        local_changes=[LocalChange(attribute=first, anchor=lib.ids[anchor], changed=lib.ids[near],
+                                   direction="more" if lib.proxies[near, 0] > lib.proxies[anchor, 0] else "less")])
+
 
 async def read_upload_form(request: Request) -> dict[str, UploadFile | str]:
     """The multipart form; its size is capped as it streams by ``server.api.limits.BodyLimit``
@@ -237,7 +261,8 @@ def _label_problems(svc: Services, db: Session, domain: Domain, upload: CheckedU
     problems = [f"trajectory name {c!r} is also a library rollout id; rename it" for c in clash[:5]]
     problems += upload.labels.problems(declared_attributes(db, domain.name), library | set(upload.trajectories),
                                        domain.attribute_names)
-    if not upload.labels.size() and upload.labels.new_attributes:  # problems() reports a wholly empty set itself
+    whole = bool(upload.labels_json)  # not only the part of a set that parsed
+    if whole and not upload.labels.size() and upload.labels.new_attributes:  # problems() reports an empty set
         problems.append("labels: no orderings, comparisons or local_changes to learn from")
     return problems
 

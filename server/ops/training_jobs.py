@@ -8,15 +8,15 @@ from __future__ import annotations
 
 import datetime as dt
 import logging
-import statistics
+from dataclasses import dataclass
 
 from fastapi import HTTPException
 from sqlmodel import Session, select
 
-from rba.core.methods import UnknownMethodError, get_method
-from rba.learn.training import stage_name
+from rba.core.methods import UnknownMethodError, get_method, trainable
+from rba.learn.training import about_preset, get_preset, plan_steps, stage_name
 from server.common.errors import conflict, invalid, not_found
-from server.db.admin_tables import BUILTIN_VERSION, FINISHED, JobPublic, JobState, TrainCreate, TrainJob
+from server.db.admin_tables import FINISHED, JobPublic, JobState, PresetPublic, TrainCreate, TrainJob
 from server.db.engine import commit_or_conflict
 from server.db.tables import as_utc, utcnow
 from server.ops.label_admin import check_datasets
@@ -25,57 +25,109 @@ from server.runtime.services import Services
 log = logging.getLogger(__name__)
 
 JOBS_LISTED = 50  # newest first
-ETA_FROM = 0.02  # below this share done, elapsed time says too little to estimate the rest
 
 
-def stage_weights(svc: Services, job: TrainJob) -> dict[str, float]:
-    """Each stage's share of the whole job (summing to 1), in the order the method trains its models.
+@dataclass(frozen=True)
+class Phase:
+    """One stage of a job's plan: the model kind it fits, its gradient steps, what those typically take."""
 
-    A stage weighs what fitting its model took for the domain's shipped models (their cards'
-    training seconds): rθ takes several times as long as ζσ, so equal shares would make the bar
-    rush and then crawl. A stage without a shipped card weighs the mean of the others.
-    """
+    stage: str
+    kind: str
+    steps: int
+    step_seconds: float  # typical, per step
+    measure_seconds: float  # typical, after its last step
+
+
+def job_plan(job: TrainJob) -> tuple[float, list[Phase]]:
+    """The job's typical setup seconds and its stages in the order its method trains them; (0, []) for a method or
+    preset whose stages are not known (a plugin's trainer may name stages of its own)."""
     try:
         kinds = get_method(job.method).model_kinds
-    except UnknownMethodError:
-        return {}
-    seconds: dict[str, float] = {}
-    for kind in kinds:
-        card = svc.catalog.card(job.domain, kind, job.rep, BUILTIN_VERSION) or {}
-        took = (card.get("training") or {}).get("seconds")
-        if isinstance(took, int | float) and took > 0:
-            seconds[kind] = float(took)
-    fallback = statistics.fmean(seconds.values()) if seconds else 1.0
-    weights = {stage_name(kind, job.rep): seconds.get(kind, fallback) for kind in kinds}
-    total = sum(weights.values())
-    return {stage: w / total for stage, w in weights.items()}
+        steps = plan_steps(job.preset, kinds, job.domain)
+        typical = get_preset(job.preset).typical
+        phases = [Phase(stage_name(k, job.rep), k, n, typical.step[k], typical.measure[k]) for k, n in steps.items()]
+    except (UnknownMethodError, ValueError, KeyError):
+        return 0.0, []
+    return typical.setup, phases
 
 
-def overall_progress(job: TrainJob, weights: dict[str, float]) -> float:
-    """The whole job's share done: the stages before this one, plus this one's steps at its weight."""
+def _rate(report: dict) -> float | None:
+    """Seconds per step between a stage's first and latest report; None before its second report."""
+    steps = report["step"] - report["first_step"]
+    return (report["at"] - report["first_at"]) / steps if steps > 0 else None
+
+
+def _pace(phases: list[Phase], reports: dict[str, dict]) -> float:
+    """How much slower (> 1) or faster this job's measured steps went than typical (the machine's load, the
+    domain's size); 1 before any stage measured a rate."""
+    took = typical = 0.0
+    for ph in phases:
+        r = reports.get(ph.stage)
+        if r is not None and _rate(r) is not None:
+            took += r["at"] - r["first_at"]
+            typical += (r["step"] - r["first_step"]) * ph.step_seconds
+    return took / typical if took > 0 and typical > 0 else 1.0
+
+
+def seconds_left(job: TrainJob, now: dt.datetime) -> float | None:
+    """Seconds the job has left: the current stage's remaining steps at its measured rate, then the typical
+    durations of the phases not started (their steps scaled by ``_pace``), less the time since the last report;
+    None when finished or its stages are unknown."""
+    if job.state not in (JobState.queued, JobState.running):
+        return None
+    setup, phases = job_plan(job)
+    if not phases:
+        return None
+    reports = {r["stage"]: r for r in job.stages or []}
+    pace, current = _pace(phases, reports), (job.stages or [{}])[-1].get("stage")
+    left = 0.0 if reports else setup
+    for ph in phases:
+        r = reports.get(ph.stage)
+        if r is not None and ph.stage != current:
+            continue  # done: a later stage reported
+        rate = (_rate(r) if r is not None else None) or ph.step_seconds * pace
+        left += (ph.steps - (r["step"] if r is not None else 0)) * rate + ph.measure_seconds
+    if job.state == JobState.running:  # a queued job has not started its clock
+        left -= (now - as_utc(job.updated_at)).total_seconds()
+    return round(max(0.0, left), 1)
+
+
+def overall_progress(job: TrainJob) -> float:
+    """The whole job's share done, each phase weighed by its typical duration at the job's preset (a stage of
+    ζσ weighs little at 'tiny' and much at 'default'); the current stage's own share of steps within it."""
     if job.state == JobState.succeeded:
         return 1.0
+    setup, phases = job_plan(job)
     within = job.step / job.total if job.total else 0.0
-    if job.stage not in weights:  # loading (nothing done yet), or a trainer naming stages of its own
+    if not phases:
         return within
-    stages = list(weights)
-    before = sum(weights[s] for s in stages[: stages.index(job.stage)])
-    return min(1.0, before + weights[job.stage] * within)
+    reports = {r["stage"]: r for r in job.stages or []}
+    current = (job.stages or [{}])[-1].get("stage")
+    whole = setup + sum(ph.steps * ph.step_seconds + ph.measure_seconds for ph in phases)
+    done = setup if reports else 0.0
+    for ph in phases:
+        if ph.stage in reports and ph.stage != current:
+            done += ph.steps * ph.step_seconds + ph.measure_seconds
+        elif ph.stage == current:
+            done += min(reports[ph.stage]["step"], ph.steps) * ph.step_seconds
+    return min(1.0, done / whole) if whole > 0 else within
 
 
-def eta_seconds(job: TrainJob, progress: float, now: dt.datetime) -> float | None:
-    """Seconds left if the rest goes as fast as what is done (elapsed since the job was queued); None when
-    finished or too early to tell."""
-    if job.state not in (JobState.queued, JobState.running) or progress < ETA_FROM:
-        return None
-    elapsed = (now - as_utc(job.created_at)).total_seconds()
-    return round(max(0.0, elapsed * (1 - progress) / progress), 1)
+def job_public(job: TrainJob) -> JobPublic:
+    return JobPublic.model_validate(job, update={"progress": round(overall_progress(job), 4),
+                                                 "eta_seconds": seconds_left(job, utcnow())})
 
 
-def job_public(svc: Services, job: TrainJob) -> JobPublic:
-    progress = overall_progress(job, stage_weights(svc, job))
-    return JobPublic.model_validate(job, update={"progress": round(progress, 4),
-                                                 "eta_seconds": eta_seconds(job, progress, utcnow())})
+def list_presets(domain: str) -> list[PresetPublic]:
+    """Every trainable method's presets: what each trains, how many steps for ``domain``, how long it typically
+    takes."""
+    out = []
+    for m in trainable():
+        for name in m.presets:
+            description, seconds = about_preset(name, m.model_kinds, domain)
+            out.append(PresetPublic(method=m.name, preset=name, description=description, typical_seconds=seconds,
+                                    steps=plan_steps(name, m.model_kinds, domain)))
+    return out
 
 
 def load_job(db: Session, job_id: str) -> TrainJob:
@@ -108,15 +160,15 @@ def start_job(svc: Services, db: Session, body: TrainCreate) -> JobPublic:
     except Exception as exc:
         raise HTTPException(503, f"the training process could not start ({type(exc).__name__}: {exc}); "
                                  "the job is marked failed: try again") from exc
-    return job_public(svc, job)
+    return job_public(job)
 
 
-def list_jobs(svc: Services, db: Session, domain: str | None) -> list[JobPublic]:
+def list_jobs(db: Session, domain: str | None) -> list[JobPublic]:
     q = select(TrainJob)
     if domain:
         q = q.where(TrainJob.domain == domain)
     rows = db.exec(q.order_by(TrainJob.created_at.desc()).limit(JOBS_LISTED)).all()  # type: ignore[attr-defined]
-    return [job_public(svc, j) for j in rows]
+    return [job_public(j) for j in rows]
 
 
 def cancel_job(svc: Services, db: Session, job_id: str) -> JobPublic:
@@ -126,4 +178,4 @@ def cancel_job(svc: Services, db: Session, job_id: str) -> JobPublic:
     svc.jobs.cancel(job_id)
     log.info("job %s (%s %s/%s) cancelled by an admin", job_id, job.domain, job.method, job.rep)
     db.refresh(job)
-    return job_public(svc, job)
+    return job_public(job)

@@ -157,7 +157,8 @@ def _parse_json(raw: bytes) -> tuple[object, list[str]]:
 
 
 def check_labels(raw: bytes, limit: int) -> tuple[LabelSet | None, bytes, list[str]]:
-    """The label set and its canonical JSON bytes (what is stored and hashed), or the problems."""
+    """The label set and its canonical JSON bytes (what is stored and hashed) and no problems; or the problems, with
+    what of the set parsed (``LabelSet.salvage``, to be checked against the domain too) and no bytes."""
     if not raw.strip():
         return None, b"", ["labels: the file is empty; expected a JSON object (see GET /docs)"]
     if len(raw) > limit:
@@ -169,8 +170,8 @@ def check_labels(raw: bytes, limit: int) -> tuple[LabelSet | None, bytes, list[s
         return None, b"", [f"labels: the file holds {JSON_TYPES.get(type(obj), 'a value')}; expected an object "
                            "with new_attributes, orderings, comparisons and/or local_changes (see GET /docs)"]
     labels, problems = LabelSet.parse(obj)
-    if labels is None:
-        return None, b"", problems
+    if problems:
+        return labels, b"", problems
     canonical = json.dumps(labels.model_dump(mode="json"), sort_keys=True, separators=(",", ":")).encode()
     return labels, canonical, []
 

@@ -216,7 +216,11 @@ def _worse_version(models, db_url: str) -> None:
                             attributes=["step_size", "softness", "foot_lift"], held_out={}))
         db.add(TrainJob(domain="walker", method="global", rep="onehot", preset="default", datasets=[], state="running",
                         stage="global_reward[onehot]", step=500, total=1000, created_at=now - dt.timedelta(seconds=100),
-                        updated_at=now, heartbeat_at=now))
+                        updated_at=now, heartbeat_at=now, stages=[  # ζσ done, rθ half done at 0.1 s a step
+                            {"stage": "ranker[onehot]", "total": 800, "first_step": 1, "first_at": 5.0, "step": 800,
+                             "at": 50.0},
+                            {"stage": "global_reward[onehot]", "total": 1000, "first_step": 1, "first_at": 51.0,
+                             "step": 500, "at": 100.9}]))
         db.commit()
     engine.dispose()
 
@@ -230,12 +234,12 @@ def test_activating_a_worse_version_asks_first_and_the_intro_follows(live_server
     _worse_version(models, db_url)
     unlock(page, url)
     page.wait_for_function("() => document.querySelectorAll('#versions li').length === 2")
-    # one bar for the whole job, weighted by the shipped cards' training seconds: ζσ done and half of rθ
-    zeta, reward = (json.loads((REPO / "models" / "walker" / f"{k}-onehot.json").read_text())["training"]["seconds"]
-                    for k in ("ranker", "global_reward"))
-    done = round(100 * (zeta + reward / 2) / (zeta + reward))
+    # one bar for the whole job, as the API weighs it; the time left from rθ's rate: 500 steps at 0.1 s and measuring
+    job = httpx.get(f"{url}/api/admin/jobs", params={"domain": "walker"}, headers=AUTH).json()[0]
+    done = round(100 * job["progress"])
+    assert 40 < done < 100 and 50 < job["eta_seconds"] < 500, job
     assert page.locator("#progress").get_attribute("aria-valuenow") == str(done)
-    assert re.search(rf"{done} % done · about \d+ s left · global_reward\[onehot\] step 500/1000",
+    assert re.search(rf"{done} % done · about \d+ (s|min) left · global_reward\[onehot\] step 500/1000",
                      page.locator("#job-detail").inner_text())
     worse = page.locator("#versions li", has_text="walker-worse")
     assert "serving now: builtin" in worse.inner_text()
@@ -325,3 +329,44 @@ def test_lock_forgets_the_token_and_shows_the_token_form(url, page):
     assert page.locator("#admin").is_hidden() and page.locator("#token").input_value() == ""
     unlock(page, url)  # the same tab unlocks again
     assert page.get_by_role("button", name="Lock").is_visible()
+
+
+def test_the_upload_form_explains_the_format_and_lists_every_problem(url, page, tmp_path):
+    unlock(page, url)
+    assert "A JSON object with any of these four lists" in page.locator("#label-format").inner_text()
+    with page.expect_download() as got:
+        page.get_by_role("button", name="Download an example for walker").click()
+    example = tmp_path / "example.json"
+    got.value.save_as(example)
+    assert got.value.suggested_filename == "labels-example-walker.json"
+    assert set(json.loads(example.read_text())) == {"new_attributes", "orderings", "comparisons", "local_changes"}
+
+    ids = [c["rollout_id"] for c in httpx.get(f"{url}/api/admin/pairs", params={"domain": "walker"},
+                                             headers=AUTH).json()["clips"]]
+    broken = {"comparisons": [{"attribute": "step_size", "mroe": ids[0], "less": ids[1]},
+                              {"attribute": "zest", "more": ids[0], "less": ids[1]}],
+              "orderings": [{"attribute": "softness", "clips": [ids[0], "ghost"]}]}
+    page.set_input_files("#upload-labels", {"name": "broken.json", "mimeType": "application/json",
+                                            "buffer": json.dumps(broken).encode()})
+    page.get_by_role("button", name=re.compile("Upload to walker")).click()
+    page.locator("#upload-result .refused").wait_for()
+    shown = page.eval_on_selector_all("#upload-result li", "l => l.map((x) => x.textContent)")
+    assert any("unknown key 'mroe'" in p for p in shown), shown
+    assert any("unknown attribute 'zest'" in p for p in shown), shown
+    assert any("clip 'ghost'" in p for p in shown), shown
+    assert axe_violations(page) == []
+
+    page.set_input_files("#upload-labels", str(example))  # the example as downloaded is accepted
+    page.get_by_role("button", name=re.compile("Upload to walker")).click()
+    page.locator("#upload-result .stored").wait_for()
+    assert "4 labels" in page.locator("#upload-result").inner_text()
+
+
+def test_presets_are_described_with_their_typical_duration(url, page):
+    unlock(page, url)
+    page.select_option("#preset", "tiny")
+    about = page.locator("#preset-about").inner_text()
+    assert about.startswith("tiny: a smoke run") and "on 2 CPU cores" in about, about
+    page.select_option("#preset", "default")
+    assert "the shipped models' size" in page.locator("#preset-about").inner_text()
+    assert page.locator("#preset").get_attribute("aria-describedby") == "preset-about"

@@ -185,13 +185,13 @@ BAD_UPLOADS = {
     "zip bomb": (_zip_bomb, None, 422, "zip bomb"),
     "path traversal member": (_traversal_member, None, 422, "is not a .npy array named"),
     "missing trajectory": (lambda: npz_bytes(**good_trajectories(1)), _ordering("mine_0", "mine_9"), 422,
-                           "match no uploaded trajectory and no library rollout: 'mine_9'"),
+                           "labels.orderings[0]: clip 'mine_9' is no train or serve rollout id"),
     "unknown attribute": (lambda: npz_bytes(**good_trajectories(2)), _ordering("mine_0", "mine_1", attribute="zest"),
                           422, "unknown attribute 'zest'; valid: amplitude, pace"),
     "empty labels": (lambda: npz_bytes(**good_trajectories(2)), b"", 422, "labels: the file is empty"),
     "labels not json": (lambda: npz_bytes(**good_trajectories(2)), b"{oops", 422, "not UTF-8 JSON"),
     "unknown label field": (lambda: npz_bytes(**good_trajectories(2)), labels_bytes({"orderz": []}), 422,
-                            "labels.orderz: Extra inputs are not permitted"),
+                            "labels: unknown key 'orderz'; valid keys: new_attributes, orderings"),
     "oversized upload": (lambda: b"\0" * (300 * 1024), None, 413, "upload too large"),
     "a new attribute declared twice": (  # was a 500 (the database's unique constraint) and a stray file
         lambda: npz_bytes(**good_trajectories(2)),
@@ -226,6 +226,52 @@ def test_upload_lists_every_problem(admin):
     r = upload(admin, npz_bytes(ok=np.zeros((5, STATE_DIM), np.float32)), _ordering("ok", "ghost", attribute="zest"))
     problems = r.json()["problems"]
     assert any("unknown attribute 'zest'" in p for p in problems) and any("'ghost'" in p for p in problems)
+
+
+def test_every_problem_of_a_label_file_is_listed_at_once(admin, settings):
+    """A misspelt key no longer hides the unknown attribute and the unknown clips of the other labels."""
+    ids = serve_ids(admin, 2)
+    labels = {"comparisons": [{"attribute": "amplitude", "mroe": ids[0], "less": ids[1]},  # misspelt
+                              {"attribute": "zest", "more": ids[0], "less": ids[1]}],  # unknown attribute
+              "orderings": [{"attribute": "pace", "clips": [ids[0], "ghost-1", "ghost-2"]}],  # unknown clips
+              "local_chagnes": []}
+    r = upload(admin, None, labels_bytes(labels))
+    assert r.status_code == 422, r.text
+    problems = r.json()["problems"]
+    assert problems == [
+        "labels.comparisons[0]: key 'more' is missing; an item of comparisons has the keys attribute, more, less",
+        "labels.comparisons[0]: unknown key 'mroe'; valid keys: attribute, more, less",
+        "labels: unknown key 'local_chagnes'; valid keys: new_attributes, orderings, comparisons, local_changes",
+        "labels.orderings[0]: clip 'ghost-1' is no train or serve rollout id of the domain (ids look like "
+        "train-00012 or serve-00086) and no trajectory name of the uploaded .npz",
+        "labels.orderings[0]: clip 'ghost-2' is no train or serve rollout id of the domain (ids look like "
+        "train-00012 or serve-00086) and no trajectory name of the uploaded .npz",
+        "labels.comparisons[1].attribute: unknown attribute 'zest'; valid: amplitude, pace (declare a new one: "
+        "new_attributes in an upload, or POST /api/admin/attributes)"], problems
+    assert r.json()["detail"] == "; ".join(problems)
+    assert stored(settings) == [] and datasets(admin) == []
+
+
+def test_the_example_label_file_is_accepted(admin):
+    r = admin.get("/api/admin/datasets/example", params={"domain": "toy"}, headers=AUTH)
+    assert r.status_code == 200, r.text
+    assert r.headers["content-disposition"] == 'attachment; filename="labels-example-toy.json"'
+    example = r.json()
+    assert all(example[group] for group in ("new_attributes", "orderings", "comparisons", "local_changes"))
+    stored_as = upload(admin, None, r.content)
+    assert stored_as.status_code == 201, stored_as.text
+    assert stored_as.json()["labels"] == 4 and stored_as.json()["new_attributes"] == ["my_attribute"]
+    assert admin.get("/api/admin/datasets/example", params={"domain": "nope"}, headers=AUTH).status_code == 422
+
+
+def test_the_api_docs_describe_the_label_file(admin):
+    schemas = admin.get("/openapi.json").json()["components"]["schemas"]
+    assert "LabelSet" in schemas["DatasetUpload"]["properties"]["labels"]["description"]
+    fields = {name: schemas[name]["properties"] for name in ("LabelSet", "Ordering", "Comparison", "LocalChange",
+                                                               "NewAttribute")}
+    assert all(field.get("description") for props in fields.values() for field in props.values()), fields
+    assert "train or serve rollout id" in fields["Comparison"]["more"]["description"]
+    assert "least to most" in fields["Ordering"]["clips"]["description"]
 
 
 def test_upload_body_limit_is_enforced_while_streaming(admin, settings):

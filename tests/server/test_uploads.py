@@ -114,10 +114,17 @@ MALFORMED = {
     "a huge number": (b"1e999", "labels: the file holds a number; expected an object"),
     "orderings is an object": (b'{"orderings": {"attribute": "amplitude"}}',
                                "labels.orderings: Input should be a valid list"),
+    "a misspelt list": (b'{"ordering": []}', "labels: unknown key 'ordering'; valid keys: new_attributes, orderings, "
+                                             "comparisons, local_changes"),
+    "a misspelt key": (b'{"comparisons": [{"attribute": "amplitude", "mroe": "a", "less": "b"}]}',
+                       "labels.comparisons[0]: unknown key 'mroe'; valid keys: attribute, more, less"),
+    "a missing key": (b'{"comparisons": [{"attribute": "amplitude", "less": "b"}]}',
+                      "labels.comparisons[0]: key 'more' is missing; an item of comparisons has the keys attribute, "
+                      "more, less"),
     "a clip is a list": (b'{"orderings": [{"attribute": "amplitude", "clips": [["a"], "b"]}]}',
-                         "labels.orderings.0.clips.0: Input should be a valid string"),
+                         "labels.orderings[0].clips[0]: Input should be a valid string"),
     "a direction": (b'{"local_changes": [{"attribute": "amplitude", "anchor": "a", "changed": "b", "direction": 1}]}',
-                    "labels.local_changes.0.direction: Input should be 'more' or 'less'"),
+                    "labels.local_changes[0].direction: Input should be 'more' or 'less'"),
 }
 
 
@@ -130,9 +137,9 @@ def test_malformed_labels_are_a_422_that_says_what_is_wrong(admin, settings, cas
 def test_thousands_of_label_problems_are_listed_up_to_a_limit(admin, settings):
     raw = labels_bytes({"comparisons": [{"attribute": 7, "more": "a", "less": "b"}] * 500})
     r = upload(admin, None, raw)
-    assert_refused(admin, settings, r, 422, "labels.comparisons.0.attribute: Input should be a valid string")
-    assert len(r.json()["problems"]) == 21
-    assert r.json()["problems"][-1] == "labels: 480 more problem(s) of the same kinds"
+    assert_refused(admin, settings, r, 422, "labels.comparisons[0].attribute: Input should be a valid string")
+    assert len(r.json()["problems"]) == 51
+    assert r.json()["problems"][-1] == "and 450 more problem(s)"
 
 
 def test_labels_with_a_byte_order_mark_are_read(admin, settings):

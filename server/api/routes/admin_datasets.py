@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, Request
+from fastapi import APIRouter, Depends, Request, Response
 from fastapi.responses import JSONResponse
 
+from rba.data.labels import LabelSet
 from server.api.auth import ADMIN_ERRORS, require_admin
 from server.api.deps import DbDep, ServicesDep
 from server.common.errors import error_response, responses
@@ -27,7 +28,9 @@ UPLOAD_FORM = {  # the route streams and parses the form itself (under RBA_UPLOA
                               "description": "the same files were uploaded before: nothing new stored"},
                         **responses(404, 413, 422, said={404: "unknown domain", 413: "over RBA_UPLOAD_MAX_BYTES",
                                                          422: "every problem found, in 'problems'"})},
-             summary="Upload labelled behaviour (multipart: domain, labels = JSON file, trajectories = .npz)")
+             summary="Upload labelled behaviour (multipart: domain, labels = JSON file, trajectories = .npz)",
+             description="The labels file is a LabelSet (see Schemas; GET /api/admin/datasets/example gives one "
+                         "for a domain). Every problem of both files is listed in one 422.")
 async def upload_dataset(request: Request, svc: ServicesDep, db: DbDep):
     form = await label_admin.read_upload_form(request)
     try:
@@ -37,6 +40,13 @@ async def upload_dataset(request: Request, svc: ServicesDep, db: DbDep):
     if not new:
         return JSONResponse(status_code=200, content=dataset.model_dump(mode="json"))
     return dataset
+
+
+@router.get("/example", response_model=LabelSet, response_description="a label file (JSON) the domain accepts",
+            summary="An example label file for a domain: every kind of label, about its serve clips")
+def example_labels(domain: DomainName, svc: ServicesDep, response: Response) -> LabelSet:
+    response.headers["Content-Disposition"] = f'attachment; filename="labels-example-{domain}.json"'
+    return label_admin.example_labels(svc, domain)
 
 
 @router.get("", response_model=list[DatasetPublic], summary="Uploaded datasets of a domain")

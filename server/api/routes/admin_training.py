@@ -9,7 +9,7 @@ from fastapi import APIRouter, Depends, Path
 from server.api.auth import ADMIN_ERRORS, require_admin
 from server.api.deps import DbDep, ServicesDep
 from server.common.errors import responses
-from server.db.admin_tables import JobPublic, TrainCreate, VersionPublic
+from server.db.admin_tables import JobPublic, PresetPublic, TrainCreate, VersionPublic
 from server.db.tables import DomainName
 from server.ops import model_versions, training_jobs
 
@@ -28,14 +28,14 @@ def start_training(body: TrainCreate, svc: ServicesDep, db: DbDep) -> JobPublic:
 
 
 @router.get("/jobs", response_model=list[JobPublic], summary="Training jobs, newest first")
-def list_jobs(svc: ServicesDep, db: DbDep, domain: DomainName | None = None) -> list[JobPublic]:
-    return training_jobs.list_jobs(svc, db, domain)
+def list_jobs(db: DbDep, domain: DomainName | None = None) -> list[JobPublic]:
+    return training_jobs.list_jobs(db, domain)
 
 
 @router.get("/jobs/{job_id}", response_model=JobPublic, responses=responses(404, said={404: "no such job"}),
             summary="A job: state, stage, step, loss, progress, time left, held-out numbers")
-def read_job(job_id: JobId, svc: ServicesDep, db: DbDep) -> JobPublic:
-    return training_jobs.job_public(svc, training_jobs.load_job(db, job_id))
+def read_job(job_id: JobId, db: DbDep) -> JobPublic:
+    return training_jobs.job_public(training_jobs.load_job(db, job_id))
 
 
 @router.post("/jobs/{job_id}/cancel", response_model=JobPublic,
@@ -43,6 +43,12 @@ def read_job(job_id: JobId, svc: ServicesDep, db: DbDep) -> JobPublic:
              summary="Stop a job; nothing it made is kept")
 def cancel_job(job_id: JobId, svc: ServicesDep, db: DbDep) -> JobPublic:
     return training_jobs.cancel_job(svc, db, job_id)
+
+
+@router.get("/presets", response_model=list[PresetPublic],
+            summary="Training presets: what each trains, its steps for the domain, its typical duration")
+def list_presets(domain: DomainName) -> list[PresetPublic]:
+    return training_jobs.list_presets(domain)
 
 
 @router.get("/models", response_model=list[VersionPublic], summary="A domain's model versions (and which is active)")
