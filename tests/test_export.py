@@ -149,7 +149,7 @@ def _bad_cases(exported: Path, tmp_path: Path) -> dict[str, tuple[Path, str]]:
 
 @pytest.mark.parametrize("case", [
     "truncated", "not a zip", "foreign", "missing clip", "missing reward", "wrong version", "unknown domain",
-    "wrong params", "nan param", "param out of range", "negative seed", "huge seed",
+    "wrong params", "nan param", "inf param", "param out of range", "negative seed", "huge seed",
     "pickled reward", "pickled profile", "tampered clip", "unknown field", "duplicate member", "unlisted member",
     "text proxy", "arrays not a mapping", "array not a member", "no v_star", "short v_star",
 ])
@@ -163,7 +163,9 @@ def test_bad_zips_exit_2_with_a_message(exported, tmp_path, case, capsys):
         "wrong params": ({"profile": lambda p: {**p, "params": {"amplitude": 1.0, "speed": 2.0}}},
                          "params ['amplitude', 'speed'] do not match domain 'toy''s param_names ['amplitude', 'pace']"),
         "nan param": ({"profile": lambda p: {**p, "params": {**p["params"], "amplitude": float("nan")}}},
-                      "param amplitude = nan is outside domain 'toy''s range ["),
+                      "profile.json is not JSON ('NaN is not a JSON number')"),
+        "inf param": ({"profile": lambda p: {**p, "params": {**p["params"], "amplitude": 1e308 * 10}}},
+                      "profile.json is not JSON ('Infinity is not a JSON number')"),
         "param out of range": ({"profile": lambda p: {**p, "params": {**p["params"], "pace": 1e6}}},
                                "param pace = 1000000.0 is outside domain 'toy''s range ["),
         "negative seed": ({"profile": lambda p: {**p, "seed": -1}}, "seed must be an integer in [0, 2**32), got -1"),
@@ -176,14 +178,14 @@ def test_bad_zips_exit_2_with_a_message(exported, tmp_path, case, capsys):
         "tampered clip": ({"replace": {"clip.mp4": b"\0\0\0\x20ftypisom-other"}},
                           "member clip.mp4 does not match its sha256 in profile.json: the zip was changed"),
         "unknown field": ({"profile": lambda p: {**p, "extra": 1}}, "unknown ['extra']"),
-        "unlisted member": ({"replace": {"notes.txt": b"hi"}},
-                            "member notes.txt is not listed in profile.json's members, so nothing checks it"),
+        "unlisted member": ({"replace": {"notes.npy": b"hi"}},
+                            "member notes.npy is not listed in profile.json's members, so nothing checks it"),
         "text proxy": ({"profile": lambda p: {**p, "proxies": {**p["proxies"], "pace": "fast"}}},
                        "profile.json proxies must map attribute names to finite numbers"),
         "arrays not a mapping": ({"profile": lambda p: {**p, "reward": {**p["reward"], "arrays": ["a.npy"]}}},
-                                 "profile.json reward arrays must map names to members listed in its members"),
+                                 "profile.json reward arrays must map names to .npy members listed in its members"),
         "array not a member": ({"profile": lambda p: {**p, "reward": {**p["reward"], "arrays": {"a": "a.npy"}}}},
-                               "profile.json reward arrays must map names to members listed in its members"),
+                               "profile.json reward arrays must map names to .npy members listed in its members"),
         "no v_star": ({"profile": lambda p: {**p, "reward": {**p["reward"], "condition": {}}}},
                       "reward condition v_star must be 2 finite numbers, one per attribute (amplitude, pace)"),
         "short v_star": ({"profile": lambda p: {**p, "reward": {**p["reward"], "condition": {"v_star": [0.1]}}}},
@@ -296,7 +298,7 @@ def test_a_local_session_satisfied_at_once_exports_no_reward(toy_roots, tmp_path
     assert export.reward is None and export.profile.reward is None
     assert "satisfied with its first clip" in export.profile.reward_note
     with zipfile.ZipFile(tmp_path / "local.zip") as zf:
-        assert sorted(zf.namelist()) == ["clip.mp4", "profile.json"]
+        assert sorted(zf.namelist()) == ["README.md", "clip.mp4", "profile.json"]
 
 
 def test_a_global_export_refits_the_rewards_last_layer_for_the_chosen_clip(app_env, exported, toy_roots):

@@ -32,7 +32,7 @@ def test_export_of_a_satisfied_session_holds_profile_clip_and_reward(client, ses
     assert r.headers["content-type"] == "application/zip"
     assert r.headers["content-disposition"] == f'attachment; filename="rba-toy-{session["id"]}.zip"'
     with zipfile.ZipFile(io.BytesIO(r.content)) as zf:
-        assert sorted(zf.namelist()) == ["clip.mp4", "profile.json", "reward.json", "reward.pt"]
+        assert sorted(zf.namelist()) == ["README.md", "clip.mp4", "profile.json", "reward.json", "reward.pt"]
         profile = json.loads(zf.read("profile.json"))
         assert zf.read("clip.mp4")[4:8] == b"ftyp"  # an MP4
     assert profile["domain"] == "toy" and profile["method"] == "global" and profile["rep"] == "onehot"
