@@ -27,7 +27,7 @@ OUTPUTS = ("screenshot-*.png",)  # what this script writes into benchmarks/resul
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
                  "--disable-component-update", "--disable-sync", "--no-first-run"]
-ADMIN_TOKEN = "screenshots"
+ADMIN_TOKEN = "screenshots-admin-token"
 LAPTOP = {"width": 1280, "height": 800}
 PHONE = {"width": 390, "height": 844}
 PLAYED = """(previous) => { const v = document.getElementById('video');

@@ -18,7 +18,8 @@ REPO_ROOT = Path(__file__).resolve().parents[2]
 class LibrarySettings(BaseSettings):
     """What ``rba`` commands and the app share: data, models, clip cache and clip size."""
 
-    model_config = SettingsConfigDict(env_prefix="RBA_", extra="ignore")
+    # a refused value is not echoed: RBA_ADMIN_TOKEN and database passwords stay out of logs
+    model_config = SettingsConfigDict(env_prefix="RBA_", extra="ignore", hide_input_in_errors=True)
 
     data_dir: Path = Field(default=REPO_ROOT / "data", description="skill libraries <domain>/<split>.npz")
     models_dir: Path = Field(default=REPO_ROOT / "models", description="trained models <domain>/<kind>-<rep>.pt")

@@ -5,11 +5,13 @@ from __future__ import annotations
 import os
 import socket
 
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from rba.core.settings import LibrarySettings
 from rba.core.store import Store
 from rba.domains import get_domain
+
+ADMIN_TOKEN_MIN = 16  # characters of RBA_ADMIN_TOKEN (see Settings.admin_token)
 
 
 def cores() -> int:
@@ -25,7 +27,11 @@ class Settings(LibrarySettings):
         "Postgres: postgresql+psycopg://user:password@host/db")
     host: str = "127.0.0.1"
     port: int = Field(default=8000, ge=1, le=65535)
-    admin_token: str | None = Field(default=None, description="bearer token of the admin routes; unset = no admin")
+    admin_token: str | None = Field(
+        default=None, description="bearer token of the admin routes; unset = no admin. "
+        f"At least {ADMIN_TOKEN_MIN} characters: the right token gets in even while its address waits for its wrong "
+        "ones, so its length, not the wait, is what stops guessing. Make one with "
+        "python -c 'import secrets; print(secrets.token_urlsafe(24))'")
     prerender: bool = Field(default=True, description="render the clips each possible next feedback would show")
     prerender_window: int | None = Field(default=None, ge=1, le=1024, description="guessed renders in flight at "
                                          "once; default: the compute layer's capacity (more only queues them)")
@@ -86,6 +92,18 @@ class Settings(LibrarySettings):
     train_nice: int = Field(default=10, ge=0, le=19, description="niceness a training process adds to its "
                             "server's: the server's requests go first")
     log_level: str = "info"
+
+    @field_validator("admin_token", mode="before")
+    @classmethod
+    def _long_token(cls, token: object) -> object:
+        """A token long enough to stop guessing; "" (docker-compose's unset variable) means no admin, as unset does."""
+        if token == "":
+            return None
+        if isinstance(token, str) and len(token) < ADMIN_TOKEN_MIN:
+            raise ValueError(f"RBA_ADMIN_TOKEN is {len(token)} characters; it must be at least {ADMIN_TOKEN_MIN} "
+                             "characters (its length is what stops guessing). Make one with: python -c 'import "
+                             "secrets; print(secrets.token_urlsafe(24))'")
+        return token
 
     @model_validator(mode="after")
     def _heartbeat_before_stale(self) -> Settings:

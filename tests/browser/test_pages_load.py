@@ -21,7 +21,7 @@ SCRIPTS = {"/": {"/static/app.js", "/static/common.js", "/static/meters.js"},
 def url(live_server, tmp_path_factory) -> str:
     tmp = tmp_path_factory.mktemp("pages")
     return live_server(Settings(data_dir=REPO / "data", models_dir=REPO / "models", database_url=f"sqlite:///{tmp}/rba.db",
-                                cache_dir=tmp / "clips", warm_start=False, prerender=False, admin_token="pages-token"))
+                                cache_dir=tmp / "clips", warm_start=False, prerender=False, admin_token="pages-test-token-1"))
 
 
 def open_page(browser, url: str, path: str):

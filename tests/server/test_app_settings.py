@@ -36,3 +36,17 @@ def test_rba_generate_seconds_bounds_every_domain_alike(unset, monkeypatch):
         monkeypatch.setenv("RBA_GENERATE_SECONDS", bad)
         with pytest.raises(ValidationError, match="generate_seconds"):
             Settings()
+
+
+def test_the_admin_token_is_long_enough_to_stop_guessing(monkeypatch, capsys):
+    """The right token gets in while its address waits for its wrong ones, so only its length stops guessing: a short
+    one is refused (``rba serve`` exits 2 saying how to make one); "" (compose's unset variable) means no admin."""
+    assert Settings(admin_token="x" * 16).admin_token == "x" * 16
+    assert Settings(admin_token="").admin_token is None
+    with pytest.raises(ValidationError, match="9 characters; it must be at least 16 characters"):
+        Settings(admin_token="change-me")
+    monkeypatch.setenv("RBA_ADMIN_TOKEN", "short")
+    from rba.cli import main
+    assert main(["serve", "--port", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "admin_token" in err and "at least 16 characters" in err and "short" not in err  # not echoed

@@ -19,7 +19,7 @@ from server.main import create_app
 from server.ops.model_versions import active_version
 from tests.fakes import InstantCompute
 
-TOKEN = "edges-token"
+TOKEN = "edges-test-token-1"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
 FAILURES = 3  # RBA_ADMIN_FAILURES_PER_MINUTE here
 VERSIONS = ("toy-v2", "toy-v3")  # published copies of the toy models

@@ -19,7 +19,7 @@ from server.main import create_app
 from tests.conftest import own_copy
 from tests.fakes import InstantCompute
 
-TOKEN = "hardening-token"
+TOKEN = "hardening-test-token"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
 CAP = 4096  # RBA_JSON_MAX_BYTES here
 FAILURES = 3  # RBA_ADMIN_FAILURES_PER_MINUTE here

@@ -28,6 +28,8 @@ from server.runtime.processes import ProcessRecord
 from tests.conftest import own_copy
 from tests.server.test_processes import alive, wait_dead
 
+REPLICA_TOKEN = "replica-test-t0ken"
+
 # The heartbeat tests' timings. A live job must look alive however busy the machine: 20 beats may be missed
 # before another replica may fail it (with 6, one CI run saw a live job go 0.6 s without a heartbeat).
 BEAT, STALE = 0.1, 2.0
@@ -172,13 +174,13 @@ def test_train_route_on_two_replicas(make_settings, database_url, tmp_path, monk
     from server.main import create_app
 
     monkeypatch.setattr(JobRunner, "start", lambda runner, job_id: run_here(runner, job_id))
-    auth = {"Authorization": "Bearer t0ken"}
+    auth = {"Authorization": f"Bearer {REPLICA_TOKEN}"}
     data, models = tmp_path / "data", tmp_path / "models"
     shutil.copytree(make_settings().data_dir, data)
     shutil.copytree(make_settings().models_dir, models)
 
     def app(name: str):
-        return TestClient(create_app(make_settings(database_url=database_url, admin_token="t0ken", replica=name,
+        return TestClient(create_app(make_settings(database_url=database_url, admin_token=REPLICA_TOKEN, replica=name,
                                                    data_dir=data, models_dir=models, job_heartbeat_seconds=BEAT,
                                                    job_stale_seconds=STALE)))
 

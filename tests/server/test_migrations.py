@@ -44,7 +44,7 @@ from server.main import create_app
 from tests.server.conftest import make_engines_together, more
 
 HEAD = ScriptDirectory.from_config(migrations.config()).get_current_head()
-TOKEN = "migrati0n-token"
+TOKEN = "migrati0n-test-token"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
 NOW = dt.datetime(2026, 11, 23, 4, 0, tzinfo=dt.UTC)
 JOB = {"id": "j-old", "domain": "toy", "method": "global", "rep": "onehot", "preset": "quick", "datasets": [],

@@ -21,6 +21,8 @@ from server.main import create_app
 from server.ops import session_steps
 from tests.server.conftest import make_engines_together, more
 
+REPLICA_TOKEN = "replica-test-t0ken"
+
 
 @pytest.fixture
 def two_replicas(make_settings, database_url):
@@ -96,10 +98,10 @@ def test_a_version_activated_on_one_replica_serves_new_sessions_on_the_other(mak
     models = toy_roots[1]
     shutil.copytree(models, tmp_path / "models")
     shutil.copytree(models / "toy", tmp_path / "models" / "versions" / "toy-v2" / "toy")  # what a job publishes
-    auth = {"Authorization": "Bearer t0ken"}
+    auth = {"Authorization": f"Bearer {REPLICA_TOKEN}"}
 
     def app(name: str) -> TestClient:
-        return TestClient(create_app(make_settings(database_url=database_url, replica=name, admin_token="t0ken",
+        return TestClient(create_app(make_settings(database_url=database_url, replica=name, admin_token=REPLICA_TOKEN,
                                                    models_dir=tmp_path / "models")))
 
     with app("a") as a, app("b") as b:

@@ -26,10 +26,10 @@ def free_port() -> int:
 def test_settings_come_from_rba_env_vars(monkeypatch, tmp_path):
     monkeypatch.setenv("RBA_DATA_DIR", str(tmp_path / "d"))
     monkeypatch.setenv("RBA_PORT", "8123")
-    monkeypatch.setenv("RBA_ADMIN_TOKEN", "s3cret")
+    monkeypatch.setenv("RBA_ADMIN_TOKEN", "s3cret-serve-token")
     monkeypatch.setenv("RBA_PRERENDER", "false")
     s = Settings()
-    assert (s.port, s.admin_token, s.prerender) == (8123, "s3cret", False)
+    assert (s.port, s.admin_token, s.prerender) == (8123, "s3cret-serve-token", False)
     assert s.db_url == f"sqlite:///{tmp_path / 'd' / 'rba.db'}"
     assert Store.from_settings(s).cache_dir == tmp_path / "d" / "cache" / "clips"
     monkeypatch.setenv("RBA_DATABASE_URL", "postgresql+psycopg://u:p@127.0.0.1/rba")
