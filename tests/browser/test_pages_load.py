@@ -13,6 +13,7 @@ import pytest
 from server.common.app_settings import Settings
 
 REPO = Path(__file__).resolve().parents[2]
+TOKEN = "pages-admin-token"
 SCRIPTS = {"/": {"/static/app.js", "/static/common.js", "/static/meters.js"},
            "/admin": {"/static/admin.js", "/static/common.js"}}
 
@@ -21,7 +22,7 @@ SCRIPTS = {"/": {"/static/app.js", "/static/common.js", "/static/meters.js"},
 def url(live_server, tmp_path_factory) -> str:
     tmp = tmp_path_factory.mktemp("pages")
     return live_server(Settings(data_dir=REPO / "data", models_dir=REPO / "models", database_url=f"sqlite:///{tmp}/rba.db",
-                                cache_dir=tmp / "clips", warm_start=False, prerender=False, admin_token="pages-test-token-1"))
+                                cache_dir=tmp / "clips", warm_start=False, prerender=False, admin_token=TOKEN))
 
 
 def open_page(browser, url: str, path: str):
