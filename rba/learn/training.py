@@ -191,9 +191,9 @@ def stage_name(kind: str, rep: str) -> str:
 
 
 class StageClock:
-    """Each stage's first and latest progress report (its step and the seconds since the clock started), in the
-    order the stages ran: the rate a stage's steps are going at, which the estimate of a job's time left needs
-    (``server.ops.training_jobs``). The training process keeps one per job and stores ``mark``'s result."""
+    """Each stage's first, previous and latest progress report (its step and the seconds since the clock started),
+    in the order the stages ran: the rate a stage's steps are going at, which the estimate of a job's time left
+    needs (``server.ops.training_jobs``). The training process keeps one per job and stores ``mark``'s result."""
 
     def __init__(self) -> None:
         self.start = time.monotonic()
@@ -203,8 +203,10 @@ class StageClock:
         """Record a report; returns every stage's record so far (JSON)."""
         at = round(time.monotonic() - self.start, 3)
         if not self.stages or self.stages[-1]["stage"] != stage:
-            self.stages.append({"stage": stage, "total": total, "first_step": step, "first_at": at})
-        self.stages[-1].update(total=total, step=step, at=at)
+            self.stages.append({"stage": stage, "total": total, "first_step": step, "first_at": at, "step": step,
+                                "at": at})
+        last = self.stages[-1]
+        last.update(total=total, before_step=last["step"], before_at=last["at"], step=step, at=at)
         return [dict(s) for s in self.stages]
 
 

@@ -52,9 +52,13 @@ def job_plan(job: TrainJob) -> tuple[float, list[Phase]]:
 
 
 def _rate(report: dict) -> float | None:
-    """Seconds per step between a stage's first and latest report; None before its second report."""
-    steps = report["step"] - report["first_step"]
-    return (report["at"] - report["first_at"]) / steps if steps > 0 else None
+    """Seconds per step since a stage's previous report (the pace now: a shared machine's load changes, and a kind's
+    first steps are slower), else since its first; None before its second report."""
+    for key in ("before", "first"):
+        steps = report["step"] - report.get(f"{key}_step", report["step"])
+        if steps > 0:
+            return (report["at"] - report[f"{key}_at"]) / steps
+    return None
 
 
 def _pace(phases: list[Phase], reports: dict[str, dict]) -> float:

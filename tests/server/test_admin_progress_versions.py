@@ -18,7 +18,7 @@ from server.main import create_app
 from server.ops.training_jobs import job_plan
 from tests.conftest import own_copy
 
-TOKEN = "progress-token"
+TOKEN = "progress-test-token"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
 
 
@@ -33,6 +33,7 @@ def settings(make_settings, toy_roots, tmp_path, database_url):
     """Own copies of the toy models and data (jobs publish versions there)."""
     own_copy(toy_roots, tmp_path)
     return make_settings(admin_token=TOKEN, data_dir=tmp_path / "data", models_dir=tmp_path / "models",
+                         train_nice=0,  # a real job's pace is the machine's, not what other work leaves a niced one
                          database_url=database_url)
 
 
@@ -94,9 +95,10 @@ def test_the_time_left_comes_from_the_stages_measured_rates(admin):
     later = _set(admin, job_id, updated_at=now - dt.timedelta(seconds=10))  # no report for 10 s: 10 s less
     assert later["eta_seconds"] == pytest.approx(expected - 10, abs=2)
 
-    # in rθ, its own rate counts: 2 s a step for its 59 steps left, then its measuring
+    # in rθ, its own rate now counts: 2 s a step since its previous report (its first 50 went faster), for its 59
+    # steps left, then its measuring
     done_ranker = _report(zeta.stage, zeta.steps, (1, 10.0), (zeta.steps, 110.0))
-    fitting = _report(reward.stage, reward.steps, (1, 120.0), (61, 240.0))
+    fitting = _report(reward.stage, reward.steps, (1, 120.0), (61, 160.0)) | {"before_step": 51, "before_at": 140.0}
     rtheta = _set(admin, job_id, stage=reward.stage, step=61, total=reward.steps, stages=[done_ranker, fitting],
                   updated_at=dt.datetime.now(dt.UTC))
     assert rtheta["eta_seconds"] == pytest.approx((reward.steps - 61) * 2 + reward.measure_seconds, abs=2)

@@ -71,13 +71,14 @@ Table("rba_feedback", FIRST_RELEASE, Column("id", Integer, primary_key=True),
 def _pre_migrations() -> MetaData:
     """The tables of the last release without migrations (revision 0004): today's models, less what later
     revisions added (0005: ``rba_generated_clip`` and ``rba_session.generate``; 0006:
-    ``rba_session.library_version``)."""
+    ``rba_session.library_version``; 0007: ``rba_train_job.stages``)."""
+    later = {"rba_session": ("generate", "library_version"), "rba_train_job": ("stages",)}
     old = MetaData()
     for table in SQLModel.metadata.tables.values():
-        if table.name == "rba_session":
+        if table.name in later:
             Table(table.name, old, *(Column(c.name, c.type, primary_key=c.primary_key, nullable=c.nullable,
                                             index=c.index) for c in table.columns
-                                  if c.name not in ("generate", "library_version")))
+                                  if c.name not in later[table.name]))
         elif table.name != "rba_generated_clip":
             table.to_metadata(old)
     return old
