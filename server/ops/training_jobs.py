@@ -75,7 +75,7 @@ def _pace(phases: list[Phase], reports: dict[str, dict]) -> float:
 
 def seconds_left(job: TrainJob, now: dt.datetime) -> float | None:
     """Seconds the job has left: the current stage's remaining steps at its measured rate, then the typical
-    durations of the phases not started (their steps scaled by ``_pace``), less the time since the last report;
+    durations of the phases not started, all scaled by ``_pace``, less the time since the last report;
     None when finished or its stages are unknown."""
     if job.state not in (JobState.queued, JobState.running):
         return None
@@ -84,13 +84,13 @@ def seconds_left(job: TrainJob, now: dt.datetime) -> float | None:
         return None
     reports = {r["stage"]: r for r in job.stages or []}
     pace, current = _pace(phases, reports), (job.stages or [{}])[-1].get("stage")
-    left = 0.0 if reports else setup
+    left = 0.0 if reports else setup * pace
     for ph in phases:
         r = reports.get(ph.stage)
         if r is not None and ph.stage != current:
             continue  # done: a later stage reported
         rate = (_rate(r) if r is not None else None) or ph.step_seconds * pace
-        left += (ph.steps - (r["step"] if r is not None else 0)) * rate + ph.measure_seconds
+        left += (ph.steps - (r["step"] if r is not None else 0)) * rate + ph.measure_seconds * pace
     if job.state == JobState.running:  # a queued job has not started its clock
         left -= (now - as_utc(job.updated_at)).total_seconds()
     return round(max(0.0, left), 1)

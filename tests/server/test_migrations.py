@@ -76,9 +76,7 @@ def _pre_migrations() -> MetaData:
     old = MetaData()
     for table in SQLModel.metadata.tables.values():
         if table.name in later:
-            Table(table.name, old, *(Column(c.name, c.type, primary_key=c.primary_key, nullable=c.nullable,
-                                            index=c.index) for c in table.columns
-                                  if c.name not in later[table.name]))
+            Table(table.name, old, *(c._copy() for c in table.columns if c.name not in later[table.name]))
         elif table.name != "rba_generated_clip":
             table.to_metadata(old)
     return old
