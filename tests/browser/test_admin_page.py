@@ -237,7 +237,7 @@ def test_activating_a_worse_version_asks_first_and_the_intro_follows(live_server
     # one bar for the whole job, as the API weighs it; the time left from rθ's rate: 500 steps at 0.1 s and measuring
     job = httpx.get(f"{url}/api/admin/jobs", params={"domain": "walker"}, headers=AUTH).json()[0]
     done = round(100 * job["progress"])
-    assert 40 < done < 100 and 50 < job["eta_seconds"] < 500, job
+    assert 40 < done < 100 and 0 < job["eta_seconds"] < 60, job  # 500 steps at 0.1 s, less the time since
     assert page.locator("#progress").get_attribute("aria-valuenow") == str(done)
     assert re.search(rf"{done} % done · about \d+ (s|min) left · global_reward\[onehot\] step 500/1000",
                      page.locator("#job-detail").inner_text())
