@@ -43,6 +43,7 @@ async def upload_dataset(request: Request, svc: ServicesDep, db: DbDep):
 
 
 @router.get("/example", response_model=LabelSet, response_description="a label file (JSON) the domain accepts",
+            responses=responses(404, said={404: "the domain has no serve library"}),
             summary="An example label file for a domain: every kind of label, about its serve clips")
 def example_labels(domain: DomainName, svc: ServicesDep, response: Response) -> LabelSet:
     response.headers["Content-Disposition"] = f'attachment; filename="labels-example-{domain}.json"'
