@@ -21,6 +21,7 @@ import httpx
 import psutil
 import pytest
 
+from server.runtime.job_runner import STAGING_GRACE_SECONDS
 from tests.conftest import own_copy
 from tests.server.test_serve import REPO, free_port
 
@@ -198,12 +199,17 @@ def test_kill_during_training_kills_the_job_and_a_restart_fails_it_and_sweeps(se
     left = gone(children, 5)
     assert not left, [(p.pid, p.cmdline()) for p in left]
 
-    (versions / ".tmp-0123456789abcdef").mkdir(parents=True)  # a staging folder of a job the database never knew
+    # staging folders of jobs this database never knew: another database's job may still train into a fresh one;
+    # one untouched for longer than the grace period with no process is abandoned
+    (versions / ".tmp-0123456789abcdef").mkdir(parents=True)
+    (versions / ".tmp-fedcba9876543210").mkdir(parents=True)
+    old = time.time() - STAGING_GRACE_SECONDS - 60
+    os.utime(versions / ".tmp-0123456789abcdef", (old, old))
     server.start()
     with httpx.Client(base_url=server.url, timeout=10) as c:
         job = c.get(f"/api/admin/jobs/{job_id}", headers=AUTH).json()
         assert (job["state"], job["error"], job["version"]) == ("failed", "the server stopped while the job ran", None)
-        assert sorted(p.name for p in versions.iterdir()) == []
+        assert sorted(p.name for p in versions.iterdir()) == [".tmp-fedcba9876543210"]
         assert not list((server.root / "data" / "jobs").glob("*"))
         step = job["step"]
         time.sleep(1.5)  # nothing writes to the failed job any more
@@ -216,4 +222,4 @@ def test_kill_during_training_kills_the_job_and_a_restart_fails_it_and_sweeps(se
         assert f"a training job for toy is already running ({r.json()['id']})" in again.json()["detail"]
         new = wait_job(c, r.json()["id"], lambda j: j["state"] in FINISHED, 300)  # a limit; ~5 s on a calm machine
         assert new["state"] == "succeeded", new
-    assert [p.name for p in versions.iterdir()] == [new["version"]]
+    assert sorted(p.name for p in versions.iterdir()) == [".tmp-fedcba9876543210", new["version"]]
