@@ -380,8 +380,8 @@ MEMBER_NOTES = {  # what each member is, for the README inside every export
              "and ζσ scores, every feedback round, the model and simulator versions, and the sha256 of every other "
              "member (the reader checks them)",
     CLIP: "the chosen behaviour's video (H.264 MP4)",
-    REWARD_WEIGHTS: "the reward model rθ: a torch state_dict of tensors only; load with `torch.load(f, "
-                    "weights_only=True)`",
+    REWARD_WEIGHTS: "the reward model rθ: a torch state_dict of tensors only; load it with "
+                    "`torch.load(f, weights_only=True)`",
     REWARD_CARD: "the reward model's card: its architecture (to rebuild it), attributes and training record",
 }
 ARRAY_NOTE = "an array the reward is conditioned on (profile.json's reward.arrays); `numpy.load(f, allow_pickle=False)`"

@@ -22,6 +22,16 @@ CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-backg
                  "--disable-component-update", "--disable-sync", "--no-first-run"]
 
 
+def new_page(browser, url: str, width: int = 1280, height: int = 800, touch: bool = False):
+    """A page at ``url`` once the studio is idle, and the list its uncaught script errors go to."""
+    page = browser.new_page(viewport={"width": width, "height": height}, has_touch=touch, is_mobile=touch)
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(url)
+    page.wait_for_function("() => document.body.dataset.state === 'idle'")
+    return page, errors
+
+
 @pytest.fixture(scope="module")
 def live_server() -> Iterator[Callable[..., str]]:
     """``start(settings, compute=None)`` -> base URL of a server running in a thread; all stop at module end."""

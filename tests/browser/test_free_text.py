@@ -8,8 +8,8 @@ import json
 
 import pytest
 
-from tests.browser.conftest import PLAYED, PLAYING, axe_violations
-from tests.browser.test_walker_page import feedback_posts, new_page, url  # noqa: F401 (url: the walker server)
+from tests.browser.conftest import PLAYED, PLAYING, axe_violations, new_page
+from tests.browser.test_walker_page import feedback_posts, url  # noqa: F401 (url: the walker server)
 
 pytestmark = pytest.mark.slow
 INTERPRET = "**/api/domains/walker/interpret"

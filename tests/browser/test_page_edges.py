@@ -14,7 +14,7 @@ from rba.core.methods import get_method
 from rba.domains import get_domain
 from server.common.app_settings import Settings
 from server.runtime.catalog import Catalog
-from tests.browser.conftest import PLAYED, PLAYING
+from tests.browser.conftest import PLAYED, PLAYING, new_page
 
 REPO = Path(__file__).resolve().parents[2]
 OVERLAY_LOG = """() => {  // every change of the overlay's visibility, with the clip the video shows then
@@ -37,15 +37,6 @@ def url(live_server, tmp_path_factory) -> str:
     if ("global", "onehot") not in Catalog(settings).available("walker"):
         pytest.skip("walker artifacts are absent: run `rba build walker` and `rba train walker` first")
     return live_server(settings)
-
-
-def new_page(browser, url: str, width: int = 1280, height: int = 800, touch: bool = False):
-    page = browser.new_page(viewport={"width": width, "height": height}, has_touch=touch, is_mobile=touch)
-    errors: list[str] = []
-    page.on("pageerror", lambda e: errors.append(str(e)))
-    page.goto(url)
-    page.wait_for_function("() => document.body.dataset.state === 'idle'")
-    return page, errors
 
 
 def start(page) -> str:

@@ -14,7 +14,7 @@ import pytest
 from rba.data.export_zip import read_export
 from server.common.app_settings import Settings
 from server.runtime.catalog import Catalog
-from tests.browser.conftest import PLAYED, PLAYING, axe_violations
+from tests.browser.conftest import PLAYED, PLAYING, axe_violations, new_page
 
 REPO = Path(__file__).resolve().parents[2]
 WATCH = """() => {  // what a person saw while waiting: overlay texts, and (dimmed?, clip shown) pairs
@@ -38,15 +38,6 @@ def url(live_server, tmp_path_factory) -> str:
         pytest.skip("walker artifacts are absent: run `rba build walker` and `rba train walker` first "
                     f"(looked for {REPO / 'data' / 'walker'}/serve.* and {REPO / 'models' / 'walker'}/*-onehot.*)")
     return live_server(settings)
-
-
-def new_page(browser, url: str, width: int = 1280, height: int = 800, touch: bool = False):
-    page = browser.new_page(viewport={"width": width, "height": height}, has_touch=touch, is_mobile=touch)
-    errors: list[str] = []
-    page.on("pageerror", lambda e: errors.append(str(e)))
-    page.goto(url)
-    page.wait_for_function("() => document.body.dataset.state === 'idle'")
-    return page, errors
 
 
 def start(page) -> str:
