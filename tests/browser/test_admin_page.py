@@ -14,6 +14,7 @@ from urllib.parse import urlparse
 import httpx
 import numpy as np
 import pytest
+from playwright.sync_api import expect
 from sqlalchemy import create_engine
 from sqlmodel import Session
 
@@ -364,9 +365,9 @@ def test_the_upload_form_explains_the_format_and_lists_every_problem(url, page, 
 
 def test_presets_are_described_with_their_typical_duration(url, page):
     unlock(page, url)
+    # The presets' descriptions arrive after the unlock: expect() waits for them.
     page.select_option("#preset", "tiny")
-    about = page.locator("#preset-about").inner_text()
-    assert about.startswith("tiny: a smoke run") and "on 2 CPU cores" in about, about
+    expect(page.locator("#preset-about")).to_have_text(re.compile(r"^tiny: a smoke run.*on 2 CPU cores"))
     page.select_option("#preset", "default")
-    assert "the shipped models' size" in page.locator("#preset-about").inner_text()
+    expect(page.locator("#preset-about")).to_contain_text("the shipped models' size")
     assert page.locator("#preset").get_attribute("aria-describedby") == "preset-about"
