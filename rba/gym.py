@@ -13,6 +13,9 @@ as a wrapper, and the scripted skill with a profile's parameters as a policy.
 * :class:`ExportedReward`: reward = the export's rθ(s | condition) on each recorded state (0 between them:
   the models were trained on those), so an episode's return is Σ_t rθ(s_t | v*) over the rollout's states.
 * :func:`skill_policy`: ``policy(obs) -> action``; :func:`run_policy` runs it and returns the recorded states.
+* :func:`run_episode`: any policy's :class:`Episode`, whose ``proxies()`` are the attributes it reached, measured
+  from its observations (``Domain.observed_proxies``: the walker and the lane change): how close a policy trained on
+  an export's reward comes to the profile (``examples/sb3_policy/``).
 
 Domains without a step interface (``Domain.simulator`` raises) get no environment: the raw views and
 ``lane_change_image``, whose states are not what the skill's policy reads (each domain module says why).
@@ -20,6 +23,8 @@ Domains without a step interface (``Domain.simulator`` raises) get no environmen
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -120,20 +125,47 @@ def skill_policy(profile: Profile | Export | str | Path) -> SkillPolicy:
     return get_domain(p.domain).skill_policy(p.params, p.seed)
 
 
+@dataclass(frozen=True)
+class Episode:
+    """One episode of a policy in a domain's env: what it saw, and what it did to the attributes."""
+
+    domain: Domain
+    observations: np.ndarray  # float64[N, state_dim]: every step's, the reset's first
+    recorded: np.ndarray  # bool[N]: which observations are states (``info["recorded"]``)
+    rewards: np.ndarray  # float64[N - 1]: the env's reward per step (the export's with ``ExportedReward``)
+
+    @property
+    def states(self) -> np.ndarray:
+        """The recorded observations, float64[T, state_dim]: what the models see (a rollout's ``states``)."""
+        return self.observations[self.recorded]
+
+    def proxies(self) -> dict[str, float]:
+        """The attributes this episode reached, measured from its observations (``Domain.observed_proxies``)."""
+        return self.domain.observed_proxies(self.observations)
+
+
+def run_episode(env: gym.Env, policy: Callable[[np.ndarray], np.ndarray], seed: int, params: dict[str, float],
+                max_steps: int | None = None) -> Episode:
+    """Run ``policy`` (any ``obs -> action``; a :class:`SkillPolicy` stops when ``done``) in ``env`` from the skill's
+    start until it is done, the episode ends or it took ``max_steps`` actions."""
+    obs, info = env.reset(seed=seed, options={"params": params})
+    observations, recorded, rewards, ended = [], [], [], False
+    while True:  # rba.domains.base.run_skill's loop, over the env: the policy sees the last observation too
+        observations.append(obs)
+        recorded.append(bool(info["recorded"]))
+        action = policy(obs)
+        if getattr(policy, "done", False) or ended or len(rewards) == max_steps:
+            break
+        obs, reward, terminated, truncated, info = env.step(action)
+        rewards.append(float(reward))
+        ended = terminated or truncated
+    return Episode(env.unwrapped.domain, np.array(observations), np.array(recorded), np.array(rewards))
+
+
 def run_policy(env: gym.Env, policy: SkillPolicy, seed: int, params: dict[str, float]) -> np.ndarray:
     """Run ``policy`` in ``env`` from the skill's start until the skill is done or the episode ends; the recorded
     observations, float64[T, state_dim] (the rollout's states)."""
-    obs, info = env.reset(seed=seed, options={"params": params})
-    states, ended = [], False
-    while True:  # rba.domains.base.run_skill's loop, over the env: the policy sees the last observation too
-        if info["recorded"]:
-            states.append(obs)
-        action = policy(obs)
-        if policy.done or ended:
-            break
-        obs, _, terminated, truncated, info = env.step(action)
-        ended = terminated or truncated
-    return np.array(states)
+    return run_episode(env, policy, seed, params).states
 
 
 def register_envs() -> list[str]:

@@ -10,7 +10,7 @@ from gymnasium.utils.env_checker import check_env
 import rba.gym
 from rba.data.export_zip import ExportError
 from rba.domains import domain_names, get_domain
-from rba.gym import ExportedReward, SkillEnv, env_id, has_simulator, run_policy, skill_policy
+from rba.gym import ExportedReward, SkillEnv, env_id, has_simulator, run_episode, run_policy, skill_policy
 
 rba.gym.register_envs()  # the tests' toy domain was registered after rba.gym may have been imported
 ENV_DOMAINS = [name for name in domain_names() if has_simulator(name)]  # the toy among them
@@ -42,6 +42,28 @@ def test_skill_policy_reproduces_the_rollout(domain):
     assert set(measured) == set(rollout.proxies)
     for name, value in rollout.proxies.items():
         assert measured[name] == pytest.approx(value, rel=1e-9, abs=1e-12), name
+
+
+@pytest.mark.parametrize("domain", ["walker", "lane_change", "toy"])
+def test_an_episode_measures_what_its_policy_did(domain):
+    """The skill's episode measures as its rollout (the toy's through its sensor noise); a policy that holds still
+    measures otherwise."""
+    d, seed = get_domain(domain), 5
+    params = d.sample_params(np.random.default_rng(seed))
+    env = gym.make(env_id(domain))
+    skill = run_episode(env, d.skill_policy(params, seed), seed, params)
+    proxies, truth = skill.proxies(), d.rollout(params, seed).proxies
+    tolerance = 0.05 if domain == "toy" else 1e-9
+    assert proxies == {k: pytest.approx(v, abs=tolerance) for k, v in truth.items()}
+    still = run_episode(env, lambda obs: np.zeros(env.action_space.shape), seed, params, max_steps=len(skill.rewards))
+    assert len(still.observations) == len(skill.observations)
+    assert any(abs(still.proxies()[k] - v) > 10 * tolerance for k, v in truth.items())
+
+
+@pytest.mark.parametrize("domain", ["walker_raw", "lane_change_image", "manipulator"])
+def test_domains_that_measure_only_their_skill_say_so(domain):
+    with pytest.raises(NotImplementedError, match="measures its attributes only through its scripted skill"):
+        get_domain(domain).observed_proxies(np.zeros((200, get_domain(domain).state_dim)))
 
 
 def test_params_that_are_not_the_domains_are_refused():

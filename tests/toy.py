@@ -66,6 +66,11 @@ class Toy(Domain):
     def skill_policy(self, params: dict[str, float], seed: int) -> SkillPolicy:
         return ToyPolicy(params)
 
+    def observed_proxies(self, observations: np.ndarray) -> dict[str, float]:
+        """The amplitude and pace the stepped dot showed: their means over its states (with the sensor noise)."""
+        shown = np.asarray(observations, dtype=np.float64)[1:]  # the reset's observation is the dot at rest
+        return {"amplitude": float(shown[:, 0].mean()), "pace": float(shown[:, 1].mean())}
+
     def render(self, rollout: Rollout, width: int, height: int, frames: slice = slice(None)):
         for (x,) in rollout.replay[frames]:
             frame = np.full((height, width, 3), 255, np.uint8)

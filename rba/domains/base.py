@@ -285,6 +285,13 @@ class Domain(ABC):
         episode's, for the skill's own randomness)."""
         raise NotImplementedError(f"domain {self.name!r} has no step interface for rba.gym yet")
 
+    def observed_proxies(self, observations: np.ndarray) -> dict[str, float]:
+        """The attributes' proxies of an episode of *any* policy in ``simulator()``, from its observations alone
+        (float64[N, state_dim]: every step's, the reset's first): what a policy trained on an exported reward
+        reached (``rba.gym.Episode.proxies``). The skill's own episode measures as its rollout; domains that
+        measure only through their skill raise."""
+        raise NotImplementedError(f"domain {self.name!r} measures its attributes only through its scripted skill")
+
     def param_space(self) -> ParamSpace:
         """The skill's parameter space (bounds, what is fixed): what ``rba.generate.cma`` may search."""
         if self.param_ranges:

@@ -281,6 +281,15 @@ class LaneChange(Domain):
     def skill_policy(self, params: dict[str, float], seed: int) -> SkillPolicy:
         return LaneChangePolicy(params, self._env().unwrapped.road.network)
 
+    def observed_proxies(self, observations: np.ndarray) -> dict[str, float]:
+        """The peak yaw rate over the observed headings and the gap when the change is asked for, as
+        :class:`LaneChangePolicy` measures them (whoever steers)."""
+        obs = np.asarray(observations, dtype=np.float64)
+        if len(obs) <= CHANGE_STEP:
+            raise ValueError(f"a lane change is measured from its first {CHANGE_STEP + 1} observations (the gap at "
+                             f"{CHANGE_AT:g} s); got {len(obs)}")
+        return lane_change_proxies(obs[:, EGO_HEADING].tolist(), float(-obs[CHANGE_STEP, FOLLOWER_DX] - CAR_LENGTH))
+
 
 class LaneChangeRaw(LaneChange):
     """Lane change's raw view (``--states raw``): each 5 Hz state is both cars' x, y, vx, vy and heading as
@@ -293,4 +302,5 @@ class LaneChangeRaw(LaneChange):
     name = "lane_change_raw"
     raw_states = True
     state_dim = DECIDE_EVERY * 10
-    simulator, skill_policy = Domain.simulator, Domain.skill_policy  # no env: see the module docstring
+    # no env: see the module docstring
+    simulator, skill_policy, observed_proxies = Domain.simulator, Domain.skill_policy, Domain.observed_proxies

@@ -34,7 +34,8 @@ class LaneChangeImage(LaneChange):
     state_encoder = ("vae", "frames")
     frame_view = VIEW
     serve_size = 2400  # an image rollout costs ~6x a kinematic one (79 vs 14 ms, `rba build`); 2,400 reach 97.5 %
-    simulator, skill_policy = Domain.simulator, Domain.skill_policy  # no env: see the module docstring
+    # no env: see the module docstring
+    simulator, skill_policy, observed_proxies = Domain.simulator, Domain.skill_policy, Domain.observed_proxies
 
     def __init__(self) -> None:
         super().__init__()

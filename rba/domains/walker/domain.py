@@ -26,7 +26,15 @@ from rba.domains.base import (
 )
 from rba.domains.mujoco_render import Camera, Sky, ThreadRenderers
 from rba.domains.walker.gait import PARAM_RANGES, GaitPlan
-from rba.domains.walker.measure import FRAME_RATE, RAW_EVERY, STATE_EVERY, STATE_FEATURES, measure
+from rba.domains.walker.measure import (
+    FRAME_RATE,
+    RAW_EVERY,
+    STATE_EVERY,
+    STATE_FEATURES,
+    measure,
+    observed_touchdowns,
+    touchdown_proxies,
+)
 from rba.domains.walker.physics import WalkerPhysics
 from rba.domains.walker.sim import GaitPolicy, WalkerSim, WalkerSkillPolicy
 
@@ -114,6 +122,10 @@ class Walker(Domain):
     def skill_policy(self, params: dict[str, float], seed: int) -> SkillPolicy:
         return WalkerSkillPolicy(params)
 
+    def observed_proxies(self, observations: np.ndarray) -> dict[str, float]:
+        """The touchdowns' proxies (``touchdown_proxies``) of the touchdowns seen in the observations."""
+        return touchdown_proxies(observed_touchdowns(observations, self.physics().timestep()))
+
 
 class WalkerRaw(Walker):
     """The walker's raw view (``--states raw``): each 10 Hz state is the MuJoCo ``qpos`` and ``qvel`` (9 + 9: root
@@ -130,7 +142,7 @@ class WalkerRaw(Walker):
     state_dim = (STATE_EVERY // RAW_EVERY) * 2 * 9
     generate_seconds = Domain.generate_seconds  # decision 0005 measured the feature view; this one keeps the default
     # no rba.gym env: the gait's policy reads the feature view's observations (foot positions and speeds)
-    simulator, skill_policy = Domain.simulator, Domain.skill_policy
+    simulator, skill_policy, observed_proxies = Domain.simulator, Domain.skill_policy, Domain.observed_proxies
 
 
 CAMERA_DISTANCE = 3.3  # m from the torso, side view

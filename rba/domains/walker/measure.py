@@ -20,12 +20,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rba.domains.walker.gait import N_STEPS, GaitPlan, Touchdown
+from rba.domains.walker.gait import LANDING_WINDOW, N_STEPS, GaitPlan, Touchdown
 from rba.domains.walker.physics import WalkerPhysics
 
 # ---------------------------------------------------------------- fall / success criteria
 MIN_TORSO_HEIGHT = 0.7  # torso centre height (m)
 MAX_PITCH = 1.0  # |torso pitch| (rad)
+LIFT = 0.01  # m of clearance a foot rises above before its next floor contact is a touchdown (observed_touchdowns)
 
 # ---------------------------------------------------------------- sampling & recording
 STATE_EVERY = 40  # physics steps per state sample (10 Hz: foot speed features carry the fast part)
@@ -133,6 +134,28 @@ def measure(recording: Recording, touchdowns: list[Touchdown], plan: GaitPlan, w
     if fallen:
         info["fall_reason_" + recording.fall_reason.replace(" ", "_").replace("/", "_")] = 1.0
     return Measurement(touchdown_proxies(touchdowns), steps_taken and not fallen, info)
+
+
+def observed_touchdowns(observations: np.ndarray, dt: float) -> list[Touchdown]:
+    """The touchdowns of any policy's episode from its per-physics-step observations (``STATE_FEATURES``): a foot
+    lifted above ``LIFT`` whose clearance then drops below 0, measured as ``GaitController`` measures its own (feet
+    distance then, the foot's peak speed over ``LANDING_WINDOW``); never ``forced``."""
+    obs = np.asarray(observations, dtype=np.float64)
+    f = {name: i for i, name in enumerate(STATE_FEATURES)}
+    clearance = obs[:, [f["right_foot_clearance"], f["left_foot_clearance"]]]
+    speed = np.hypot(obs[:, [f["right_foot_vx"], f["left_foot_vx"]]], obs[:, [f["right_foot_vz"], f["left_foot_vz"]]])
+    distance = np.abs(obs[:, f["right_foot_dx"]] - obs[:, f["left_foot_dx"]])
+    window = round(LANDING_WINDOW / dt)
+    lifted, touchdowns = [False, False], []
+    for k, row in enumerate(clearance):
+        for foot in (0, 1):
+            if row[foot] > LIFT:
+                lifted[foot] = True
+            elif row[foot] < 0.0 and lifted[foot]:
+                lifted[foot] = False
+                peak = float(speed[max(0, k - window + 1): k + 1, foot].max())
+                touchdowns.append(Touchdown(k * dt, float(distance[k]), peak, False))
+    return touchdowns
 
 
 def touchdown_proxies(touchdowns: list[Touchdown]) -> dict[str, float]:
