@@ -37,6 +37,9 @@ class LibrarySettings(BaseSettings):
 
     train_threads: int = Field(default=2, ge=1, le=64, description="torch threads while training ζσ, rθ and the "
                                "VAE; 1 lets two trainings share 2 cores side by side")
+    wandb_project: str | None = Field(default=None, description="also log training curves to this Weights & Biases "
+                                      "project (needs the wandb extra; WANDB_MODE, WANDB_API_KEY and WANDB_DIR "
+                                      "apply); unset: TensorBoard event files only")
 
     @field_validator("data_dir", "models_dir", "cache_dir")
     @classmethod

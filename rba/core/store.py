@@ -11,6 +11,7 @@ Layout (all absolute)::
     <data>/uploads/<domain>/<dataset>.{npz,json} uploaded datasets (.<dataset>.lock while one is stored)
     <data>/rba.db                                the app's default SQLite database
     <models>/<domain>/<kind>-<rep>.{pt,json}     shipped models (weights + card)
+    <models>/<domain>/curves/<kind>-<rep>/       their training curves (TensorBoard event files)
     <models>/versions/<version>/<domain>/...     models a retraining job published
     <models>/versions/.tmp-<job>/                what a running job writes (renamed when it succeeds)
     <data>/jobs/<job>.json                       which process runs a job (a restart kills an orphan)
@@ -79,6 +80,14 @@ class ModelFiles:
 
     def card(self, domain: str, kind: str, rep: str) -> Path:
         return self.weights(domain, kind, rep).with_suffix(".json")
+
+    def curves(self, domain: str) -> Path:
+        """The training curves of the domain's models (TensorBoard's ``--logdir``): one folder per model."""
+        return self.folder(domain) / "curves"
+
+    def curve(self, domain: str, kind: str, rep: str) -> Path:
+        """The TensorBoard event files of the training that made ``<kind>-<rep>``."""
+        return self.curves(domain) / f"{kind}-{rep}"
 
     def complete(self, domain: str, kind: str, rep: str) -> bool:
         """Weights and card exist (the card is written last, so this means a whole artifact)."""

@@ -6,6 +6,7 @@ import random
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 import torch
@@ -117,15 +118,27 @@ def torch_threads(n: int) -> Iterator[None]:
 Progress = Callable[[int, int, float], None]  # (step done, total steps, loss)
 
 
+class Curve(Protocol):
+    """Where a training run's curve goes (``rba.learn.curves.CurveWriter``): told every step's loss."""
+
+    def record(self, step: int, total: int, loss: float) -> None: ...
+
+
+CurveOf = Callable[[nn.Module], Curve]  # the model being fitted -> its curve (which measures it now and then)
+
+
 class StepLoop:
-    """The tail every training loop shares: one optimiser (and schedule) step per loss, progress reports.
+    """The tail every training loop shares: one optimiser (and schedule) step per loss, progress reports, the
+    training curve.
 
     ``loss`` is the last step's loss value (nan before the first), which trainers report as final.
     """
 
     def __init__(self, opt: torch.optim.Optimizer, steps: int, progress: Progress | None = None,
-                 sched: torch.optim.lr_scheduler.LRScheduler | None = None, report_every: int = 50) -> None:
+                 sched: torch.optim.lr_scheduler.LRScheduler | None = None, report_every: int = 50,
+                 curve: Curve | None = None) -> None:
         self.opt, self.steps, self.progress, self.sched, self.report_every = opt, steps, progress, sched, report_every
+        self.curve = curve
         self.loss = float("nan")
 
     def step(self, step: int, loss: torch.Tensor) -> None:
@@ -136,6 +149,8 @@ class StepLoop:
         if self.sched is not None:
             self.sched.step()
         self.loss = loss.item()
+        if self.curve is not None:
+            self.curve.record(step + 1, self.steps, self.loss)
         if self.progress and (step % self.report_every == 0 or step == self.steps - 1):
             self.progress(step + 1, self.steps, self.loss)
 

@@ -21,6 +21,7 @@ from torch import nn
 
 from rba.core.settings import LibrarySettings
 from rba.learn.common import (
+    CurveOf,
     Normalizer,
     Progress,
     Ragged,
@@ -137,8 +138,9 @@ def focus_weights(nearer: torch.Tensor, focus: float | None) -> torch.Tensor | N
 
 
 def train_global_reward(data: Ragged, zeta: np.ndarray, cfg: GlobalRewardConfig,
-                        progress: Progress | None = None) -> tuple[GlobalReward, dict]:
-    """Fit rθ on trajectories ``data`` whose ζσ scores are ``zeta`` (float[N, k]).
+                        progress: Progress | None = None, curve: CurveOf | None = None) -> tuple[GlobalReward, dict]:
+    """Fit rθ on trajectories ``data`` whose ζσ scores are ``zeta`` (float[N, k]) (``curve``: where its training
+    curve goes).
 
     Each step takes a batch of trajectories and a batch of targets and uses every
     (target, pair of trajectories) whose distances to the target differ by more than ξ.
@@ -152,7 +154,8 @@ def train_global_reward(data: Ragged, zeta: np.ndarray, cfg: GlobalRewardConfig,
     v_all = model.zeta_norm(torch.as_tensor(zeta, dtype=torch.float32))
     box = v_all.min(0).values, v_all.max(0).values
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    loop = StepLoop(opt, cfg.steps, progress, torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(cfg.steps, 1)))
+    loop = StepLoop(opt, cfg.steps, progress, torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(cfg.steps, 1)),
+                    curve=curve(model) if curve else None)
     m = min(cfg.batch_trajectories, n)
     for step in range(cfg.steps):
         idx = torch.randperm(n, generator=gen)[:m]

@@ -18,6 +18,7 @@ from torch.nn.utils.rnn import pack_padded_sequence
 
 from rba.data.labels import LocalPairs
 from rba.learn.common import (
+    CurveOf,
     Normalizer,
     Progress,
     Ragged,
@@ -168,23 +169,24 @@ def training_pool(pairs: LocalPairs, reverse: bool) -> LocalPairs:
 
 
 def train_local_reward(data: Ragged, pairs: LocalPairs, attr_embed: np.ndarray, cfg: LocalRewardConfig,
-                       progress: Progress | None = None) -> tuple[LocalReward, dict]:
-    """Fit rθ on labelled pairs of ``data`` rows, with negatives drawn from all of ``data``."""
+                       progress: Progress | None = None, curve: CurveOf | None = None) -> tuple[LocalReward, dict]:
+    """Fit rθ on labelled pairs of ``data`` rows, with negatives drawn from all of ``data`` (``curve``: where its
+    training curve goes)."""
     if len(pairs) == 0:
         raise ValueError("no local-change pairs to train on; widen the change band or label more clips")
     with torch_threads(cfg.threads):
-        return _train(data, pairs, attr_embed, cfg, progress)
+        return _train(data, pairs, attr_embed, cfg, progress, curve)
 
 
 def _train(data: Ragged, pairs: LocalPairs, attr_embed: np.ndarray, cfg: LocalRewardConfig,
-           progress: Progress | None) -> tuple[LocalReward, dict]:
+           progress: Progress | None, curve: CurveOf | None) -> tuple[LocalReward, dict]:
     gen = seed_everything(cfg.seed)
     pool = training_pool(pairs, cfg.reverse_pairs)
     model = LocalReward(data.states.shape[1], torch.as_tensor(attr_embed), cfg.hidden, cfg.layers,
                         cfg.lstm_hidden, cfg.lstm_layers, cfg.anchor_stride)
     model.norm.fit(data.states.numpy())
     loop = StepLoop(torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay), cfg.steps,
-                    progress)
+                    progress, curve=curve(model) if curve else None)
     labelled = tuple(torch.as_tensor(x) for x in (pool.anchor, pool.target, pool.attr, pool.direction))
     model.train()
     for step in range(cfg.steps):

@@ -25,6 +25,7 @@ from rba.core.settings import LibrarySettings
 from rba.data.labels import AttributeLabels, GlobalLabelConfig
 from rba.data.library import SkillLibrary
 from rba.learn.common import (
+    CurveOf,
     Normalizer,
     Progress,
     Ragged,
@@ -152,8 +153,9 @@ class AttributeRanker(nn.Module):
 
 
 def train_ranker(data: Ragged, labels: list[AttributeLabels], attr_embed: np.ndarray, cfg: RankerConfig,
-                 progress: Progress | None = None) -> tuple[AttributeRanker, dict]:
-    """Fit ζσ on ``labels`` (one entry per row of ``attr_embed``); returns the model and stats.
+                 progress: Progress | None = None, curve: CurveOf | None = None) -> tuple[AttributeRanker, dict]:
+    """Fit ζσ on ``labels`` (one entry per row of ``attr_embed``); returns the model and stats (``curve``: where
+    its training curve goes).
 
     Each step scores a batch of each attribute's labelled clips and takes the loss over every
     labelled pair in the batch: the same compute as a few pairs, many times the signal.
@@ -168,7 +170,8 @@ def train_ranker(data: Ragged, labels: list[AttributeLabels], attr_embed: np.nda
     used = torch.as_tensor(np.unique(np.concatenate([lab.clips for lab in labels])))
     model.norm.fit(data.select(used)[0].numpy())
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    loop = StepLoop(opt, cfg.steps, progress, torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(cfg.steps, 1)))
+    loop = StepLoop(opt, cfg.steps, progress, torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(cfg.steps, 1)),
+                    curve=curve(model) if curve else None)
     clips = [torch.as_tensor(lab.clips) for lab in labels]
     more = [torch.as_tensor(lab.more) for lab in labels]
     for step in range(cfg.steps):

@@ -11,7 +11,7 @@ import time
 from collections.abc import Callable, Collection, Iterable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import numpy as np
 import torch
@@ -34,7 +34,8 @@ from rba.data.labels import (
 )
 from rba.data.library import SkillLibrary
 from rba.domains import Domain, get_domain
-from rba.learn.common import Progress, Ragged
+from rba.learn.common import CurveOf, Progress, Ragged
+from rba.learn.curves import Measure, curve_of
 from rba.learn.embed import attribute_embeddings, check_rep
 from rba.learn.global_reward import GlobalRewardConfig, LibraryScorer, train_global_reward
 from rba.learn.local_reward import (
@@ -377,10 +378,62 @@ def _ranker_metrics(ranker: AttributeRanker, inputs: _Inputs, pool: _Pool, held_
     metrics = ranking_metrics(val_zeta[:, :k], inputs.val.proxies, inputs.domain.attribute_names)
     pool_zeta = ranker.score(pool.data)
     for name, pairs in held_out.items():
-        a = inputs.names.index(name)
-        acc = float(np.mean(pool_zeta[pairs[:, 0], a] > pool_zeta[pairs[:, 1], a])) if len(pairs) else None
-        metrics[name] = {"held_out_pair_accuracy": acc, "held_out_pairs": len(pairs)}
+        metrics[name] = {"held_out_pair_accuracy": _pair_accuracy(pool_zeta[:, inputs.names.index(name)], pairs),
+                         "held_out_pairs": len(pairs)}
     return metrics, val_zeta, pool_zeta
+
+
+def _pair_accuracy(zeta: np.ndarray, pairs: np.ndarray) -> float | None:
+    """The share of (more, less) ``pairs`` that ``zeta`` orders so; None without pairs."""
+    return float(np.mean(zeta[pairs[:, 0]] > zeta[pairs[:, 1]])) if len(pairs) else None
+
+
+HELD_OUT_SAMPLE = 32  # val targets (rθ) or val pairs (RBA-Local) a training curve's held-out point measures
+
+
+def _curve(models_root: Path | None, inputs: _Inputs, kind: str, rep: str, measure: Measure, cfg: Any) -> CurveOf:
+    """Where the training of ``<kind>-<rep>`` writes its curve: beside the model (``ModelFiles.curve``)."""
+    return curve_of(model_files(models_root).curve(inputs.name, kind, rep), f"{inputs.name}/{kind}-{rep}", measure,
+                    asdict(cfg))
+
+
+def _ranker_measure(inputs: _Inputs, pool: _Pool, held_out: dict[str, np.ndarray]) -> Measure:
+    """ζσ's curve's held-out numbers: the card's pairwise accuracy on val by proxy per attribute, and on the
+    held-out pairs of new attributes (the whole pool is scored only when there are some)."""
+    k = len(inputs.domain.attributes)
+
+    def measure(ranker: AttributeRanker) -> dict[str, float]:
+        val = ranking_metrics(ranker.score_library(inputs.val)[:, :k], inputs.val.proxies,
+                              inputs.domain.attribute_names)
+        out = {f"pairwise_accuracy/{name}": m["pairwise_accuracy"] for name, m in val.items()}
+        pool_zeta = ranker.score(pool.data) if any(len(p) for p in held_out.values()) else None
+        for name, pairs in held_out.items():
+            if pool_zeta is not None and len(pairs):
+                out[f"held_out_pair_accuracy/{name}"] = _pair_accuracy(pool_zeta[:, inputs.names.index(name)], pairs)
+        return out
+    return measure
+
+
+def _global_measure(inputs: _Inputs, val_zeta: np.ndarray) -> Measure:
+    """rθ's curve's held-out number: the card's argmax within ε, on the first ``HELD_OUT_SAMPLE`` val targets."""
+    n = min(HELD_OUT_SAMPLE, len(inputs.val))
+    serve = Ragged.from_numpy(inputs.serve.states, inputs.serve.state_offsets)
+    eps = inputs.domain.epsilons(inputs.serve.proxies)
+    return lambda reward: {"argmax_within_epsilon": argmax_match_rate(
+        LibraryScorer(reward, serve), inputs.serve, val_zeta[:n], inputs.val.proxies[:n], eps)}
+
+
+def _local_measure(inputs: _Inputs, cfg: LocalTrainConfig) -> Measure:
+    """RBA-Local rθ's curve's held-out numbers: the card's ranking of val pairs, on ``HELD_OUT_SAMPLE`` of them."""
+    val = inputs.val
+    pairs = local_pairs(val.proxies, inputs.domain.epsilons(inputs.serve.proxies), inputs.domain.attribute_names,
+                        cfg.labels, max_pairs=min(HELD_OUT_SAMPLE, len(val)))
+    data = Ragged.from_numpy(val.states, val.state_offsets)
+
+    def measure(model: LocalReward) -> dict[str, float]:
+        ranking = pair_metrics(LocalLibraryScorer(model, data), pairs)
+        return {k: ranking[k] for k in ("target_vs_negative", "target_vs_anchor")}
+    return measure
 
 
 def train_global(domain_name: str, rep: str, cfg: GlobalTrainConfig | None = None,
@@ -398,8 +451,10 @@ def train_global(domain_name: str, rep: str, cfg: GlobalTrainConfig | None = Non
     inputs = _Inputs.load(domain_name, rep, data_root, declared.values())
     pool = _Pool(inputs.train, inputs.serve, sources)
     labels, held_out, how = _global_labels(inputs, pool, sources, cfg.ranker)
-    (ranker, rstats), ranker_seconds = _timed(train_ranker, pool.data, labels, inputs.embed, cfg.ranker,
-                                              progress=_progress(stage_name("ranker", rep), on_progress))
+    (ranker, rstats), ranker_seconds = _timed(
+        train_ranker, pool.data, labels, inputs.embed, cfg.ranker,
+        progress=_progress(stage_name("ranker", rep), on_progress),
+        curve=_curve(models_root, inputs, "ranker", rep, _ranker_measure(inputs, pool, held_out), cfg.ranker))
     rmetrics, val_zeta, pool_zeta = _ranker_metrics(ranker, inputs, pool, held_out)
     log.info("ranker[%s] held out: %s", rep, rmetrics)
     common = inputs.card(rep)
@@ -414,8 +469,10 @@ def train_global(domain_name: str, rep: str, cfg: GlobalTrainConfig | None = Non
                         "tuning": tuning_record("ranker"),
                         "held_out": {"split": "val", "rollouts": len(inputs.val), **rmetrics}}, models_root)
     # rθ learns from ζσ labels only: every pooled trajectory (train, serve, uploaded), no proxies.
-    (reward, gstats), reward_seconds = _timed(train_global_reward, pool.data, pool_zeta, cfg.reward,
-                                              progress=_progress(stage_name("global_reward", rep), on_progress))
+    (reward, gstats), reward_seconds = _timed(
+        train_global_reward, pool.data, pool_zeta, cfg.reward,
+        progress=_progress(stage_name("global_reward", rep), on_progress),
+        curve=_curve(models_root, inputs, "global_reward", rep, _global_measure(inputs, val_zeta), cfg.reward))
     scorer = LibraryScorer(reward, Ragged.from_numpy(inputs.serve.states, inputs.serve.state_offsets))
     eps = {p: inputs.domain.epsilons(inputs.serve.proxies, p) for p in ("normal", "high")}
     match = {p: argmax_match_rate(scorer, inputs.serve, val_zeta, inputs.val.proxies, eps[p])
@@ -473,7 +530,9 @@ def train_local(domain_name: str, rep: str, cfg: LocalTrainConfig | None = None,
         pairs, data = pairs.concat(pool.local_pairs(sources, inputs.names)), pool.data
     log.info("local pairs: %s", pair_counts(pairs, inputs.names))
     (model, stats), seconds = _timed(train_local_reward, data, pairs, inputs.embed, cfg.reward,
-                                     progress=_progress(stage_name("local_reward", rep), on_progress))
+                                     progress=_progress(stage_name("local_reward", rep), on_progress),
+                                     curve=_curve(models_root, inputs, "local_reward", rep,
+                                                  _local_measure(inputs, cfg), cfg.reward))
     ranking, edits = _local_metrics(model, inputs, cfg, stats["near_copy_radius"])
     log.info("local_reward[%s] on val: %s; argmax over serve: %s", rep, ranking, edits)
     r = cfg.reward
