@@ -1,14 +1,18 @@
-"""One contract test over every registered domain (dm_control suite style)."""
+"""One contract test over every registered domain (dm_control suite style), and the example plugin domain
+(``examples/halfcheetah``) where it is not installed."""
 
 import numpy as np
 import pytest
 
-from rba.domains import domain_names, get_domain
+from rba.domains import domain_names, get_domain, load_domain
+from tests.example_domain import NAME, example_target
+
+EXAMPLE = [] if NAME in domain_names() else [NAME]  # installed: registered through its entry point
 
 
-@pytest.fixture(params=domain_names())
+@pytest.fixture(params=[*domain_names(), *EXAMPLE])
 def domain(request):
-    return get_domain(request.param)
+    return load_domain(example_target()) if request.param in EXAMPLE else get_domain(request.param)
 
 
 def test_attributes_are_well_formed(domain):
