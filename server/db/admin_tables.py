@@ -313,6 +313,30 @@ class PresetPublic(BaseModel):
                                                "by benchmarks/training_presets.py)")
 
 
+class SeriesPublic(BaseModel):
+    """One measure of a model's training curve against the gradient step."""
+
+    tag: str = Field(description="'loss', or 'held_out/<measure>' (on val, as the model card's, measured on a fixed "
+                                 "part of val while training runs)")
+    steps: list[int]
+    values: list[float | None] = Field(description="one per step; null where the value was not a number")
+
+
+class ModelCurvePublic(BaseModel):
+    model: str = Field(description="the model file the curve belongs to: <kind>-<rep>")
+    series: list[SeriesPublic]
+
+
+class CurvesPublic(BaseModel):
+    """A job's training curves: GET /api/admin/jobs/{id}/curves (partial while the job runs)."""
+
+    job_id: str
+    state: JobState
+    models: list[ModelCurvePublic] = Field(description=(
+        "each model the job fitted so far, in name order; empty before its first step, and for a failed or "
+        "cancelled job (nothing it made is kept)"))
+
+
 class DatasetUpload(BaseModel):
     """The form of POST /api/admin/datasets, for the OpenAPI document (the route parses the stream itself)."""
 

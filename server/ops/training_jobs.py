@@ -8,15 +8,28 @@ from __future__ import annotations
 
 import datetime as dt
 import logging
+import math
 from dataclasses import dataclass
 
 from fastapi import HTTPException
 from sqlmodel import Session, select
 
 from rba.core.methods import UnknownMethodError, get_method, trainable
+from rba.core.store import ModelFiles
+from rba.learn.curves import read_curves
 from rba.learn.training import about_preset, get_preset, plan_steps, stage_name
 from server.common.errors import conflict, invalid, not_found
-from server.db.admin_tables import FINISHED, JobPublic, JobState, PresetPublic, TrainCreate, TrainJob
+from server.db.admin_tables import (
+    FINISHED,
+    CurvesPublic,
+    JobPublic,
+    JobState,
+    ModelCurvePublic,
+    PresetPublic,
+    SeriesPublic,
+    TrainCreate,
+    TrainJob,
+)
 from server.db.engine import commit_or_conflict
 from server.db.tables import as_utc, utcnow
 from server.ops.label_admin import check_datasets
@@ -183,3 +196,19 @@ def cancel_job(svc: Services, db: Session, job_id: str) -> JobPublic:
     log.info("job %s (%s %s/%s) cancelled by an admin", job_id, job.domain, job.method, job.rep)
     db.refresh(job)
     return job_public(job)
+
+
+def job_curves(svc: Services, db: Session, job_id: str) -> CurvesPublic:
+    """The job's training curves, read from its event files: in the version it published, or in its staging folder
+    while it runs (the curves so far). A failed or cancelled job kept nothing, so it has none."""
+    job = load_job(db, job_id)
+    if job.version is not None:
+        folder = svc.store.models(job.version).curves(job.domain)
+    elif job.state in FINISHED:
+        folder = None
+    else:
+        folder = ModelFiles(svc.store.staging(job_id)).curves(job.domain)
+    models = [ModelCurvePublic(model=c.model, series=[
+        SeriesPublic(tag=s.tag, steps=s.steps, values=[v if math.isfinite(v) else None for v in s.values])
+        for s in c.series]) for c in (read_curves(folder) if folder is not None else [])]
+    return CurvesPublic(job_id=job.id, state=job.state, models=models)

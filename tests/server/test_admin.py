@@ -89,7 +89,7 @@ def test_admin_routes_need_the_token(admin, headers, status, message):
     for method, url in [("get", "/api/admin/datasets?domain=toy"), ("get", "/api/admin/jobs"),
                         ("get", "/api/admin/models?domain=toy"), ("get", "/api/admin/pairs?domain=toy"),
                         ("get", "/api/admin/labels?domain=toy"), ("post", "/api/admin/train"),
-                        ("post", "/api/admin/models/x/activate")]:
+                        ("post", "/api/admin/models/x/activate"), ("get", "/api/admin/jobs/x/curves")]:
         r = getattr(admin, method)(url, headers=headers)
         assert r.status_code == status, (url, r.text)
         assert message in r.json()["detail"]
@@ -349,6 +349,11 @@ def test_train_activate_and_sessions_keep_their_version(admin, settings, caplog)
     version = job["version"]
     assert (settings.models_dir / "versions" / version / "toy" / "ranker-onehot.json").exists()
     assert not list((settings.models_dir / "versions").glob(".tmp-*"))
+    curves = admin.get(f"/api/admin/jobs/{job_id}/curves", headers=AUTH).json()  # published with the version
+    ranker = {s["tag"]: s for s in next(m for m in curves["models"] if m["model"] == "ranker-onehot")["series"]}
+    assert ranker["loss"]["steps"][-1] == 200  # the tiny preset's ζσ steps
+    assert ranker["held_out/held_out_pair_accuracy/wobble"]["values"][-1] == pytest.approx(
+        job["held_out"]["ranker"]["wobble"]["held_out_pair_accuracy"], abs=1e-6)  # measured as its card's number
 
     r = admin.post(f"/api/admin/models/{version}/activate", params={"domain": "walker"}, headers=AUTH)
     assert r.status_code == 422  # another domain's version: refused, not activated for its own silently

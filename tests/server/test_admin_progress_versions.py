@@ -10,9 +10,12 @@ import shutil
 import time
 
 import pytest
+import torch
 from fastapi.testclient import TestClient
 from sqlmodel import Session
 
+from rba.core.store import ModelFiles, Store
+from rba.learn.curves import CurveWriter
 from server.db.admin_tables import ModelVersion, TrainJob
 from server.main import create_app
 from server.ops.training_jobs import job_plan
@@ -182,6 +185,37 @@ def _versions(admin) -> dict[str, dict]:
     r = admin.get("/api/admin/models", params={"domain": "toy"}, headers=AUTH)
     assert r.status_code == 200, r.text
     return {v["version"]: v for v in r.json()}
+
+
+def test_a_jobs_curves_while_it_runs_after_it_succeeds_and_when_it_failed(admin, settings):
+    """Read from the job's event files: its staging folder's while it runs, its version's once published."""
+    store = Store.from_settings(settings)
+    job_id = _job(admin, stage="ranker[onehot]")
+    url = f"/api/admin/jobs/{job_id}/curves"
+    assert admin.get(url, headers=AUTH).json() == {"job_id": job_id, "state": "running", "models": []}
+    writer = CurveWriter(ModelFiles(store.staging(job_id)).curve("toy", "ranker", "onehot"), "r", torch.nn.Linear(1, 1),
+                         lambda m: {"pairwise_accuracy/amplitude": 0.75})
+    for step in range(1, 11):  # the process is still writing
+        writer.record(step, 100, 1.0 / step)
+    r = admin.get(url, headers=AUTH)
+    assert r.status_code == 200, r.text
+    [model] = r.json()["models"]
+    assert model["model"] == "ranker-onehot"
+    loss, held = model["series"]
+    assert (loss["tag"], loss["steps"], held["tag"], held["steps"]) == (
+        "loss", [1, 5, 10], "held_out/pairwise_accuracy/amplitude", [10])
+    assert loss["values"] == pytest.approx([1.0, 0.2, 0.1]) and held["values"] == [0.75]
+    writer.record(100, 100, float("nan"))  # the last step (a nan loss is a null)
+    store.publish(job_id, "toy-20260101-000000-abcdef")
+    _set(admin, job_id, state="succeeded", busy_domain=None, version="toy-20260101-000000-abcdef")
+    loss, held = admin.get(url, headers=AUTH).json()["models"][0]["series"]
+    assert loss["steps"] == [1, 5, 10, 100] and loss["values"][-1] is None and held["steps"] == [10, 100]
+
+    failed = _job(admin)
+    _set(admin, failed, state="failed")  # its staging folder was discarded with what it made
+    assert admin.get(f"/api/admin/jobs/{failed}/curves", headers=AUTH).json()["models"] == []
+    r = admin.get("/api/admin/jobs/nope/curves", headers=AUTH)
+    assert r.status_code == 404 and "no training job 'nope'" in r.json()["detail"]
 
 
 def test_versions_show_what_they_replace_and_why_to_confirm(admin, settings, toy_roots):

@@ -9,7 +9,7 @@ from fastapi import APIRouter, Depends, Path
 from server.api.auth import ADMIN_ERRORS, require_admin
 from server.api.deps import DbDep, ServicesDep
 from server.common.errors import responses
-from server.db.admin_tables import JobPublic, PresetPublic, TrainCreate, VersionPublic
+from server.db.admin_tables import CurvesPublic, JobPublic, PresetPublic, TrainCreate, VersionPublic
 from server.db.tables import DomainName
 from server.ops import model_versions, training_jobs
 
@@ -36,6 +36,12 @@ def list_jobs(db: DbDep, domain: DomainName | None = None) -> list[JobPublic]:
             summary="A job: state, stage, step, loss, progress, time left, held-out numbers")
 def read_job(job_id: JobId, db: DbDep) -> JobPublic:
     return training_jobs.job_public(training_jobs.load_job(db, job_id))
+
+
+@router.get("/jobs/{job_id}/curves", response_model=CurvesPublic, responses=responses(404, said={404: "no such job"}),
+            summary="A job's training curves: each model's loss and held-out measures per step (so far, while it runs)")
+def read_curves(job_id: JobId, svc: ServicesDep, db: DbDep) -> CurvesPublic:
+    return training_jobs.job_curves(svc, db, job_id)
 
 
 @router.post("/jobs/{job_id}/cancel", response_model=JobPublic,
