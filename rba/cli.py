@@ -233,6 +233,8 @@ def cmd_cache(args) -> int:
 SERVER_ENTRY = "server.main:run"  # the web app, imported only by `rba serve`: the library never imports it
 # `rba export` reads the app's database with the app's settings
 EXPORT_ENTRY = "server.ops.session_export:export_to_file"
+SESSION_DATASET_ENTRY = "server.ops.dataset_export:session_to_dataset"  # `--format minari --session`
+LABELS_DATASET_ENTRY = "server.ops.dataset_export:labels_to_dataset"  # `--format minari --labels`
 
 
 def _server_function(entry: str):
@@ -248,12 +250,63 @@ def cmd_serve(args) -> int:
     return 0
 
 
+MINARI_USAGE = ("--format minari exports one of: --session ID (a session's clips), --domain D --split SPLIT (a "
+                "skill library), --labels --domain D (the admin page's labels), into --out DIR")
+
+
 def cmd_export(args) -> int:
-    """Write a satisfied session's export zip (``rba.data.export_zip``) from the app's database and files."""
+    """Write a satisfied session's export zip (``rba.data.export_zip``) from the app's database and files, or with
+    ``--format minari`` clips as a Minari dataset (``rba.data.minari_export``)."""
+    if args.format == "minari":
+        return _export_minari(args)
+    minari_only = [f"--{k}" for k in ("session", "domain", "split", "labels", "profile") if getattr(args, k)]
+    if minari_only or args.out_dir:
+        raise ValueError(f"{', '.join(minari_only or ['--out'])}: only with --format minari; the zip export is "
+                         "`rba export SESSION_ID OUT.zip`")
+    if not (args.session_id and args.out):
+        raise ValueError(f"the zip export is `rba export SESSION_ID OUT.zip`; {MINARI_USAGE}")
     profile = _server_function(EXPORT_ENTRY)(args.session_id, Path(args.out))
     reward = profile.reward["kind"] if profile.reward else f"none ({profile.reward_note})"
     print(f"wrote {args.out}: {profile.domain} {profile.rollout_id} (seed {profile.seed}), {profile.method}/"
           f"{profile.rep}, reward {reward}")
+    return 0
+
+
+def _export_minari(args) -> int:
+    from tqdm import tqdm
+
+    from rba.data.minari_export import check_domain, library_source, write_dataset
+
+    chosen = [k for k in ("session", "split", "labels") if getattr(args, k)]
+    if args.session_id or args.out:
+        raise ValueError(f"--format minari takes no positional arguments; {MINARI_USAGE}")
+    if len(chosen) != 1 or not args.out_dir:
+        raise ValueError(f"{MINARI_USAGE}; got {' '.join(f'--{k}' for k in chosen) or 'none of them'}"
+                         f"{'' if args.out_dir else ' and no --out'}")
+    if bool(args.domain) == bool(args.session):
+        raise ValueError("--session takes its domain from the session" if args.session else
+                         f"--{chosen[0]} needs --domain D")
+    if args.domain:
+        check_domain(args.domain)
+    out, profile = Path(args.out_dir), Path(args.profile) if args.profile else None
+    bars: list[tqdm] = []  # shown from the first clip on: a refused export prints its one line alone
+
+    def step(_done: int) -> None:
+        bars[:] = bars or [tqdm(unit="clip", desc="re-simulated")]
+        bars[0].update()
+
+    try:
+        if args.split:
+            written = write_dataset(out, library_source(args.domain, args.split), profile, step)
+        elif args.session:
+            written = _server_function(SESSION_DATASET_ENTRY)(args.session, out, profile, on_episode=step)
+        else:
+            written = _server_function(LABELS_DATASET_ENTRY)(args.domain, out, profile, on_episode=step)
+    finally:
+        for bar in bars:
+            bar.close()
+    print(f"wrote {written.dataset_id} ({written.episodes} episodes, {written.steps} steps) to {written.path}; "
+          f"read it with MINARI_DATASETS_PATH={out} and minari.load_dataset({written.dataset_id!r})")
     return 0
 
 
@@ -396,9 +449,20 @@ def _serve_command(sub) -> argparse.ArgumentParser:
 
 
 def _export_commands(sub) -> None:
-    e = sub.add_parser("export", help="write a satisfied session's behaviour (profile, clip, reward) to a zip")
-    e.add_argument("session_id", help="the session's id (the page's URL and the API name it)")
-    e.add_argument("out", help="output .zip path (written atomically)")
+    from rba.data.library import SPLITS
+
+    e = sub.add_parser("export", help="write a satisfied session's behaviour (profile, clip, reward) to a zip, or "
+                                      "clips as a Minari dataset (--format minari)")
+    e.add_argument("session_id", nargs="?", help="the session's id (the page's URL and the API name it)")
+    e.add_argument("out", nargs="?", help="output .zip path (written atomically)")
+    e.add_argument("--format", choices=("zip", "minari"), default="zip",
+                   help="zip (default): SESSION_ID OUT; minari: " + MINARI_USAGE.removeprefix("--format minari "))
+    e.add_argument("--out", dest="out_dir", help="minari: the datasets folder (the dataset is rba/<name>-v0 in it)")
+    e.add_argument("--session", help="minari: a session's clips, in the order shown")
+    e.add_argument("--domain", type=_domain, help="minari: the domain of --split or --labels")
+    e.add_argument("--split", choices=SPLITS, help="minari: a skill library of --domain")
+    e.add_argument("--labels", action="store_true", help="minari: the clips the admin page's labels refer to")
+    e.add_argument("--profile", help="minari: an export zip whose reward rθ(s | v*) gives the rewards (else 0)")
     e.set_defaults(func=cmd_export)
     r = sub.add_parser("replay", help="re-simulate an export's behaviour and compare its attributes (exit 1 if "
                                       "they differ, 2 if the zip is not a valid export: nothing is simulated)")

@@ -11,7 +11,8 @@ Import direction: beside ``server.ops.session_steps`` (above ``server.runtime.se
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from sqlalchemy.engine import make_url
@@ -86,7 +87,6 @@ def export_to_file(session_id: str, out: Path, settings: Settings | None = None)
     from fastapi import HTTPException
 
     from rba.compute.tasks import render_here
-    from server.db.engine import make_engine
 
     settings = settings or Settings()
     catalog = Catalog(settings)
@@ -100,19 +100,29 @@ def export_to_file(session_id: str, out: Path, settings: Settings | None = None)
         with store.open(chosen.key) as f:
             return f.read()
 
+    with app_database(settings) as (db, where):
+        try:
+            return write_export(out, export_source(catalog, sources, db, session_id, clip))
+        except HTTPException as exc:
+            if exc.status_code == 404:
+                raise LookupError(f"{exc.detail} (database {where})") from None
+            raise ValueError(exc.detail) from None
+
+
+@contextmanager
+def app_database(settings: Settings) -> Iterator[tuple[Session, str]]:
+    """The app's database for a command (``rba export``): a session on it and where it is (password hidden).
+
+    A SQLite database not made yet is a ``LookupError``: it is not created empty."""
+    from server.db.engine import make_engine
+
     url = make_url(settings.db_url)
-    where = url.render_as_string(hide_password=True)
     if url.get_backend_name() == "sqlite" and not Path(url.database or "").is_file():  # not make an empty one
         raise LookupError(f"no database at {url.database}: the app has not run with these settings "
-                          "(RBA_DATABASE_URL, RBA_DATA_DIR), so it has no session to export")
+                          "(RBA_DATABASE_URL, RBA_DATA_DIR), so it has nothing to export")
     engine = make_engine(settings.db_url)
     try:
         with Session(engine) as db:
-            try:
-                return write_export(out, export_source(catalog, sources, db, session_id, clip))
-            except HTTPException as exc:
-                if exc.status_code == 404:
-                    raise LookupError(f"{exc.detail} (database {where})") from None
-                raise ValueError(exc.detail) from None
+            yield db, url.render_as_string(hide_password=True)
     finally:
         engine.dispose()
