@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -41,7 +42,7 @@ def test_the_event_files_hold_the_loss_and_the_held_out_measure_at_their_steps(t
         measured.append(model.weight.item())
         return {"slope_error": abs(model.weight.item() - 3)}
 
-    losses = _fit(23, curve_of(tmp_path / "curves" / "line", "line", measure))
+    losses = _fit(23, curve_of(tmp_path / "curves" / "line", "line", measure, budget=None))
     [curve] = read_curves(tmp_path / "curves")
     assert curve.model == "line"
     loss, held = curve.series
@@ -61,12 +62,28 @@ def test_a_new_curve_replaces_the_old_one_of_its_model(tmp_path):
 
 
 def test_curves_can_be_read_while_written(tmp_path):
-    writer = CurveWriter(tmp_path / "run", "run", nn.Linear(1, 1), lambda m: {"x": 0.5})
+    writer = CurveWriter(tmp_path / "run", "run", nn.Linear(1, 1), lambda m: {"x": 0.5}, budget=None)
     for step in range(1, 21):
         writer.record(step, 100, 1.0 / step)
     [curve] = read_curves(tmp_path)
     assert curve.series[0].steps == [1, 5, 10, 15, 20] and curve.series[1].steps == [10, 20]
     writer.close()
+
+
+def test_a_costly_measure_is_spaced_out_within_its_budget(tmp_path):
+    """Steps of ~1 ms and a measure of ~50 ms: at 5 % of the steps' time, one measure per ~1,000 steps, and the last;
+    at every planned point (100 steps) measuring would take about a third of the time."""
+    def slow(model: nn.Module) -> dict[str, float]:
+        time.sleep(0.05)
+        return {"x": 1.0}
+
+    writer = CurveWriter(tmp_path / "run", "run", nn.Linear(1, 1), slow)
+    for step in range(1, 1001):
+        time.sleep(0.001)
+        writer.record(step, 1000, 1.0)
+    held = read_curves(tmp_path)[0].series[1]
+    assert held.steps[0] == 100 and held.steps[-1] == 1000  # the first as planned, the last always
+    assert len(held.steps) <= 6, held.steps  # steps 5 times slower than asked for would still space them 200 apart
 
 
 def test_writing_the_curve_changes_no_weight(toy_roots, tmp_path):
@@ -90,7 +107,8 @@ def test_rba_train_writes_each_models_curve_beside_it(toy_roots):
     assert sorted(curves) == ["global_reward-onehot", "ranker-onehot"]
     ranker = {s.tag: s for s in curves["ranker-onehot"].series}
     assert sorted(ranker) == ["held_out/pairwise_accuracy/amplitude", "held_out/pairwise_accuracy/pace", "loss"]
-    assert ranker["loss"].steps[-1] == 200 and len(ranker["held_out/pairwise_accuracy/pace"].steps) == HELD_OUT_POINTS
+    held = ranker["held_out/pairwise_accuracy/pace"].steps
+    assert ranker["loss"].steps[-1] == 200 and 2 <= len(held) <= HELD_OUT_POINTS and held[-1] == 200
     card = json.loads(model_files(models).card("toy", "ranker", "onehot").read_text())
     for name in ("amplitude", "pace"):  # the last point is the card's number: one code measures both
         assert ranker[f"held_out/pairwise_accuracy/{name}"].values[-1] == pytest.approx(

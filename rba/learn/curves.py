@@ -7,7 +7,9 @@ the same files (``read_curves``), so there is one record of a run. Weights & Bia
 only then.
 
 Costs are bounded: the loss is already a float every step (``StepLoop``) and is written every ``LOSS_EVERY`` steps;
-the held-out measure, a forward pass over a fixed part of ``val``, runs ``HELD_OUT_POINTS`` times a run.
+the held-out measure, forward passes over a fixed part of ``val``, runs at most ``HELD_OUT_POINTS`` times a run and
+at the last step, spaced further apart when it would otherwise take more than ``HELD_OUT_BUDGET`` of the time the
+steps take (a short run's steps are few and quick, while measuring rθ scores the whole serve library).
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from __future__ import annotations
 import logging
 import math
 import shutil
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,7 +31,8 @@ from rba.learn.common import CurveOf
 log = logging.getLogger(__name__)
 
 LOSS_EVERY = 5  # steps between two loss points
-HELD_OUT_POINTS = 10  # held-out measurements per run (the last step's is one of them)
+HELD_OUT_POINTS = 10  # held-out measurements per run at most (the last step's is one of them)
+HELD_OUT_BUDGET = 0.05  # measuring takes at most this share of the steps' time (besides the last step's)
 LOSS_TAG = "loss"
 HELD_OUT_TAG = "held_out/"  # prefix of every held-out measure's tag
 Measure = Callable[[nn.Module], dict[str, float]]  # the model now -> held-out numbers (tag suffix -> value)
@@ -45,11 +49,13 @@ class CurveWriter:
     a Weights & Biases run named ``run``."""
 
     def __init__(self, folder: Path, run: str, model: nn.Module, measure: Measure | None = None,
-                 config: dict | None = None) -> None:
+                 config: dict | None = None, budget: float | None = HELD_OUT_BUDGET) -> None:
         from torch.utils.tensorboard import SummaryWriter
 
         shutil.rmtree(folder, ignore_errors=True)
-        self.model, self.measure = model, measure
+        self.model, self.measure, self.budget = model, measure, budget
+        self.started, self.measuring, self.next_measure = time.perf_counter(), 0.0, 0
+        self.measurements = 0
         self.writer = SummaryWriter(log_dir=str(folder), flush_secs=5)
         self.wandb = _wandb_run(run, config or {})
 
@@ -59,8 +65,9 @@ class CurveWriter:
         points: dict[str, float] = {}
         if step % LOSS_EVERY == 0 or last or step == 1:
             points[LOSS_TAG] = loss
-        if self.measure is not None and (step % held_out_every(total) == 0 or last):
+        if self.measure is not None and (step >= max(self.next_measure, held_out_every(total)) or last):
             points |= {HELD_OUT_TAG + k: v for k, v in self._measured().items()}
+            self.next_measure = step + self._spacing(step, total)
         for tag, value in points.items():
             self.writer.add_scalar(tag, value, step)
         if points:
@@ -70,14 +77,26 @@ class CurveWriter:
         if last:
             self.close()
 
+    def _spacing(self, step: int, total: int) -> int:
+        """Steps to the next measurement: ``total / HELD_OUT_POINTS``, or more while the measurements so far took
+        more than ``budget`` of the steps' time."""
+        every = held_out_every(total)
+        stepping = time.perf_counter() - self.started - self.measuring  # seconds in the steps so far
+        if self.budget is None or stepping <= 0:
+            return every
+        per_step, per_measure = stepping / step, self.measuring / self.measurements
+        return max(every, math.ceil(per_measure / (self.budget * per_step)))
+
     def _measured(self) -> dict[str, float]:
         """``measure`` in eval mode without gradients, the model's mode restored after (training goes on)."""
-        was = self.model.training
+        was, t0 = self.model.training, time.perf_counter()
         try:
             with torch.no_grad():
                 return self.measure(self.model)
         finally:
             self.model.train(was)
+            self.measuring += time.perf_counter() - t0
+            self.measurements += 1
 
     def close(self) -> None:
         self.writer.close()
@@ -86,9 +105,11 @@ class CurveWriter:
             self.wandb = None
 
 
-def curve_of(folder: Path, run: str, measure: Measure | None = None, config: dict | None = None) -> CurveOf:
-    """What a trainer takes as ``curve``: the model it builds -> its ``CurveWriter``."""
-    return lambda model: CurveWriter(folder, run, model, measure, config)
+def curve_of(folder: Path, run: str, measure: Measure | None = None, config: dict | None = None,
+             budget: float | None = HELD_OUT_BUDGET) -> CurveOf:
+    """What a trainer takes as ``curve``: the model it builds -> its ``CurveWriter`` (``budget`` None: measure at
+    exactly every ``held_out_every`` steps, whatever it costs)."""
+    return lambda model: CurveWriter(folder, run, model, measure, config, budget)
 
 
 def _wandb_run(name: str, config: dict):
