@@ -46,7 +46,7 @@ from minari.dataset.minari_storage import MinariStorage
 from rba.core.fileio import save_text
 from rba.data.export_zip import ExportedRewardModel, read_export
 from rba.data.library import SkillLibrary
-from rba.domains import Domain, domain_names, get_domain
+from rba.domains import Domain, Rollout, domain_names, get_domain
 from rba.gym import env_id, has_simulator, register_envs
 
 NAMESPACE = "rba"  # the datasets' Minari namespace: ids are rba/<name>-v0
@@ -114,6 +114,10 @@ def check_domain(domain: str) -> Domain:
         raise MinariExportError(f"domain {domain!r} has no step interface (its states are not what the skill's "
                                 f"policy reads), so it has no Minari dataset; valid: {', '.join(exportable_domains())}")
     return get_domain(domain)
+
+
+def rollout_clip(rollout_id: str, rollout: Rollout) -> Clip:
+    return Clip(rollout_id, dict(rollout.params), int(rollout.seed), rollout.states, dict(rollout.proxies))
 
 
 def library_clip(library: SkillLibrary, i: int) -> Clip:
