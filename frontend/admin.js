@@ -2,6 +2,7 @@
 // the served model. Everything it shows comes from /api/admin routes, which need the admin token.
 
 import { $, api, el, hideToast, pretty, toast } from "./common.js";
+import { showCurves } from "./curves.js";
 
 const WATCH_SECONDS = 1;  // a clip counts as seen once it has played this long (or 90 % of a shorter clip)
 const ANSWERS = ["left-more", "skip", "right-more"];
@@ -338,6 +339,7 @@ async function pollJob() {
     const job = await adminApi(`/api/admin/jobs/${state.job.id}`);
     if (!state.token) return;  // locked while asking
     showJob(job);
+    await loadCurves(job);
   } catch (e) {
     if (state.token) toast(e.message);
   }
@@ -348,7 +350,13 @@ async function pollJob() {
 async function loadLatestJob() {
   const jobs = await adminApi(`/api/admin/jobs?${query({ domain: domain() })}`);
   showJob(jobs[0] || null);
+  await loadCurves(jobs[0] || null);
   pollJob();
+}
+
+/** The job's training curves so far (the poll brings them while it runs); none without a job. */
+async function loadCurves(job) {
+  showCurves($("curves"), job ? await adminApi(`/api/admin/jobs/${job.id}/curves`) : null);
 }
 
 async function train() {

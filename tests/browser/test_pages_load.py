@@ -15,7 +15,7 @@ from server.common.app_settings import Settings
 REPO = Path(__file__).resolve().parents[2]
 TOKEN = "pages-admin-token"
 SCRIPTS = {"/": {"/static/app.js", "/static/common.js", "/static/meters.js"},
-           "/admin": {"/static/admin.js", "/static/common.js"}}
+           "/admin": {"/static/admin.js", "/static/common.js", "/static/curves.js"}}
 
 
 @pytest.fixture(scope="module")
