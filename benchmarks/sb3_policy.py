@@ -8,7 +8,7 @@ measured from its episode's observations (``Domain.observed_proxies``) and repor
 attribute, in normal-precision ε, beside the same network untrained, random actions and the scripted skill at the
 profile's params. Writes ``benchmarks/results/sb3_policy.md`` and ``.json``.
 
-    python benchmarks/sb3_policy.py --runs lane_change:test-00007:PPO walker:test-00007:PPO --seconds 360
+    python benchmarks/sb3_policy.py --runs lane_change:test-00007:PPO walker:test-00007:PPO --seconds 330
 """
 
 from __future__ import annotations
@@ -47,14 +47,15 @@ def example() -> ModuleType:
     return module
 
 
-def run_one(train: ModuleType, run: str, steps: int, seconds: float, seed: int, folder: Path) -> dict[str, Any]:
+def run_one(train: ModuleType, run: str, steps: int, seconds: float, every: int, seed: int,
+            folder: Path) -> dict[str, Any]:
     """``domain:rollout:ALGO``: export the rollout, train, measure; the example's report."""
     domain, rollout, algo = run.split(":")
     out = folder / run.replace(":", "_")
     out.mkdir(parents=True)
     export = train.export_library_rollout(domain, rollout, out / "export.zip")
     log.info("%s: training for %d steps or %g s", run, steps, seconds)
-    report = train.train(export, algo, steps, seed, out, seconds)
+    report = train.train(export, algo, steps, seed, out, seconds, every)
     log.info("%s\n%s", run, train.summary(report))
     return report
 
@@ -80,8 +81,18 @@ def markdown(report: dict[str, Any]) -> str:
             within = m["within"] if isinstance(m["within"], bool) else f"{m['within']:.0%}"
             cells = head if i == 0 else ("", "", "", "")
             lines.append(f"| {' | '.join(cells)} | {name} | {dist} | {within} | {m['reward']:.4g} |")
-    lines += ["", "Per run, the profile's attributes, ε and each policy's measured attributes are in "
-              "`sb3_policy.json`.", ""]
+    lines += ["", "## Distance during training", "",
+              f"The deterministic policy measured every {report['args']['every']} steps (distance per attribute in ε; "
+              "Σ rθ). Measuring is not counted as training time.", ""]
+    for r in report["runs"]:
+        lines += [f"**{r['domain']} {r['rollout_id']} {r['algorithm']}**", "",
+                  "| steps | s | distance (ε) | within | Σ rθ |", "|---:|---:|---|:---:|---:|"]
+        lines += [f"| {c['steps']} | {c['seconds']:g} | "
+                  + ", ".join(f"{a} {c['in_epsilon'][a]:.2f}" for a in r["epsilon"])
+                  + f" | {c['within']} | {c['reward']:.4g} |" for c in r["curve"]]
+        lines.append("")
+    lines += ["Per run, the profile's attributes, ε and each policy's measured attributes are in `sb3_policy.json`.",
+              ""]
     return "\n".join(lines)
 
 
@@ -91,6 +102,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="domain:rollout:ALGO per run (ALGO: PPO or SAC)")
     p.add_argument("--steps", type=int, default=1_000_000, help="env steps per run at most")
     p.add_argument("--seconds", type=float, default=360.0, help="training time per run at most")
+    p.add_argument("--every", type=int, default=8192, help="measure the policy every this many steps")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, default=RESULTS / "sb3_policy", help="writes <out>.json and <out>.md")
     args = p.parse_args(argv)
@@ -111,7 +123,8 @@ def main(argv: list[str] | None = None) -> int:
         "date": time.strftime("%Y-%m-%d %H:%M"), "machine": machine(),
         "load_average_before": round(os.getloadavg()[0], 2), "args": {**vars(args), "out": str(args.out)}}
     with tempfile.TemporaryDirectory(prefix="rba-sb3-") as folder:
-        report["runs"] = [run_one(train, run, args.steps, args.seconds, args.seed, Path(folder)) for run in args.runs]
+        report["runs"] = [run_one(train, run, args.steps, args.seconds, args.every, args.seed, Path(folder))
+                          for run in args.runs]
     report["load_average_after"] = round(os.getloadavg()[0], 2)
     save_report(args.out, report, markdown(report))
     log.info("wrote %s.json and %s.md", args.out, args.out)

@@ -67,7 +67,7 @@ def test_the_training_env_pays_the_exports_reward_and_not_another_profiles(toy_e
 @pytest.mark.parametrize("algo", ["PPO", "SAC"])
 def test_a_tiny_run_saves_a_model_that_loads_and_reports_its_distance(toy_exports, toy_roots, tmp_path, algo):
     out = tmp_path / algo
-    report = train.train(toy_exports[0], algo, 256, seed=1, out=out, data_root=toy_roots[0])
+    report = train.train(toy_exports[0], algo, 256, seed=1, out=out, every=64, data_root=toy_roots[0])
     saved = json.loads((out / "report.json").read_text())
     assert saved == json.loads(json.dumps(report))
     assert report["steps"] >= 256 and report["wall_seconds"] >= 0 and len(report["load_average"]) == 3
@@ -79,6 +79,8 @@ def test_a_tiny_run_saves_a_model_that_loads_and_reports_its_distance(toy_export
             assert r["distance"][a] == pytest.approx(abs(r["proxies"][a] - report["profile"][a]))
     assert report["skill"]["within"] and max(report["skill"]["in_epsilon"].values()) < 0.2
     assert report["random"]["episodes"] == train.RANDOM_EPISODES
+    assert [c["steps"] for c in report["curve"]] == [64, 128, 192, 256]
+    assert all(set(c["in_epsilon"]) == set(attrs) and c["seconds"] <= report["wall_seconds"] for c in report["curve"])
 
     model = {"PPO": PPO, "SAC": SAC}[algo].load(out / "model.zip", device="cpu")
     again = train.measure(read_export(toy_exports[0]), train.act_with(model), report["episode_steps"],
@@ -117,12 +119,14 @@ def test_the_benchmark_reports_steps_time_and_distance(toy_env, tmp_path):
 
     rollout = SkillLibrary.load("toy", "serve").ids[3]
     bench = load_benchmark("sb3_policy")
-    assert bench.main(["--runs", f"toy:{rollout}:PPO", "--steps", "128", "--out", str(tmp_path / "r")]) == 0
+    assert bench.main(["--runs", f"toy:{rollout}:PPO", "--steps", "128", "--every", "64",
+                       "--out", str(tmp_path / "r")]) == 0
     report = json.loads((tmp_path / "r.json").read_text())
     (run,) = report["runs"]
     assert run["rollout_id"] == rollout and run["steps"] >= 128
     assert {"load_average_before", "load_average_after"} <= set(report)
     text = (tmp_path / "r.md").read_text()
     assert f"| toy {rollout} PPO | {run['steps']} |" in text and "| skill | amplitude" in text
+    assert [c["steps"] for c in run["curve"]] == [64, 128] and "| 128 | " in text
     with pytest.raises(SystemExit):
         bench.parse_args(["--runs", "toy:serve-00003:A2C"])

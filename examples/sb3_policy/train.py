@@ -134,15 +134,28 @@ def measure(export: Export, policy: Callable[[np.ndarray], np.ndarray], steps: i
     return Measured.of(run_episode(env, policy, p.seed, p.params, max_steps=steps), p, eps)
 
 
-class WallClock(BaseCallback):
-    """Stops learning after ``seconds`` (None: never), so a benchmark reports what a time budget reaches."""
+class Budget(BaseCallback):
+    """Stops learning after ``seconds`` of training (None: never), so a benchmark reports what a time budget
+    reaches, and measures the policy every ``every`` steps (0: never): the curve of its distance to the profile.
+    The measuring is not training time."""
 
-    def __init__(self, seconds: float | None) -> None:
+    def __init__(self, seconds: float | None, every: int, measure_now: Callable[[], Measured]) -> None:
         super().__init__()
-        self.seconds, self.start = seconds, time.monotonic()
+        self.seconds, self.every, self.measure_now = seconds, every, measure_now
+        self.start, self.measuring = time.monotonic(), 0.0
+        self.curve: list[dict[str, Any]] = []
+
+    def training_seconds(self) -> float:
+        return time.monotonic() - self.start - self.measuring
 
     def _on_step(self) -> bool:
-        return self.seconds is None or time.monotonic() - self.start < self.seconds
+        if self.every and self.num_timesteps % self.every == 0:
+            started = time.monotonic()
+            m = self.measure_now()
+            self.measuring += time.monotonic() - started
+            self.curve.append({"steps": self.num_timesteps, "seconds": round(self.training_seconds(), 1),
+                               "in_epsilon": m.in_epsilon, "within": m.within, "reward": m.reward})
+        return self.seconds is None or self.training_seconds() < self.seconds
 
 
 def make_model(algo: str, env: gym.Env, steps: int, seed: int) -> BaseAlgorithm:
@@ -162,9 +175,9 @@ def act_with(model: BaseAlgorithm) -> Callable[[np.ndarray], np.ndarray]:
 
 
 def train(export_path: Path, algo: str, steps: int, seed: int, out: Path, seconds: float | None = None,
-          data_root: Path | None = None) -> dict[str, Any]:
-    """Train on the export's reward for ``steps`` env steps (or ``seconds``), save ``model.zip`` and
-    ``report.json`` in ``out``; the report."""
+          every: int = 0, data_root: Path | None = None) -> dict[str, Any]:
+    """Train on the export's reward for ``steps`` env steps (or ``seconds`` of training), measuring the policy every
+    ``every`` steps (0: at the end only); save ``model.zip`` and ``report.json`` in ``out``; the report."""
     export = read_export(export_path)
     p = export.profile
     domain = get_domain(p.domain)
@@ -177,9 +190,9 @@ def train(export_path: Path, algo: str, steps: int, seed: int, out: Path, second
     episode = skill_steps(p)
     model = make_model(algo, training_env(export, episode), steps, seed)
     untrained = measure(export, act_with(model), episode, eps)
-    started = time.monotonic()
-    model.learn(total_timesteps=steps, callback=WallClock(seconds))
-    wall = time.monotonic() - started
+    budget = Budget(seconds, every, lambda: measure(export, act_with(model), episode, eps))
+    model.learn(total_timesteps=steps, callback=budget)
+    wall = budget.training_seconds()
     out.mkdir(parents=True, exist_ok=True)
     model.save(out / "model.zip")
     rng = np.random.default_rng(seed)
@@ -196,6 +209,7 @@ def train(export_path: Path, algo: str, steps: int, seed: int, out: Path, second
         "untrained": vars(untrained),
         "random": mean_of([measure(export, random_act, episode, eps) for _ in range(RANDOM_EPISODES)]),
         "skill": vars(measure(export, skill_policy(p), episode, eps, scaled=False)),
+        "curve": budget.curve,
     }
     save_text(out / "report.json", json.dumps(report, indent=2) + "\n")
     return report
@@ -224,6 +238,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--algo", choices=sorted(ALGORITHMS), default="PPO")
     p.add_argument("--steps", type=int, default=20_000, help="env steps to train for")
     p.add_argument("--seconds", type=float, default=None, help="stop earlier after this much training time")
+    p.add_argument("--every", type=int, default=0, help="also measure the policy every this many steps (0: never)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, default=Path("sb3_policy_run"), help="folder for model.zip and report.json")
     args = p.parse_args(argv)
@@ -234,8 +249,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         envs = [d for d in domain_names() if has_simulator(d)]
         if args.domain not in envs:
             p.error(f"unknown domain {args.domain!r} or one without an rba.gym env; valid: {', '.join(envs)}")
-    if args.steps < 1:
-        p.error(f"--steps must be a positive number of env steps, got {args.steps}")
+    if args.steps < 1 or args.every < 0:
+        p.error(f"--steps must be a positive number of env steps and --every one or 0, got {args.steps} and "
+                f"{args.every}")
     return args
 
 
@@ -246,7 +262,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.export is None:
             args.out.mkdir(parents=True, exist_ok=True)
             args.export = export_library_rollout(args.domain, args.rollout, args.out / "export.zip", args.rep)
-        report = train(args.export, args.algo, args.steps, args.seed, args.out, args.seconds)
+        report = train(args.export, args.algo, args.steps, args.seed, args.out, args.seconds, args.every)
     except ExportError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
