@@ -87,7 +87,7 @@ def markdown(report: dict) -> str:
              f"{report['cpus']} CPU cores. `python benchmarks/training_curves.py --domain {report['domain']} "
              f"--preset {report['preset']} --steps {report['steps']} --repeats {report['repeats']}`.", "",
              "Seconds of the whole training call (labels, steps, the card's held-out numbers, saving), the median of "
-             "the repeats: wall clock / CPU time of the training process.", "",
+             "the repeats (of an even count, the higher): wall clock / CPU time of the training process.", "",
              "| method | without curves | with curves | CPU change | in held-out measures | points | event files |",
              "|---|---|---|---|---|---|---|"]
     for row in report["rows"]:
