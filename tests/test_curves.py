@@ -120,7 +120,8 @@ def test_rba_train_writes_each_models_curve_beside_it(toy_roots):
 
 
 def _wandb_history(run_file) -> dict[str, dict[int, float]]:
-    """What an offline run's ``.wandb`` file holds: tag -> {step: value} (read with wandb's own record reader)."""
+    """What an offline run's ``.wandb`` file holds: tag -> {step: value} (read with wandb's own record reader; a key
+    with a slash may come as its parts)."""
     from wandb.proto import wandb_internal_pb2
     from wandb.sdk.internal import datastore
 
@@ -130,9 +131,9 @@ def _wandb_history(run_file) -> dict[str, dict[int, float]]:
         record = wandb_internal_pb2.Record()
         record.ParseFromString(data)
         if record.WhichOneof("record_type") == "history":
-            items = {i.key: json.loads(i.value_json) for i in record.history.item}
+            items = {i.key or "/".join(i.nested_key): json.loads(i.value_json) for i in record.history.item}
             for key, value in items.items():
-                if not key.startswith("_"):
+                if not key.startswith("_"):  # wandb's own keys: _step, _runtime, _timestamp
                     out.setdefault(key, {})[items["_step"]] = value
     return out
 
