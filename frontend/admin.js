@@ -9,7 +9,7 @@ const ANSWERS = ["left-more", "skip", "right-more"];
 const TOKEN_KEY = "rba-admin-token";  // in this tab's session storage until "Lock" or the tab closes
 const state = {
   token: sessionStorage.getItem(TOKEN_KEY) || "", clips: [], watched: new Set(), failed: false,
-  busy: false, job: null, jobState: "", labels: 0, trainable: [], versions: [], presets: [],
+  busy: false, job: null, curvesJob: null, jobState: "", labels: 0, trainable: [], versions: [], presets: [],
 };
 
 /** The shared call with the admin token the /api/admin routes need. */
@@ -339,24 +339,48 @@ async function pollJob() {
     const job = await adminApi(`/api/admin/jobs/${state.job.id}`);
     if (!state.token) return;  // locked while asking
     showJob(job);
-    await loadCurves(job);
+    if (!state.curvesJob || state.curvesJob === job.id) await loadCurves();
   } catch (e) {
     if (state.token) toast(e.message);
   }
   if (running(state.job)) setTimeout(pollJob, 1000);
-  else await loadVersions();
+  else await Promise.all([loadVersions(), listJobs(), loadCurves()]);
 }
 
 async function loadLatestJob() {
-  const jobs = await adminApi(`/api/admin/jobs?${query({ domain: domain() })}`);
+  const jobs = await listJobs();
   showJob(jobs[0] || null);
-  await loadCurves(jobs[0] || null);
+  await loadCurves();
   pollJob();
 }
 
-/** The job's training curves so far (the poll brings them while it runs); none without a job. */
-async function loadCurves(job) {
-  showCurves($("curves"), job ? await adminApi(`/api/admin/jobs/${job.id}/curves`) : null);
+/** The domain's jobs, newest first, in the curves' job picker (the one chosen stays chosen while it is listed). */
+async function listJobs() {
+  const jobs = await adminApi(`/api/admin/jobs?${query({ domain: domain() })}`);
+  const pick = $("curves-job");
+  pick.replaceChildren(...jobs.map((j) => el("option", { value: j.id },
+    `${j.id.slice(0, 8)} · ${j.method}/${j.rep}, ${j.preset} · ${j.state}`)));
+  if (!jobs.some((j) => j.id === state.curvesJob)) state.curvesJob = null;
+  pick.value = state.curvesJob || jobs[0]?.id || "";
+  $("curves-pick").hidden = !jobs.length;
+  return jobs;
+}
+
+/** The chosen job's training curves (by default the latest job's, which the poll redraws while it runs). */
+async function loadCurves() {
+  const id = state.curvesJob || state.job?.id;
+  const curves = id ? await adminApi(`/api/admin/jobs/${id}/curves`) : null;
+  showCurves($("curves"), curves);
+  const job = id === state.job?.id ? state.job : null;
+  $("curves-none").textContent = running(job) ? "No curves yet: the first points come with the first steps."
+    : "No curves for this job: a failed or cancelled job keeps none (nor does a version trained without them).";
+  $("curves-none").hidden = !id || !$("curves").hidden;
+}
+
+async function chooseCurves() {
+  const id = $("curves-job").value;
+  state.curvesJob = id === state.job?.id ? null : id;  // the latest job's curves follow its poll
+  await loadCurves();
 }
 
 async function train() {
@@ -366,6 +390,8 @@ async function train() {
     const body = { domain: domain(), preset: $("preset").value, rep: $("rep").value, method: $("train-method").value,
                    datasets };
     showJob(await adminApi("/api/admin/train", { method: "POST", body: JSON.stringify(body) }));
+    state.curvesJob = null;
+    await listJobs();
     pollJob();
   } catch (e) {
     toast(e.message);
@@ -381,6 +407,7 @@ async function cancel() {
   if ((await ask($("confirm-cancel"))) !== "stop") { $("cancel").focus(); return; }
   try {
     showJob(await adminApi(`/api/admin/jobs/${job.id}/cancel`, { method: "POST" }));
+    await Promise.all([listJobs(), loadCurves()]);  // the poll stops at a job that no longer runs
   } catch (e) {
     toast(e.message);
   }
@@ -471,6 +498,7 @@ $("right-more").addEventListener("click", () => answer("right"));
 $("skip").addEventListener("click", skip);
 $("train").addEventListener("click", train);
 $("cancel").addEventListener("click", cancel);
+$("curves-job").addEventListener("change", chooseCurves);
 document.addEventListener("keydown", (e) => {
   // keys of their own: form fields, a video's controls (← → seek), the training log (↓ scrolls)
   if ($("admin").hidden || document.querySelector("dialog[open]") || e.target.closest("input, select, textarea, summary, video, pre")) return;

@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 
 import pytest
+from playwright.sync_api import expect
 
 from server.common.app_settings import Settings
 from tests.browser.conftest import axe_violations
@@ -74,5 +75,20 @@ def test_a_training_jobs_curves_are_plotted_while_it_runs_and_after(url, browser
     violations = axe_violations(page)
     assert violations == [], json.dumps(violations, indent=1)
     page.screenshot(path=str(tmp_path / "admin-curves-done.png"), full_page=True)
+
+    # Each job's curves: a second job, cancelled at once, keeps none; picking the first shows its curves again.
+    first = page.locator("#curves-job").input_value()
+    assert page.locator("#curves-job option").count() == 1 and "succeeded" in page.locator("#curves-job").inner_text()
+    page.get_by_role("button", name="Train with the labels").click()
+    page.get_by_role("button", name="Cancel").click()
+    page.get_by_role("button", name="Stop the job").click()
+    page.wait_for_function("() => document.getElementById('job-status').textContent.includes('cancelled')")
+    page.wait_for_function("() => document.querySelectorAll('#curves-job option').length === 2")
+    assert page.locator("#curves-job").input_value() != first  # the newest job is the one shown
+    expect(page.locator("#curves-none")).to_contain_text("No curves for this job")
+    assert page.locator("#curves").is_hidden()
+    page.select_option("#curves-job", first)
+    expect(page.locator("#curves figure")).to_have_count(2)
+    assert page.locator("#curves-none").is_hidden()
     assert not errors, errors
     page.close()
