@@ -133,6 +133,7 @@ class Episode:
     observations: np.ndarray  # float64[N, state_dim]: every step's, the reset's first
     recorded: np.ndarray  # bool[N]: which observations are states (``info["recorded"]``)
     rewards: np.ndarray  # float64[N - 1]: the env's reward per step (the export's with ``ExportedReward``)
+    actions: np.ndarray  # float64[N - 1, action_dim]: each step's action as the policy gave it
 
     @property
     def states(self) -> np.ndarray:
@@ -149,7 +150,7 @@ def run_episode(env: gym.Env, policy: Callable[[np.ndarray], np.ndarray], seed: 
     """Run ``policy`` (any ``obs -> action``; a :class:`SkillPolicy` stops when ``done``) in ``env`` from the skill's
     start until it is done, the episode ends or it took ``max_steps`` actions."""
     obs, info = env.reset(seed=seed, options={"params": params})
-    observations, recorded, rewards, ended = [], [], [], False
+    observations, recorded, rewards, actions, ended = [], [], [], [], False
     while True:  # rba.domains.base.run_skill's loop, over the env: the policy sees the last observation too
         observations.append(obs)
         recorded.append(bool(info["recorded"]))
@@ -158,8 +159,10 @@ def run_episode(env: gym.Env, policy: Callable[[np.ndarray], np.ndarray], seed: 
             break
         obs, reward, terminated, truncated, info = env.step(action)
         rewards.append(float(reward))
+        actions.append(np.asarray(action, dtype=np.float64))
         ended = terminated or truncated
-    return Episode(env.unwrapped.domain, np.array(observations), np.array(recorded), np.array(rewards))
+    return Episode(env.unwrapped.domain, np.array(observations), np.array(recorded), np.array(rewards),
+                   np.array(actions))
 
 
 def run_policy(env: gym.Env, policy: SkillPolicy, seed: int, params: dict[str, float]) -> np.ndarray:

@@ -47,7 +47,7 @@ from rba.core.fileio import save_text
 from rba.data.export_zip import ExportedRewardModel, read_export
 from rba.data.library import SkillLibrary
 from rba.domains import Domain, Rollout, domain_names, get_domain
-from rba.gym import env_id, has_simulator, register_envs
+from rba.gym import env_id, has_simulator, register_envs, run_episode
 
 NAMESPACE = "rba"  # the datasets' Minari namespace: ids are rba/<name>-v0
 VERSION = 0
@@ -173,23 +173,13 @@ class RewardSource:
 def record(env: gym.Env, domain: Domain, clip: Clip) -> dict[str, np.ndarray]:
     """One clip run again in its env: observations, actions, recorded; ``MinariExportError`` if it differs."""
     policy = domain.skill_policy(clip.params, clip.seed)
-    obs, info = env.reset(seed=clip.seed, options={"params": clip.params})
-    low, high = env.action_space.low, env.action_space.high
-    observations, actions, recorded, ended = [obs], [], [info["recorded"]], False
-    while True:  # rba.gym.run_policy's loop, keeping every step
-        action = policy(obs)
-        if policy.done or ended:
-            break
-        actions.append(np.clip(np.asarray(action, dtype=np.float64), low, high))
-        obs, _, terminated, truncated, info = env.step(action)
-        observations.append(obs)
-        recorded.append(info["recorded"])
-        ended = terminated or truncated
-    obs_arr, rec = np.array(observations, dtype=np.float64), np.array(recorded, dtype=bool)
-    _check(clip, obs_arr[rec].astype(np.float32), policy.measured(), domain.name)
-    if not actions:
+    episode = run_episode(env, policy, clip.seed, clip.params)
+    observations = episode.observations.astype(np.float64)
+    _check(clip, observations[episode.recorded].astype(np.float32), policy.measured(), domain.name)
+    if not len(episode.actions):
         raise MinariExportError(f"clip {clip.rollout_id} ended before its first step: an episode needs one")
-    return {"observations": obs_arr, "actions": np.array(actions), "recorded": rec}
+    actions = np.clip(episode.actions, env.action_space.low, env.action_space.high)  # as the env applies them
+    return {"observations": observations, "actions": actions, "recorded": episode.recorded}
 
 
 def _check(clip: Clip, states: np.ndarray, measured: dict[str, float], domain: str) -> None:
