@@ -21,8 +21,9 @@ import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import replace
 from pathlib import Path
+
+from training_presets import capped_run  # a sibling script, on sys.path when run as one
 
 from rba.core.fileio import save_report
 
@@ -30,20 +31,6 @@ RESULTS = Path(__file__).resolve().parents[1] / "benchmarks" / "results"
 OUTPUTS = (  # what this script writes into benchmarks/results/ (tests/test_results_files.py)
     "training_curves.json", "training_curves.md",
 )
-
-
-def _train(method: str, domain: str, preset: str, steps: int, models: Path) -> None:
-    from rba.learn.training import GlobalTrainConfig, LocalTrainConfig, train_global, train_local
-
-    if method == "local":
-        cfg = LocalTrainConfig.preset(preset)
-        train_local(domain, "onehot", replace(cfg, reward=replace(cfg.reward, steps=min(cfg.reward.steps, steps))),
-                    models_root=models)
-        return
-    cfg = GlobalTrainConfig.preset(preset, domain=domain)
-    cfg = replace(cfg, ranker=replace(cfg.ranker, steps=min(cfg.ranker.steps, steps)),
-                  reward=replace(cfg.reward, steps=min(cfg.reward.steps, steps)))
-    train_global(domain, "onehot", cfg, models_root=models)
 
 
 def measure_one(method: str, domain: str, preset: str, steps: int, curves: bool) -> dict:
@@ -66,7 +53,7 @@ def measure_one(method: str, domain: str, preset: str, steps: int, curves: bool)
     curves_module.CurveWriter._measured = timed
     wall, cpu = time.perf_counter(), time.process_time()
     with tempfile.TemporaryDirectory() as models:
-        _train(method, domain, preset, steps, Path(models))
+        capped_run(method, domain, preset, steps, Path(models))
         size = sum(p.stat().st_size for p in Path(models).rglob("events.out.tfevents.*"))
     return {"wall": round(time.perf_counter() - wall, 2), "cpu": round(time.process_time() - cpu, 2),
             "held_out_seconds": round(spent["seconds"], 2), "held_out_points": spent["count"], "event_bytes": size}

@@ -45,7 +45,7 @@ OUTPUTS = (  # what this script writes into benchmarks/results/ (tests/test_resu
 log = logging.getLogger("training_presets")
 
 
-def _capped_run(method: str, domain: str, preset: str, steps: int, models: Path, on_progress) -> None:
+def capped_run(method: str, domain: str, preset: str, steps: int, models: Path, on_progress=None) -> None:
     """The method's trainer at ``preset`` with every kind's steps capped at ``steps``."""
     if method == "local":
         cfg = LocalTrainConfig.preset(preset)
@@ -89,7 +89,7 @@ def measure_one(method: str, domain: str, preset: str, steps: int) -> dict:
             reports[name].append((stage, step, clock() - start[name]))
 
     with tempfile.TemporaryDirectory() as models:
-        _capped_run(method, domain, preset, steps, Path(models), report)
+        capped_run(method, domain, preset, steps, Path(models), report)
     kinds = get_method(method).model_kinds
     full = plan_steps(preset, kinds, domain)
     out: dict = {"steps": full}
