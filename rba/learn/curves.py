@@ -14,7 +14,6 @@ steps take (a short run's steps are few and quick, while measuring rθ scores th
 
 from __future__ import annotations
 
-import logging
 import math
 import shutil
 import time
@@ -27,8 +26,6 @@ from torch import nn
 
 from rba.core.settings import LibrarySettings
 from rba.learn.common import CurveOf
-
-log = logging.getLogger(__name__)
 
 LOSS_EVERY = 5  # steps between two loss points
 HELD_OUT_POINTS = 10  # held-out measurements per run at most (the last step's is one of them)
