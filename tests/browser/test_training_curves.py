@@ -43,7 +43,7 @@ def test_a_training_jobs_curves_are_plotted_while_it_runs_and_after(url, browser
     page.wait_for_function("() => document.querySelector('#preset option[value=tiny]') !== null")
     page.select_option("#train-method", "global")
     page.select_option("#preset", "tiny")
-    assert page.locator("#curves").is_hidden()  # no job yet: nothing to plot
+    assert page.locator("#curves").is_hidden() and page.locator("#curves-pick").is_hidden()  # no job: nothing
     page.get_by_role("button", name="Train with the labels").click()
 
     page.wait_for_function(PLOTTED_WHILE_RUNNING, timeout=120_000, polling=200)
@@ -86,7 +86,7 @@ def test_a_training_jobs_curves_are_plotted_while_it_runs_and_after(url, browser
     page.wait_for_function("() => document.querySelectorAll('#curves-job option').length === 2")
     assert page.locator("#curves-job").input_value() != first  # the newest job is the one shown
     expect(page.locator("#curves-none")).to_contain_text("No curves for this job")
-    assert page.locator("#curves").is_hidden()
+    expect(page.locator("#curves figure")).to_have_count(0)  # the first job's charts are gone, not just hidden
     page.select_option("#curves-job", first)
     expect(page.locator("#curves figure")).to_have_count(2)
     assert page.locator("#curves-none").is_hidden()
