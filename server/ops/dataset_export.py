@@ -19,7 +19,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from sqlmodel import Session, select
+from sqlmodel import Session
 
 from rba.data.labels import LabelSet
 from rba.data.library import SkillLibrary
@@ -32,8 +32,8 @@ from rba.data.minari_export import (
     write_dataset,
 )
 from server.common.app_settings import Settings
-from server.db.tables import FeedbackEvent, TuningSession
-from server.ops.session_export import app_database
+from server.db.tables import TuningSession
+from server.ops.session_export import app_database, feedback_rounds, rebuilt_since
 from server.runtime.catalog import Catalog
 from server.runtime.clip_sources import ClipSources, UnknownRollout
 from server.runtime.stored_labels import page_labels
@@ -50,19 +50,15 @@ def session_source(catalog: Catalog, sources: ClipSources, db: Session, session_
     if s is None:
         raise LookupError(f"no session {session_id!r}")
     check_domain(s.domain)
-    events = db.exec(select(FeedbackEvent).where(FeedbackEvent.session_id == s.id)
-                     .order_by(FeedbackEvent.step)).all()
+    events, rounds = feedback_rounds(db, s)
     library = catalog.library(s.domain)
-    if s.library_version is not None and s.library_version != library.version:
-        raise MinariExportError(f"session {s.id} showed clips of {s.domain}'s serve library {s.library_version}; it "
-                                f"is {library.version} now (rebuilt), so its clip ids name other behaviours")
+    if (stale := rebuilt_since(s, library.version)) is not None:
+        raise MinariExportError(stale)
     ids = _first_seen([rid for e in events for rid in (e.rollout_before, e.rollout_after)] + [s.current_rollout_id])
     try:
         clips = [rollout_clip(rid, sources.resolve(db, s.domain, rid).rollout()) for rid in ids]
     except UnknownRollout as exc:
         raise MinariExportError(f"session {s.id}: {exc}") from None
-    rounds = [{"step": e.step, "feedback": e.feedback, "rollout_before": e.rollout_before,
-               "rollout_after": e.rollout_after} for e in events]
     about = {"source": "session", "session": {
         "id": s.id, "method": s.method, "rep": s.rep, "status": s.status, "model_version": s.model_version,
         "library_version": library.version, "rounds": rounds}}

@@ -34,6 +34,22 @@ CLIP_WAIT_SECONDS = 120.0  # an export waits this long at most for its clip to r
 ClipBytes = Callable[[ResolvedClip], bytes]  # the chosen clip -> its MP4
 
 
+def feedback_rounds(db: Session, s: TuningSession) -> tuple[list[FeedbackEvent], list[dict]]:
+    """The session's feedback events in step order, and each as the JSON an export keeps."""
+    events = list(db.exec(select(FeedbackEvent).where(FeedbackEvent.session_id == s.id)
+                          .order_by(FeedbackEvent.step)).all())
+    return events, [{"step": e.step, "feedback": e.feedback, "rollout_before": e.rollout_before,
+                     "rollout_after": e.rollout_after} for e in events]
+
+
+def rebuilt_since(s: TuningSession, library_version: str) -> str | None:
+    """Why the session's clip ids no longer name the clips it showed (its serve library was rebuilt), or None."""
+    if s.library_version is None or s.library_version == library_version:
+        return None
+    return (f"session {s.id} showed clips of {s.domain}'s serve library {s.library_version}; it is "
+            f"{library_version} now (rebuilt), so its clip ids name other behaviours")
+
+
 def export_source(catalog: Catalog, sources: ClipSources, db: Session, session_id: str,
                   clip: ClipBytes) -> ExportSource:
     """What the export of ``session_id`` is made of; 404 for an unknown session, 409 unless it ended satisfied.
@@ -46,14 +62,10 @@ def export_source(catalog: Catalog, sources: ClipSources, db: Session, session_i
     if s.status != SessionStatus.satisfied:
         raise conflict(f"session {s.id} is {s.status}: only a session that ended satisfied (\"This is it\") can "
                        "be exported")
-    events = db.exec(select(FeedbackEvent).where(FeedbackEvent.session_id == s.id)
-                     .order_by(FeedbackEvent.step)).all()
-    rounds = [{"step": e.step, "feedback": e.feedback, "rollout_before": e.rollout_before,
-               "rollout_after": e.rollout_after} for e in events]
+    _, rounds = feedback_rounds(db, s)
     library, rid = catalog.library(s.domain), s.current_rollout_id
-    if s.library_version is not None and s.library_version != library.version:
-        raise conflict(f"session {s.id} showed clips of {s.domain}'s serve library {s.library_version}; it is "
-                       f"{library.version} now (rebuilt), so its clip ids name other behaviours: it cannot be exported")
+    if (stale := rebuilt_since(s, library.version)) is not None:
+        raise conflict(f"{stale}: it cannot be exported")
     try:
         chosen = sources.resolve(db, s.domain, rid)
     except UnknownRollout as exc:
