@@ -373,14 +373,24 @@ def _global_labels(inputs: _Inputs, pool: _Pool, sources: list[LabelSource], cfg
 def _ranker_metrics(ranker: AttributeRanker, inputs: _Inputs, pool: _Pool, held_out: dict[str, np.ndarray]
                     ) -> tuple[dict, np.ndarray, np.ndarray]:
     """(metrics, ζσ of val, ζσ of the pool): ranking quality on val by proxy, and on held-out pairs."""
+    metrics, val_zeta = _val_ranking(ranker, inputs)
+    pool_zeta = ranker.score(pool.data)
+    for name, accuracy in _held_out_accuracy(pool_zeta, inputs, held_out).items():
+        metrics[name] = {"held_out_pair_accuracy": accuracy, "held_out_pairs": len(held_out[name])}
+    return metrics, val_zeta, pool_zeta
+
+
+def _val_ranking(ranker: AttributeRanker, inputs: _Inputs) -> tuple[dict, np.ndarray]:
+    """(ranking quality on val by proxy per attribute, ζσ of val)."""
     val_zeta = ranker.score_library(inputs.val)
     k = len(inputs.domain.attributes)
-    metrics = ranking_metrics(val_zeta[:, :k], inputs.val.proxies, inputs.domain.attribute_names)
-    pool_zeta = ranker.score(pool.data)
-    for name, pairs in held_out.items():
-        metrics[name] = {"held_out_pair_accuracy": _pair_accuracy(pool_zeta[:, inputs.names.index(name)], pairs),
-                         "held_out_pairs": len(pairs)}
-    return metrics, val_zeta, pool_zeta
+    return ranking_metrics(val_zeta[:, :k], inputs.val.proxies, inputs.domain.attribute_names), val_zeta
+
+
+def _held_out_accuracy(pool_zeta: np.ndarray, inputs: _Inputs, held_out: dict[str, np.ndarray]
+                       ) -> dict[str, float | None]:
+    """Per new attribute, the share of its held-out pairs ``pool_zeta`` orders right (None without pairs)."""
+    return {name: _pair_accuracy(pool_zeta[:, inputs.names.index(name)], pairs) for name, pairs in held_out.items()}
 
 
 def _pair_accuracy(zeta: np.ndarray, pairs: np.ndarray) -> float | None:
@@ -400,16 +410,14 @@ def _curve(models_root: Path | None, inputs: _Inputs, kind: str, rep: str, measu
 def _ranker_measure(inputs: _Inputs, pool: _Pool, held_out: dict[str, np.ndarray]) -> Measure:
     """ζσ's curve's held-out numbers: the card's pairwise accuracy on val by proxy per attribute, and on the
     held-out pairs of new attributes (the whole pool is scored only when there are some)."""
-    k = len(inputs.domain.attributes)
+    scored = any(len(p) for p in held_out.values())
 
     def measure(ranker: AttributeRanker) -> dict[str, float]:
-        val = ranking_metrics(ranker.score_library(inputs.val)[:, :k], inputs.val.proxies,
-                              inputs.domain.attribute_names)
+        val, _ = _val_ranking(ranker, inputs)
         out = {f"pairwise_accuracy/{name}": m["pairwise_accuracy"] for name, m in val.items()}
-        pool_zeta = ranker.score(pool.data) if any(len(p) for p in held_out.values()) else None
-        for name, pairs in held_out.items():
-            if pool_zeta is not None and len(pairs):
-                out[f"held_out_pair_accuracy/{name}"] = _pair_accuracy(pool_zeta[:, inputs.names.index(name)], pairs)
+        if scored:
+            out |= {f"held_out_pair_accuracy/{name}": accuracy for name, accuracy
+                    in _held_out_accuracy(ranker.score(pool.data), inputs, held_out).items() if accuracy is not None}
         return out
     return measure
 
