@@ -50,6 +50,11 @@ def clip_url(domain: str, rollout_id: str) -> str:
     return f"/api/clips/{quote(domain)}/{quote(rollout_id)}.mp4"
 
 
+def clip_data_url(domain: str, rollout_id: str) -> str:
+    """The clip's per-frame data the page draws itself (docs/architecture.md, clip data)."""
+    return f"/api/clips/{quote(domain)}/{quote(rollout_id)}.json"
+
+
 def clip_public(svc: Services, db: Session, domain: str, rollout_id: str) -> ClipPublic:
     """A clip's URL, its measured attribute values and whether it is rendered already."""
     url = clip_url(domain, rollout_id)
