@@ -91,8 +91,19 @@ def create_app(settings: Settings | None = None, compute: Compute | None = None)
         """The page itself holds no data: everything on it comes from token-checked /api/admin routes."""
         return FileResponse(FRONTEND / "admin.html", headers={"Cache-Control": "no-cache"})
 
+    app.mount("/static/vendor", VendorFiles(directory=FRONTEND / "vendor"), name="vendor")  # before /static
     app.mount("/static", StaticFiles(directory=FRONTEND), name="static")
     return app
+
+
+class VendorFiles(StaticFiles):
+    """Vendored libraries: each folder's name carries its version (``three-0.187.0``), so a file never changes."""
+
+    async def get_response(self, path: str, scope):  # type: ignore[no-untyped-def]
+        response = await super().get_response(path, scope)
+        if response.status_code == 200:
+            response.headers["Cache-Control"] = "public, max-age=31536000, immutable"
+        return response
 
 
 def _document_upload_form(app: FastAPI) -> None:
