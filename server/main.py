@@ -91,6 +91,14 @@ def create_app(settings: Settings | None = None, compute: Compute | None = None)
         """The page itself holds no data: everything on it comes from token-checked /api/admin routes."""
         return FileResponse(FRONTEND / "admin.html", headers={"Cache-Control": "no-cache"})
 
+    @app.get("/study/{token}", include_in_schema=False)
+    def study_page(token: str) -> FileResponse:
+        """A study participant's page: the same file for every link; the page reads its token from the address and
+        calls /api/participate/{token}. No referrer leaves the page, so the token stays in it."""
+        del token  # never a path: the page, not the server, uses it
+        return FileResponse(FRONTEND / "study.html",
+                            headers={"Cache-Control": "no-cache", "Referrer-Policy": "no-referrer"})
+
     app.mount("/static/vendor", VendorFiles(directory=FRONTEND / "vendor"), name="vendor")  # before /static
     app.mount("/static", StaticFiles(directory=FRONTEND), name="static")
     return app
