@@ -3,6 +3,7 @@
 
 import { $, api, el, hideToast, pretty, toast } from "./common.js";
 import { showCurves } from "./curves.js";
+import { mountStudies } from "./studies.js";
 
 const WATCH_SECONDS = 1;  // a clip counts as seen once it has played this long (or 90 % of a shorter clip)
 const ANSWERS = ["left-more", "skip", "right-more"];
@@ -43,7 +44,7 @@ async function unlock(event) {
   $("train-method").replaceChildren(...trainable.map((m) => el("option", { value: m.method }, m.label)));
   $("rep").replaceChildren(...reps.map((r) => el("option", { value: r }, r)));
   showPresets();
-  await loadDomain();
+  await Promise.all([loadDomain(), mountStudies(adminApi, domains)]);
 }
 
 /** Forget the token (this tab's storage and memory), stop following the job and show the token form again: a

@@ -11,8 +11,6 @@ const TOKEN = (() => {
   try { return decodeURIComponent(last); } catch { return last; }
 })();
 const BASE = `/api/participate/${encodeURIComponent(TOKEN)}`;
-const SCALE = [1, 2, 3, 4, 5];
-const SCALE_ENDS = { 1: "strongly disagree", 5: "strongly agree" };
 const SECTIONS = ["loading", "consent", "trial", "questionnaire", "thanks", "gone"];
 
 const state = {
@@ -270,16 +268,17 @@ $("target-again").addEventListener("click", () => {
 });
 
 // ---------------------------------------------------------------- questionnaire
-const itemText = (item) => (typeof item === "string" ? item : item.text);
-
+/** One radio group per item, on the item's own scale (its ends named): a fieldset whose legend is the statement. */
 function questions(box, items, prefix) {
   box.replaceChildren(...items.map((item, i) => {
     const name = `${prefix}-${i}`;
-    return el("fieldset", { class: "likert", dataset: { item: name } },
-      el("legend", {}, `${i + 1}. ${itemText(item)}`),
-      el("div", { class: "likert-options" }, SCALE.map((v) => el("label", { class: "likert-option" },
+    const values = Array.from({ length: item.max - item.min + 1 }, (_, j) => item.min + j);
+    const end = (v) => (v === item.min ? item.low : v === item.max ? item.high : null);
+    return el("fieldset", { class: "likert", dataset: { item: item.id } },
+      el("legend", {}, `${i + 1}. ${item.text}`),
+      el("div", { class: "likert-options" }, values.map((v) => el("label", { class: "likert-option" },
         el("input", { type: "radio", name, value: String(v), required: true }),
-        el("span", {}, String(v)), SCALE_ENDS[v] ? el("span", { class: "likert-end" }, SCALE_ENDS[v]) : null))));
+        el("span", {}, String(v)), end(v) ? el("span", { class: "likert-end" }, end(v)) : null))));
   }));
 }
 
