@@ -20,7 +20,18 @@ from server.api.admission import Admission
 from server.api.auth import AdminGate, FailureLimiter
 from server.api.deps import known_query
 from server.api.limits import BodyLimit, Cap
-from server.api.routes import admin_datasets, admin_labels, admin_training, clips, docs, domains, interpret, sessions
+from server.api.routes import (
+    admin_datasets,
+    admin_labels,
+    admin_training,
+    clips,
+    docs,
+    domains,
+    interpret,
+    participate,
+    sessions,
+    studies,
+)
 from server.common import errors
 from server.common.app_settings import Settings
 from server.db.admin_tables import DatasetUpload
@@ -69,7 +80,7 @@ def create_app(settings: Settings | None = None, compute: Compute | None = None)
     app.add_middleware(AdminGate, token=settings.admin_token,
                        failures=FailureLimiter(settings.admin_failures_per_minute))
     for router in (domains.router, interpret.router, sessions.router, clips.router, admin_labels.router,
-                   admin_datasets.router, admin_training.router):
+                   admin_datasets.router, admin_training.router, studies.router, participate.router):
         app.include_router(router, dependencies=[Depends(known_query)])  # the API's, not the pages' (?utm_… is fine)
     _document_upload_form(app)
 

@@ -29,6 +29,7 @@ HEAVY: tuple[tuple[str, re.Pattern[str]], ...] = (
     ("POST", re.compile(r"/api/domains/[^/]+/interpret")),  # a sentence model
     ("POST", re.compile(r"/api/sessions")),  # an agent's first query, may search
     ("POST", re.compile(r"/api/sessions/[^/]+/feedback")),  # an agent step, may search or re-fit
+    ("POST", re.compile(r"/api/participate/[^/]+/answer")),  # a study trial's agent step
     ("GET", re.compile(r"/api/sessions/[^/]+/export")),  # a zip with a clip and a re-fitted reward
     ("GET", _CLIP), ("HEAD", _CLIP),  # may simulate, and waits for a render
     ("POST", re.compile(r"/api/admin/datasets")),  # an upload, checked whole

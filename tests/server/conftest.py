@@ -19,7 +19,7 @@ POSTGRES_URL = os.environ.get("RBA_TEST_POSTGRES_URL")
 
 def _reset_postgres(url: str) -> None:
     """Drop the app's tables and the migrations' record, so every test starts from an empty database."""
-    from server.db import admin_tables, tables  # noqa: F401  (registers every table)
+    from server.db import admin_tables, study_tables, tables  # noqa: F401  (registers every table)
 
     engine = create_engine(url)
     SQLModel.metadata.drop_all(engine)

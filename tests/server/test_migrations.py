@@ -71,13 +71,13 @@ Table("rba_feedback", FIRST_RELEASE, Column("id", Integer, primary_key=True),
 def _pre_migrations() -> MetaData:
     """The tables of the last release without migrations (revision 0004): today's models, less what later
     revisions added (0005: ``rba_generated_clip`` and ``rba_session.generate``; 0006:
-    ``rba_session.library_version``; 0007: ``rba_train_job.stages``)."""
+    ``rba_session.library_version``; 0007: ``rba_train_job.stages``; 0008: the ``rba_study*`` tables)."""
     later = {"rba_session": ("generate", "library_version"), "rba_train_job": ("stages",)}
     old = MetaData()
     for table in SQLModel.metadata.tables.values():
         if table.name in later:
             Table(table.name, old, *(c._copy() for c in table.columns if c.name not in later[table.name]))
-        elif table.name != "rba_generated_clip":
+        elif table.name != "rba_generated_clip" and not table.name.startswith("rba_study"):
             table.to_metadata(old)
     return old
 

@@ -13,7 +13,7 @@ from sqlalchemy.engine import Connection
 from sqlmodel import SQLModel
 from sqlmodel.sql.sqltypes import AutoString
 
-from server.db import admin_tables, tables  # noqa: F401  (registers the tables on SQLModel.metadata)
+from server.db import admin_tables, study_tables, tables  # noqa: F401  (registers the tables on SQLModel.metadata)
 from server.db.migrations import TABLE_PREFIX
 
 
