@@ -118,6 +118,25 @@ class ParamSpace:
         return out
 
 
+@dataclass(frozen=True)
+class Marker:
+    """A point an overlay shows from ``frame`` on, with a short text (e.g. a footprint and its stride length)."""
+
+    frame: int
+    pos: tuple[float, float, float]  # the scene's coordinates (MuJoCo's, or the road's x, y and 0)
+    text: str
+
+
+@dataclass(frozen=True)
+class Overlay:
+    """What one attribute measures, drawn over a clip (the page shows it on request): markers and a polyline."""
+
+    attribute: str
+    label: str
+    markers: tuple[Marker, ...] = ()
+    path: tuple[tuple[float, float, float], ...] | None = None
+
+
 @dataclass
 class Rollout:
     """One simulated behaviour clip."""
@@ -275,6 +294,22 @@ class Domain(ABC):
         ``frames`` selects. A frame is the same whether its clip is rendered whole or in parts (the compute
         layer renders a clip's parts on several workers), so a frame may read other rows (a camera set by
         the first) but never depend on which frames were drawn before it."""
+
+    def clip_view(self, rollout: Rollout | None = None) -> object | None:
+        """What the page draws this domain's clips from instead of their MP4s (``rba.media.clip_data``): a
+        ``rba.domains.mujoco_render.MujocoView`` or a ``rba.domains.lane_change.RoadView``, for ``rollout`` (None: the
+        scene every clip shares). None (the default): the page shows the MP4."""
+        return None
+
+    @property
+    def draws_clips(self) -> bool:
+        """Whether the page can draw this domain's clips from data (the domain defines ``clip_view``)."""
+        return type(self).clip_view is not Domain.clip_view
+
+    def clip_overlays(self, rollout: Rollout, track: Mapping[str, np.ndarray]) -> list[Overlay]:
+        """Per attribute, what it measures drawn over the clip. ``track``: each named visual geom's centre per
+        frame, float[F, 3] (MuJoCo domains; empty otherwise). Default: none."""
+        return []
 
     def simulator(self) -> SkillSim:
         """A new simulator stepped by the skill's actions (``rba.gym``); domains without one raise."""

@@ -28,7 +28,7 @@ import mujoco
 import numpy as np
 
 from rba.domains.base import ALL_FRAMES, Domain, Rollout, run_skill
-from rba.domains.mujoco_render import Camera, Sky, ThreadRenderers
+from rba.domains.mujoco_render import Camera, MujocoView, Sky, ThreadRenderers
 
 log = logging.getLogger(__name__)
 
@@ -135,7 +135,10 @@ class GymMujocoDomain(Domain):
         return Rollout("", self.name, dict(params), seed, observations.astype(np.float32), np.array(sim.replay),
                        proxies, self.succeeded(observations))
 
-    def render(self, rollout: Rollout, width: int, height: int, frames: slice = ALL_FRAMES) -> Iterator[np.ndarray]:
+    def clip_view(self, rollout: Rollout | None = None) -> MujocoView:
         if self._model is None:
             self._model = make_env(self.env_id, self.env_kwargs).model
-        return self._renderers.replay(self._model, rollout.replay[frames], width, height, self.camera)
+        return MujocoView(self._model, self.camera, self._renderers)
+
+    def render(self, rollout: Rollout, width: int, height: int, frames: slice = ALL_FRAMES) -> Iterator[np.ndarray]:
+        return self.clip_view(rollout).replay(rollout.replay[frames], width, height)

@@ -25,7 +25,8 @@ from __future__ import annotations
 
 import os
 import threading
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
 from types import MappingProxyType
 
 import numpy as np
@@ -35,6 +36,8 @@ from rba.domains.base import (
     AttributeSpec,
     Domain,
     FeedbackPhrases,
+    Marker,
+    Overlay,
     Rollout,
     SkillPolicy,
     SkillSim,
@@ -191,6 +194,70 @@ class LaneChangeSim:
                          follower.speed])
 
 
+@dataclass(frozen=True)
+class Car:
+    """One vehicle as highway-env draws it: a rectangle of ``length`` x ``width`` m in ``rgb`` (0..255)."""
+
+    length: float
+    width: float
+    rgb: tuple[int, int, int]
+    agent: bool  # the car whose behaviour is tuned
+
+
+@dataclass(frozen=True)
+class RoadView:
+    """What the page needs to draw a clip as highway-env's renderer draws it (``rba.media.clip_data``): the
+    frame is ``view_metres`` of road across, centred so that car ``centre_on`` sits at ``centring`` (fractions of
+    the frame's width and height); each replay row holds every car's x, y and heading in ``cars``' order."""
+
+    view_metres: float
+    centring: tuple[float, float]
+    centre_on: int
+    lane_width: float
+    lines: tuple[tuple[float, str], ...]  # (y in m, "continuous" | "striped") of each painted line
+    stripe: tuple[float, float]  # a striped line's stripe length and spacing (m)
+    road_rgb: tuple[int, int, int]
+    line_rgb: tuple[int, int, int]
+    cars: tuple[Car, ...]
+
+    def poses(self, replay: np.ndarray) -> np.ndarray:
+        """float[F, cars, 3]: each car's x, y (m) and heading (rad) per frame."""
+        return np.asarray(replay, dtype=np.float64).reshape(len(replay), len(self.cars), 3)
+
+
+def road_view(env, view: float, ego_at: float) -> RoadView:
+    """The two-car scene of ``env`` (made by ``_make_env``) as highway-env's renderer draws it."""
+    from highway_env.road.graphics import LaneGraphics, WorldSurface
+    from highway_env.road.lane import LineType
+    from highway_env.vehicle.graphics import VehicleGraphics
+
+    kinds = {LineType.CONTINUOUS_LINE: "continuous", LineType.CONTINUOUS: "continuous",
+             LineType.STRIPED: "striped"}
+    lines = sorted({(float(lane.position(0.0, (side - 0.5) * lane.width)[1]), kinds[kind])
+                    for lanes in env.unwrapped.road.network.graph.values() for group in lanes.values()
+                    for lane in group for side, kind in enumerate(lane.line_types) if kind in kinds})
+    ego, follower = _scene(env, 10.0)
+    cars = tuple(Car(float(v.LENGTH), float(v.WIDTH), tuple(int(c) for c in VehicleGraphics.get_color(v)[:3]),
+                     v is ego) for v in (ego, follower))
+    return RoadView(view, (ego_at, 0.5), 0, LANE_WIDTH, tuple(lines),
+                    (LaneGraphics.STRIPE_LENGTH, LaneGraphics.STRIPE_SPACING), WorldSurface.GREY, WorldSurface.WHITE,
+                    cars)
+
+
+def lane_change_overlays(replay: np.ndarray, proxies: Mapping[str, float]) -> list[Overlay]:
+    """The page's overlays from the replay (both cars' x, y, heading per frame): the ego's path with a marker where
+    it turns fastest (its peak yaw rate), and the gap to the follower when the change starts."""
+    rows = np.asarray(replay, dtype=np.float64)
+    turn = int(np.argmax(np.abs(np.diff(rows[:, 2])))) + 1
+    ex, _, _, fx, fy, _ = rows[CHANGE_STEP - 1]
+    gap = ((float(fx + CAR_LENGTH / 2), float(fy), 0.0), (float(ex - CAR_LENGTH / 2), float(fy), 0.0))
+    path = tuple((float(x), float(y), 0.0) for x, y in rows[:, :2])
+    return [Overlay("sharpness", "The car's path and where it turns fastest",
+                    (Marker(turn, path[turn], f"{proxies['sharpness']:.2f} rad/s"),), path),
+            Overlay("gap", "The gap to the car behind when the change starts",
+                    (Marker(CHANGE_STEP - 1, gap[1], f"{proxies['gap']:.1f} m"),), gap)]
+
+
 def _draw(env) -> np.ndarray:
     """``env.render()`` as an HxWx3 uint8 array, read back row by row: highway-env reads the
     surface column-major (``surfarray``) and the transposed copy took ~0.5 ms of a ~1.1 ms
@@ -262,6 +329,12 @@ class LaneChange(Domain):
         states = stack_samples(sim.raw, DECIDE_EVERY) if self.raw_states else np.asarray(states, dtype=np.float32)
         return Rollout("", self.name, dict(params), seed, states, replay, proxies, bool(success),
                        info={"final_lateral_m": float(final_y), "crashed": float(sim.crashed)})
+
+    def clip_view(self, rollout: Rollout | None = None) -> RoadView:
+        return road_view(self._env(), VIEW_METRES, 0.5)
+
+    def clip_overlays(self, rollout: Rollout, track: Mapping[str, np.ndarray]) -> list[Overlay]:
+        return lane_change_overlays(rollout.replay, rollout.proxies)
 
     def render(self, rollout: Rollout, width: int, height: int, frames: slice | np.ndarray = ALL_FRAMES,
                view: float = VIEW_METRES, ego_at: float = 0.5) -> Iterator[np.ndarray]:

@@ -30,7 +30,7 @@ so a policy on them could not measure the proxies.
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
 
@@ -42,13 +42,15 @@ from rba.domains.base import (
     AttributeSpec,
     Domain,
     FeedbackPhrases,
+    Marker,
+    Overlay,
     Rollout,
     SkillPolicy,
     SkillSim,
     run_skill,
     stack_samples,
 )
-from rba.domains.mujoco_render import Camera, ThreadRenderers
+from rba.domains.mujoco_render import Camera, MujocoView, ThreadRenderers
 
 CONTROL_EVERY = 10  # physics steps (1 ms) per control step: 100 Hz
 RAW_EVERY = 2  # control steps per raw sample: 50 Hz
@@ -226,6 +228,20 @@ def lift_proxies(hand: np.ndarray) -> dict[str, float]:
     return {"speed": float(speed), "instability": 1000.0 * quadratic_residual(hand)}  # mm
 
 
+def lift_overlays(hand: np.ndarray, proxies: dict[str, float], frame_rate: float) -> list[Overlay]:
+    """The page's overlays from the hand geom's centre per frame, float[F, 3]: the hand's path with where the
+    10-90 % rise starts and ends (the speed measured over it), and the path again with the jitter it measures."""
+    z = hand[:, 2]
+    z0, z1 = z[: max(1, int(HOLD_BEFORE * frame_rate))].mean(), z[-max(1, int(0.3 * frame_rate)):].mean()
+    k10, k90 = int(np.argmax(z >= z0 + 0.1 * (z1 - z0))), int(np.argmax(z >= z0 + 0.9 * (z1 - z0)))
+    path = tuple(tuple(map(float, p)) for p in hand)
+    rise = (Marker(k10, path[k10], "10 % of the climb"),
+            Marker(k90, path[k90], f"90 %: {(k90 - k10) / frame_rate:.2f} s, {proxies['speed']:.2f} m/s"))
+    return [Overlay("speed", "The hand's path and the middle 80 % of its climb", rise, path),
+            Overlay("instability", "The hand's path: jitter shows as wiggles",
+                    (Marker(len(path) - 1, path[-1], f"jitter {proxies['instability']:.2f} mm"),), path)]
+
+
 def measure(raw: np.ndarray, states: np.ndarray) -> tuple[dict[str, float], bool, dict[str, float]]:
     """Proxies, success and diagnostics from the raw 50 Hz samples [T, RAW_FEATURES] and the states."""
     _, climb = _climb(raw[:, 1])
@@ -296,9 +312,14 @@ class Manipulator(Domain):
             states = stack_samples(rec.sim, STACK)
         return Rollout("", self.name, dict(params), seed, states, np.asarray(rec.replay), proxies, success, info)
 
+    def clip_view(self, rollout: Rollout | None = None) -> MujocoView:
+        return MujocoView(self._physics(), Camera(CAMERA_DISTANCE, CAMERA_ELEVATION, CAMERA_LOOKAT), self._renderers)
+
     def render(self, rollout: Rollout, width: int, height: int, frames: slice = ALL_FRAMES) -> Iterator[np.ndarray]:
-        camera = Camera(CAMERA_DISTANCE, CAMERA_ELEVATION, CAMERA_LOOKAT)
-        return self._renderers.replay(self._physics(), rollout.replay[frames], width, height, camera)
+        return self.clip_view(rollout).replay(rollout.replay[frames], width, height)
+
+    def clip_overlays(self, rollout: Rollout, track: Mapping[str, np.ndarray]) -> list[Overlay]:
+        return lift_overlays(track["hand"], rollout.proxies, self.frame_rate)
 
     def simulator(self) -> SkillSim:
         return ManipulatorSim(self._physics())

@@ -107,6 +107,19 @@ class ThreadRenderers:
         self._made.clear()
 
 
+@dataclass(frozen=True)
+class MujocoView:
+    """What a MuJoCo domain's clips show: its model, its camera and how its renderers draw (reflection, sky). The MP4
+    renders it (``replay``) and the page's data is read off it (``rba.media.clip_data``): one description, two ways."""
+
+    model: mujoco.MjModel
+    camera: Camera
+    renderers: ThreadRenderers
+
+    def replay(self, qposes: np.ndarray, width: int, height: int) -> Iterator[np.ndarray]:
+        return self.renderers.replay(self.model, qposes, width, height, self.camera)
+
+
 def sky_alone(renderer: mujoco.Renderer) -> np.ndarray:
     """The skybox alone, as the scene's camera sees it now (the scene keeps its geoms and flags)."""
     scene = renderer.scene

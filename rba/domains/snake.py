@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import copy
 import functools
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
@@ -41,6 +41,8 @@ from rba.domains.base import (
     AttributeSpec,
     Domain,
     FeedbackPhrases,
+    Marker,
+    Overlay,
     ParamSpace,
     Rollout,
     SkillPolicy,
@@ -48,7 +50,7 @@ from rba.domains.base import (
     run_skill,
     stack_samples,
 )
-from rba.domains.mujoco_render import Camera, Sky, ThreadRenderers
+from rba.domains.mujoco_render import Camera, MujocoView, Sky, ThreadRenderers
 
 XML = Path(__file__).resolve().parent / "assets" / "snake.xml"
 LINKS = 14
@@ -281,6 +283,30 @@ class SnakeSim:
         return np.array([*data.qpos[7:], *vel, head_tail, shape[0], anchor]), shape
 
 
+def snake_overlays(links: np.ndarray, proxies: dict[str, float]) -> list[Overlay]:
+    """The page's overlays from the links' centres per frame, float[F, LINKS, 3]: the two links farthest apart
+    sideways when the body is widest, head and tail when it is most bunched, and the centre's path."""
+    points = links[:, :, :2]
+    widths = np.array([body_metrics(p)[0] for p in points])
+    spans = np.linalg.norm(points[:, 0] - points[:, -1], axis=1)
+    wide, bunched = int(np.argmax(widths)), int(np.argmin(spans))
+    centred = points[wide] - points[wide].mean(0)
+    axis = np.linalg.svd(centred, full_matrices=False)[2][1]  # the body's sideways principal axis
+    side = centred @ axis
+    def at(k: int, link: int) -> tuple[float, float, float]:
+        return tuple(map(float, links[k, link]))
+    centre = links.mean(1)
+    return [Overlay("bend_width", "The widest bend: the two links farthest apart sideways",
+                    (Marker(wide, at(wide, int(np.argmin(side))), ""),
+                     Marker(wide, at(wide, int(np.argmax(side))), f"{widths[wide]:.2f} m wide"))),
+            Overlay("compression", "Head and tail when the body is bunched most",
+                    (Marker(bunched, at(bunched, 0), "head"),
+                     Marker(bunched, at(bunched, LINKS - 1), f"{spans[bunched]:.2f} m apart"))),
+            Overlay("speed", "The body's centre: its path",
+                    (Marker(len(links) - 1, tuple(map(float, centre[-1])), f"{proxies['speed']:.3f} m/s"),),
+                    tuple(tuple(map(float, p)) for p in centre))]
+
+
 def measure(rec: SnakeRecording, period: float, data: mujoco.MjData,
             bodies: np.ndarray) -> tuple[dict[str, float], bool, dict[str, float]]:
     """Proxies, success and diagnostics of a finished clip."""
@@ -383,11 +409,17 @@ class Snake(Domain):
                        np.asarray(rec.replay, dtype=np.float32),  # qpos for rendering: float32 halves the library
                        proxies, success, info)
 
-    def render(self, rollout: Rollout, width: int, height: int, frames: slice = ALL_FRAMES) -> Iterator[np.ndarray]:
-        y0 = float(rollout.replay[0][1])  # the first row's, in every part of the clip
+    def clip_view(self, rollout: Rollout | None = None) -> MujocoView:
+        y0 = 0.0 if rollout is None else float(rollout.replay[0][1])  # the first row's, in every part of the clip
         camera = Camera(CAMERA_DISTANCE, CAMERA_ELEVATION,  # follows the centre of mass forward
                         aim=lambda data: (float(data.subtree_com[1][0]) - 0.1, y0, 0.0))
-        return self._renderers.replay(self._physics(), rollout.replay[frames], width, height, camera)
+        return MujocoView(self._physics(), camera, self._renderers)
+
+    def render(self, rollout: Rollout, width: int, height: int, frames: slice = ALL_FRAMES) -> Iterator[np.ndarray]:
+        return self.clip_view(rollout).replay(rollout.replay[frames], width, height)
+
+    def clip_overlays(self, rollout: Rollout, track: Mapping[str, np.ndarray]) -> list[Overlay]:
+        return snake_overlays(np.stack([track[f"link{i}"] for i in range(LINKS)], 1), rollout.proxies)
 
     def simulator(self) -> SkillSim:
         return SnakeSim(self._physics())

@@ -7,7 +7,7 @@ physics, measured by :func:`~rba.domains.walker.measure.measure`.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from types import MappingProxyType
 
 import numpy as np
@@ -17,6 +17,7 @@ from rba.domains.base import (
     AttributeSpec,
     Domain,
     FeedbackPhrases,
+    Overlay,
     Reading,
     Rollout,
     SkillPolicy,
@@ -24,7 +25,7 @@ from rba.domains.base import (
     run_skill,
     stack_samples,
 )
-from rba.domains.mujoco_render import Camera, Sky, ThreadRenderers
+from rba.domains.mujoco_render import Camera, MujocoView, Sky, ThreadRenderers
 from rba.domains.walker.gait import PARAM_RANGES, GaitPlan
 from rba.domains.walker.measure import (
     FRAME_RATE,
@@ -34,6 +35,7 @@ from rba.domains.walker.measure import (
     measure,
     observed_touchdowns,
     touchdown_proxies,
+    walker_overlays,
 )
 from rba.domains.walker.physics import WalkerPhysics
 from rba.domains.walker.sim import GaitPolicy, WalkerSim, WalkerSkillPolicy
@@ -110,10 +112,16 @@ class Walker(Domain):
                        success=m.success, info=m.info)
 
     # ------------------------------------------------------------------ rendering
-    def render(self, rollout: Rollout, width: int, height: int, frames: slice = ALL_FRAMES) -> Iterator[np.ndarray]:
+    def clip_view(self, rollout: Rollout | None = None) -> MujocoView:
         camera = Camera(CAMERA_DISTANCE, CAMERA_ELEVATION,  # follows the torso along x
                         aim=lambda data: (float(data.xpos[1, 0]), 0.0, CAMERA_LOOKAT_Z))
-        return self._renderers.replay(self.physics().model, rollout.replay[frames], width, height, camera)
+        return MujocoView(self.physics().model, camera, self._renderers)
+
+    def render(self, rollout: Rollout, width: int, height: int, frames: slice = ALL_FRAMES) -> Iterator[np.ndarray]:
+        return self.clip_view(rollout).replay(rollout.replay[frames], width, height)
+
+    def clip_overlays(self, rollout: Rollout, track: Mapping[str, np.ndarray]) -> list[Overlay]:
+        return walker_overlays(track["right_foot"], track["left_foot"], self.frame_rate)
 
     # ------------------------------------------------------------------ stepping (rba.gym)
     def simulator(self) -> SkillSim:

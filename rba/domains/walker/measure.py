@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from rba.domains.base import Marker, Overlay
 from rba.domains.walker.gait import LANDING_WINDOW, N_STEPS, GaitPlan, Touchdown
 from rba.domains.walker.physics import WalkerPhysics
 
@@ -27,6 +28,8 @@ from rba.domains.walker.physics import WalkerPhysics
 MIN_TORSO_HEIGHT = 0.7  # torso centre height (m)
 MAX_PITCH = 1.0  # |torso pitch| (rad)
 LIFT = 0.01  # m of clearance a foot rises above before its next floor contact is a touchdown (observed_touchdowns)
+STEP_LIFT = 0.03  # m a foot rises before its landing is a step's, in the overlays' 30 fps frames (a dragged rear
+# foot rises about 1 cm)
 
 # ---------------------------------------------------------------- sampling & recording
 STATE_EVERY = 40  # physics steps per state sample (10 Hz: foot speed features carry the fast part)
@@ -166,3 +169,34 @@ def touchdown_proxies(touchdowns: list[Touchdown]) -> dict[str, float]:
     return {"step_size": float(np.mean([td.feet_distance for td in later])),
             "softness": -float(np.mean([td.landing_speed for td in later]))}
 
+
+
+def walker_overlays(right: np.ndarray, left: np.ndarray, frame_rate: float) -> list[Overlay]:
+    """The page's overlays from the foot geoms' tracks (centre x, y and lowest z per frame, float[F, 3] each): a
+    footprint at each touchdown with the stride (feet distance) then, and the landing speed (the foot's peak speed
+    over ``LANDING_WINDOW`` before it). Touchdowns are read off the frames (a foot on the floor lifted
+    ``STEP_LIFT`` above it, then back within ``LIFT``), so the texts are frame-rate readings of what the proxies
+    measure at the physics rate."""
+    feet = np.stack([right, left])  # [2, F, 3]
+    low = feet[..., 2]  # each foot's lowest point; the floor is at z = 0
+    speed = np.zeros(low.shape)
+    speed[:, 1:] = np.linalg.norm(np.diff(feet, axis=1), axis=2) * frame_rate
+    window = max(1, round(LANDING_WINDOW * frame_rate))
+    prints, landings, lifted, stood = [], [], [False, False], [False, False]
+    for k in range(low.shape[1]):
+        for foot in (0, 1):
+            if low[foot, k] > STEP_LIFT:
+                lifted[foot] = stood[foot]  # a step starts from the floor: the clip's first settling is none
+            elif low[foot, k] < LIFT:
+                stood[foot] = True
+                if not lifted[foot]:
+                    continue
+                lifted[foot] = False
+                x, y, z = feet[foot, k]
+                stride = abs(feet[0, k, 0] - feet[1, k, 0])
+                prints.append(Marker(k, (float(x), float(y), float(z)), f"{stride:.2f} m"))
+                peak = speed[foot, max(1, k - window + 1): k + 1].max(initial=0.0)
+                landings.append(Marker(k, (float(x), float(y), float(z)), f"≈ {peak:.2f} m/s"))
+    return [Overlay("step_size", "Footprints and stride length at each touchdown", tuple(prints),
+                    tuple(m.pos for m in prints) or None),
+            Overlay("softness", "Landing speed at each touchdown (lower is softer)", tuple(landings))]
