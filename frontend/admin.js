@@ -3,13 +3,13 @@
 
 import { $, api, el, hideToast, pretty, toast } from "./common.js";
 import { showCurves } from "./curves.js";
+import { ClipPlayer } from "./player.js";
 import { mountStudies } from "./studies.js";
 
-const WATCH_SECONDS = 1;  // a clip counts as seen once it has played this long (or 90 % of a shorter clip)
 const ANSWERS = ["left-more", "skip", "right-more"];
 const TOKEN_KEY = "rba-admin-token";  // in this tab's session storage until "Lock" or the tab closes
 const state = {
-  token: sessionStorage.getItem(TOKEN_KEY) || "", clips: [], watched: new Set(), failed: false,
+  token: sessionStorage.getItem(TOKEN_KEY) || "", clips: [], players: [], watched: new Set(), failed: false,
   busy: false, job: null, curvesJob: null, jobState: "", labels: 0, trainable: [], versions: [], presets: [],
 };
 
@@ -54,7 +54,8 @@ function lock() {
   state.token = "";
   state.job = null;  // the poll stops at its next turn
   state.clips = [];
-  $("pair").replaceChildren();  // stops the videos
+  stopPlayers();
+  $("pair").replaceChildren();
   $("admin").hidden = true;
   $("lock").hidden = true;
   $("login").hidden = false;
@@ -100,7 +101,7 @@ async function loadDomain() {
 }
 
 // ---------------------------------------------------------------- labelling
-/** Answers (and ← → ↓) work only about clips both seen: each played its first second. A clip that fails to load
+/** Answers (and ← → ↓) work only about clips both seen: each played through once. A clip that fails to load
  * can still be skipped. aria-disabled rather than disabled, so a focused button keeps the focus. */
 function gate() {
   const seen = state.clips.length === 2 && state.watched.size === 2 && !state.busy;
@@ -109,41 +110,47 @@ function gate() {
   const status = state.busy ? "Loading the next pair…"
     : state.failed ? "A clip could not be played: skip to the next pair (↓)."
       : seen ? "Both clips played: answer with the buttons or ← → ↓."
-        : "Watch both clips: the answers unlock once each has played its first second.";
+        : "Watch both clips: the answers unlock once each has played through.";
   if ($("watch-status").textContent !== status) $("watch-status").textContent = status;
 }
 
 const allowed = (id) => $(id).getAttribute("aria-disabled") !== "true";
 
-/** Mark clip ``i`` seen once it has played long enough, in the set of its own pair only: a replaced video still
- * fires a last timeupdate as it is paused, which must not unlock the pair after it. */
-function watch(video, i, caption) {
+/** Mark clip ``i`` seen once it has played through, in the set of its own pair only (a replaced player's late
+ * event must not unlock the pair after it). */
+function watch(player, i, caption) {
   const seen = state.watched;
-  const mark = () => {
-    const need = Math.min(WATCH_SECONDS, 0.9 * (Number.isFinite(video.duration) ? video.duration : Infinity));
-    if (seen !== state.watched || seen.has(i) || video.currentTime < need) return;
+  player.addEventListener("playedonce", () => {
+    if (seen !== state.watched || seen.has(i)) return;
     seen.add(i);
     caption.append(el("span", { class: "seen" }, " · ✓ seen"));
     gate();
-  };
-  video.addEventListener("timeupdate", mark);
-  video.addEventListener("error", () => { if (seen === state.watched) { state.failed = true; gate(); } });
+  });
+}
+
+function stopPlayers() {
+  for (const p of state.players) p.destroy();
+  state.players = [];
 }
 
 function showPair(clips) {
-  for (const old of $("pair").querySelectorAll("video")) old.pause();
+  stopPlayers();
   state.clips = clips;
   state.watched = new Set();
   state.failed = false;
   const names = local() ? ["Anchor", "Candidate"] : ["Left", "Right"];
+  const seen = state.watched;
   $("pair").replaceChildren(...clips.map((c, i) => {
     const caption = el("figcaption", {}, `${names[i]} · ${c.rollout_id}`);
-    const video = el("video", { src: c.url, muted: "", loop: "", autoplay: "", playsinline: "", controls: "",
-                                "aria-label": `${names[i]} clip (${c.rollout_id})` });
-    watch(video, i, caption);
-    return el("figure", {}, video, caption);
+    const figure = el("figure", {}, caption);
+    const player = new ClipPlayer(figure, { label: `${names[i]} clip (${c.rollout_id})` });
+    state.players.push(player);
+    watch(player, i, caption);
+    player.show(c).then(() => {
+      if (player.failed && seen === state.watched) { state.failed = true; gate(); }
+    });
+    return figure;
   }));
-  for (const v of $("pair").querySelectorAll("video")) { v.muted = true; v.play().catch(() => {}); }
 }
 
 function showQuestion() {
@@ -502,7 +509,7 @@ $("cancel").addEventListener("click", cancel);
 $("curves-job").addEventListener("change", chooseCurves);
 document.addEventListener("keydown", (e) => {
   // keys of their own: form fields, a video's controls (← → seek), the training log (↓ scrolls)
-  if ($("admin").hidden || document.querySelector("dialog[open]") || e.target.closest("input, select, textarea, summary, video, pre")) return;
+  if ($("admin").hidden || document.querySelector("dialog[open]") || e.target.closest("input, select, textarea, summary, video, pre, .clip-player")) return;
   const act = { ArrowLeft: () => answer("left"), ArrowRight: () => answer("right"), ArrowDown: skip }[e.key];
   if (!act) return;
   e.preventDefault();  // ↓ would scroll the page away from the clips

@@ -1,16 +1,17 @@
 // RBA Studio page: start a session, watch its clip, answer "more / less <attribute>" or "this is it".
 // Plain ES module, no build step. Talks only to the REST API the scripted users use too.
-// An answer is only possible about a clip that has played for a second; it names that clip, so the server
+// An answer is only possible about a clip that has played through once; it names that clip, so the server
 // refuses (409) an answer about a clip the session no longer shows. An answer that makes the agent search for a
 // new behaviour returns at once (202); the page then polls the search's progress with the buttons locked.
 
 import { $, api, el, patientFetch, pretty, toast } from "./common.js";
 import { describe, renderMeters, renderPath } from "./meters.js";
+import { ClipPlayer } from "./player.js";
 
 const els = {
   domain: $("domain"), method: $("method"), setup: $("setup"), start: $("start"),
   generate: $("generate"), generateField: $("generate-field"), advanced: $("advanced"), about: $("setup-about"),
-  player: $("player"), video: $("video"), overlay: $("overlay"), overlayText: $("overlay-text"),
+  player: $("player"), overlay: $("overlay"), overlayText: $("overlay-text"),
   progress: $("progress"), progressFill: $("progress-fill"), progressText: $("progress-text"),
   welcome: $("welcome"), welcomeNote: $("welcome-note"),
   stepBadge: $("step-badge"), replayBanner: $("replay-banner"), replayText: $("replay-text"), replayBack: $("replay-back"),
@@ -36,7 +37,7 @@ const state = {
   waiting: false, // a new clip is being chosen or rendered: the previous one stays, dimmed
   viewing: null, // a history entry being re-watched, or null for the current clip
   shownUrl: null,
-  played: new Set(), // rollout ids that have played for at least a second
+  played: new Set(), // rollout ids that have played through once
   announced: null,
   clipToken: 0,
   loading: null, // the rollout load() gave the video, until it can play: only its events take the overlay away
@@ -44,8 +45,8 @@ const state = {
   reading: false, // the server is reading the text box's sentence: Interpret (and Enter) wait for it
 };
 
-const PLAYED_SECONDS = 1;
 const POLL_MS = 400;
+const player = new ClipPlayer($("clip"), { label: "Current clip" });
 const SESSION_ID = /^[0-9a-f]{32}$/;
 
 // ---------------------------------------------------------------- small helpers
@@ -77,7 +78,7 @@ function showWelcome(on) {
   if (on) { overlay(null); document.body.dataset.state = "idle"; }
 }
 
-/** Answers are possible once the current clip has played for a second, the session is active and nothing is pending. */
+/** Answers are possible once the current clip has played through, the session is active and nothing is pending. */
 function canAnswer() {
   const s = state.session;
   return Boolean(s && s.status === "active" && !state.busy && !state.waiting && state.played.has(s.clip.rollout_id));
@@ -104,7 +105,7 @@ function refreshControls() {
     els.controlsHint.textContent = open ? "Press more or less — or “This is it”."
       : state.searching ? "No stored clip fits your answer, so the agent is making a new behaviour: the buttons "
         + "unlock once it has played."
-      : state.busy || state.waiting ? "Wait for the new clip…" : "Watch the clip: the buttons unlock after its first second.";
+      : state.busy || state.waiting ? "Wait for the new clip…" : "Watch the clip: the buttons unlock once it has played.";
   }
 }
 
@@ -224,7 +225,7 @@ async function sendFeedback(payload, pressed) {
   if (!s || s.status !== "active" || state.busy) return false;
   if (!canAnswer()) {
     toast(state.waiting ? "The new clip is on its way: answer once it has played."
-      : "Watch the clip first: answers unlock after its first second.", "info");
+      : "Watch the clip first: answers unlock once it has played.", "info");
     return false;
   }
   backToCurrent();
@@ -374,24 +375,20 @@ async function waitForRender(clip, token) {
   }
 }
 
-function load(url, rolloutId, label) {
-  state.shownUrl = url;
-  state.loading = rolloutId;
+/** Show ``clip`` (its data drawn, else its MP4) in the player; ``previous`` (or null) to compare it with. */
+function load(clip, label, previous = null) {
+  state.shownUrl = clip.url;
+  state.loading = clip.rollout_id;
   overlay(label);
-  els.video.dataset.ready = "false";
-  delete els.video.dataset.played;
-  els.video.dataset.rollout = rolloutId;
-  els.video.src = url;
-  els.video.load();
-  const p = els.video.play();
-  if (p && p.catch) p.catch(() => { /* autoplay blocked: the video still shows its first frame */ });
+  player.show(clip).then(() => clipStarted(clip.rollout_id));
+  player.compare(previous);
 }
 
 /** Show the session's current clip: the previous one stays, dimmed, with the render's progress until it is ready. */
 async function showCurrentClip(clip) {
   const token = ++state.clipToken;
   if (state.shownUrl === clip.url) { stopWaiting(); return; }
-  if (!clip.ready) {
+  if (!clip.ready && !clip.data_url) {  // drawn from data: no render to wait for
     state.waiting = true;
     els.player.classList.toggle("waiting", Boolean(state.shownUrl));
     refreshControls();
@@ -399,7 +396,13 @@ async function showCurrentClip(clip) {
     if (token !== state.clipToken) return;
     if (state.viewing) { stopWaiting(); return; } // re-watching an old clip: the new one loads on "back to current"
   }
-  load(clip.url, clip.rollout_id, "Loading the clip…");
+  load(clip, "Loading the clip…", previousClip());
+}
+
+/** The clip shown before the current one (to compare with), or null. */
+function previousClip() {
+  const h = state.session && state.session.history.at(-1);
+  return h ? h.rollout_before : null;
 }
 
 function stopWaiting() {
@@ -409,37 +412,29 @@ function stopWaiting() {
   refreshControls();
 }
 
-function clipStarted() {
-  // a looping clip fires canplay / playing again: only the clip being waited for ends the wait
-  if (state.loading !== els.video.dataset.rollout) return;
+function clipStarted(rolloutId) {
+  if (state.loading !== rolloutId) return;  // only the clip being waited for ends the wait
   state.loading = null;
-  els.video.dataset.ready = "true";
   const s = state.session;
-  if (state.viewing || !s || els.video.dataset.rollout !== s.clip.rollout_id) { overlay(null); return; }
+  if (player.mode === "video" && player.failed) {
+    stopWaiting();
+    overlay("The clip could not be loaded.", "error");
+    toast("The clip could not be loaded; reload the page to try again.");
+    return;
+  }
+  if (state.viewing || !s || rolloutId !== s.clip.rollout_id) { overlay(null); return; }
   stopWaiting();
   if (state.announced !== s.clip.rollout_id) {
     state.announced = s.clip.rollout_id;
     els.announce.textContent = `Clip ${s.step + 1}: ${describe(s.attributes, s.clip)}`;
   }
 }
-els.video.addEventListener("playing", clipStarted);
-els.video.addEventListener("canplay", clipStarted);
-els.video.addEventListener("timeupdate", () => {
-  const d = els.video.duration;
-  const enough = Number.isFinite(d) ? Math.min(PLAYED_SECONDS, d * 0.9) : PLAYED_SECONDS;
-  const id = els.video.dataset.rollout;
-  if (!id || els.video.currentTime < enough) return;
-  els.video.dataset.played = id;
-  if (!state.played.has(id)) {
+player.addEventListener("playedonce", () => {
+  const id = player.element.dataset.rolloutId;
+  if (id && !state.played.has(id)) {
     state.played.add(id);
     refreshControls();
   }
-});
-els.video.addEventListener("error", () => {
-  if (!state.shownUrl) return;
-  stopWaiting();
-  overlay("The clip could not be loaded.", "error");
-  toast("The clip could not be loaded; reload the page to try again.");
 });
 
 // ---------------------------------------------------------------- rendering a session
@@ -504,6 +499,7 @@ function buildControls(session) {
   });
   els.keyList.append(el("li", {}, el("kbd", {}, "Enter"), "this is it"),
     el("li", {}, el("kbd", {}, "Space"), "pause / play"),
+    el("li", {}, el("kbd", {}, "← →"), "one frame back / on (the player's own keys under it)"),
     el("li", {}, el("kbd", {}, "Esc"), "back to the current clip"));
   resetWords();
 }
@@ -576,7 +572,7 @@ function rewatch(h) {
   state.viewing = h;
   els.replayText.textContent = `Re-watching clip ${h.step + 1} — you said ${feedbackLabel(h).map((n) => n.textContent).join("")}`;
   els.replayBanner.hidden = false;
-  load(h.rollout_before.url, h.rollout_before.rollout_id, "Loading the clip…");
+  load(h.rollout_before, "Loading the clip…");
   renderClipView(h.rollout_before);
   renderHistory(state.session);
 }
@@ -585,7 +581,7 @@ function backToCurrent() {
   if (!state.viewing || !state.session) return;
   state.viewing = null;
   els.replayBanner.hidden = true;
-  load(state.session.clip.url, state.session.clip.rollout_id, "Loading the clip…");
+  load(state.session.clip, "Loading the clip…", previousClip());
   renderClipView(state.session.clip);
   renderHistory(state.session);
 }
@@ -674,6 +670,7 @@ els.wordsNo.addEventListener("click", () => { resetWords(); els.wordsText.focus(
 // ---------------------------------------------------------------- keyboard
 document.addEventListener("keydown", (e) => {
   if (e.target instanceof HTMLSelectElement || e.target instanceof HTMLInputElement || e.metaKey || e.ctrlKey || e.altKey) return;
+  if (e.defaultPrevented) return;  // the player's own keys (focus in it)
   const s = state.session;
   const digit = /^Digit([1-9])$/.exec(e.code);
   if (digit && s && s.status === "active") {
@@ -688,7 +685,10 @@ document.addEventListener("keydown", (e) => {
     sendFeedback({ satisfied: true }, els.satisfied);
   } else if (e.key === " " && !(e.target instanceof HTMLButtonElement) && !(e.target instanceof HTMLElement && e.target.closest("summary"))) {
     e.preventDefault();
-    if (els.video.paused) els.video.play().catch(() => {}); else els.video.pause();
+    player.toggle();
+  } else if ((e.key === "ArrowLeft" || e.key === "ArrowRight") && !e.shiftKey) {
+    e.preventDefault();
+    player.step(e.key === "ArrowLeft" ? -1 : 1);
   } else if (e.key === "Escape") {
     backToCurrent();
   }

@@ -327,6 +327,8 @@ export class ClipPlayer extends EventTarget {
     this.ui.video.hidden = true;
     this.ui.video.removeAttribute("src");
     this.ui.canvas.hidden = false;
+    this.ui.bar.hidden = false;
+    this.ui.descButton.hidden = false;
     if (clip.scene.kind === "mujoco") {
       if (!this.stage || this.stage.spec !== clip.scene) this.makeStage(clip.scene);
       this.mode = "webgl";
@@ -338,6 +340,7 @@ export class ClipPlayer extends EventTarget {
     this.ui.reset.hidden = this.mode !== "webgl";
     this.ui.compare.disabled = !this.previous;
     this.ui.scrub.max = String(clip.frames - 1);
+    this.element.dataset.duration = String(clip.frames / clip.rate);
     this.ui.desc.textContent = clip.data.description || "";
     this.buildOverlays(clip.data.overlays || []);
     this.frame = 0;
@@ -355,6 +358,7 @@ export class ClipPlayer extends EventTarget {
 
   async useVideo(url, token) {
     this.mode = "video";
+    this.failed = false;
     this.clip = null;
     this.element.dataset.mode = "video";
     const v = this.ui.video;
@@ -374,6 +378,7 @@ export class ClipPlayer extends EventTarget {
         last = v.currentTime;
       });
       v.addEventListener("ended", () => this.reachedEnd());
+      v.addEventListener("error", () => { if (v.getAttribute("src")) this.failed = true; });
     }
     await new Promise((resolve) => {
       const done = () => { v.removeEventListener("loadeddata", done); v.removeEventListener("error", done); resolve(); };
@@ -381,6 +386,7 @@ export class ClipPlayer extends EventTarget {
       v.addEventListener("error", done);
     });
     if (token !== this._token) return;
+    this.element.dataset.duration = String(v.duration);
     this.ui.descButton.hidden = true;
   }
 

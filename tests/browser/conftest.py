@@ -11,13 +11,16 @@ import pytest
 from server.main import serve_in_thread
 
 CHROMIUM = Path("/usr/bin/chromium")
-# page.wait_for_function predicates of the studio page: a new clip (not ``previous``) plays; it has played its second
+# The studio page's clip player (frontend/player.js): its element names the clip it shows (data-rollout-id)
+CLIP = "#clip .clip-player"
+# page.wait_for_function predicates of the studio page: a new clip (not ``previous``) plays; it has played through
 PLAYING = """(previous) => {
-  const v = document.getElementById('video');
-  return v.dataset.rollout && v.dataset.rollout !== previous && v.readyState >= 3 && v.currentTime > 0.25;
+  const p = document.querySelector('#clip .clip-player'), v = p && p.querySelector('video');
+  if (!p || !p.dataset.rolloutId || p.dataset.rolloutId === previous || p.dataset.ready !== 'true') return false;
+  return p.dataset.mode === 'video' ? v.readyState >= 3 && v.currentTime > 0.25 : Number(p.dataset.frame) > 3;
 }"""
-PLAYED = """() => { const v = document.getElementById('video');
-  return Boolean(v.dataset.played) && v.dataset.played === v.dataset.rollout; }"""
+PLAYED = """() => { const p = document.querySelector('#clip .clip-player');
+  return Boolean(p && p.dataset.played) && p.dataset.played === p.dataset.rolloutId; }"""
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
                  "--disable-component-update", "--disable-sync", "--no-first-run"]
 

@@ -26,8 +26,9 @@ REPO = Path(__file__).resolve().parents[2]
 TOKEN = "browser-admin-token"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
 CLIPS_PLAYING = """() => {
-  const v = [...document.querySelectorAll('#pair video')];
-  return v.length === 2 && v.every((x) => x.readyState >= 3 && x.currentTime > 0.2);
+  const p = [...document.querySelectorAll('#pair .clip-player')];
+  return p.length === 2 && p.every((x) => x.dataset.ready === 'true' && (x.dataset.mode === 'video'
+    ? x.querySelector('video').readyState >= 3 && x.querySelector('video').currentTime > 0.2 : x.dataset.frame > 3));
 }"""
 BOTH_SEEN = "() => document.getElementById('right-more').getAttribute('aria-disabled') === 'false'"
 
@@ -55,7 +56,7 @@ def unlock(page, url: str) -> None:
     page.goto(f"{url}/admin")
     page.fill("#token", TOKEN)
     page.get_by_role("button", name="Unlock").click()
-    page.wait_for_function("() => document.querySelectorAll('#pair video').length === 2", timeout=30_000)
+    page.wait_for_function("() => document.querySelectorAll('#pair .clip-player').length === 2", timeout=30_000)
 
 
 def labels(url: str) -> list[dict]:
@@ -85,10 +86,10 @@ def test_answers_wait_until_both_clips_played_and_focus_stays(url, page, tmp_pat
     page.keyboard.press("ArrowDown")
     assert "Watch both clips" in page.locator("#watch-status").inner_text()
     assert page.eval_on_selector_all("#pair figcaption", "c => c.map((x) => x.textContent)") == shown_first
-    assert page.evaluate("() => [...document.querySelectorAll('#pair video')].some((v) => v.currentTime < 1)")
+    assert page.evaluate("() => [...document.querySelectorAll('#pair .clip-player')].some((p) => !p.dataset.played)")
 
     page.wait_for_function(BOTH_SEEN, timeout=90_000)
-    assert page.evaluate("() => [...document.querySelectorAll('#pair video')].every((v) => v.currentTime >= 0.9)")
+    assert page.evaluate("() => [...document.querySelectorAll('#pair .clip-player')].every((p) => p.dataset.played)")
     assert labels(url) == []  # the early press, ← and ↓ did nothing
     assert page.locator("#attribute").input_value() == "step_size"
     methods = page.eval_on_selector_all("#train-method option", "o => o.map((x) => [x.value, x.textContent])")
@@ -115,8 +116,8 @@ def test_answers_wait_until_both_clips_played_and_focus_stays(url, page, tmp_pat
     page.wait_for_function("() => document.getElementById('label-count').textContent.includes('2 saved')")
     assert len(labels(url)) == 2
     page.wait_for_function(BOTH_SEEN, timeout=90_000)
-    page.locator("#pair video").first.focus()  # a video's controls take ← and → (they seek): no label from them
-    assert page.evaluate("() => document.activeElement.tagName") == "VIDEO"
+    page.locator("#pair .clip-player").first.locator(".cp-play:visible, video:visible").first.focus()  # ← → step
+    assert page.evaluate("() => Boolean(document.activeElement.closest('.clip-player'))")  # frames: no label
     page.keyboard.press("ArrowLeft")
     page.wait_for_timeout(500)
     assert len(labels(url)) == 2
@@ -324,7 +325,7 @@ def test_lock_forgets_the_token_and_shows_the_token_form(url, page):
     assert page.locator("#admin").is_hidden() and page.locator("#login").is_visible()
     assert page.evaluate("() => sessionStorage.getItem('rba-admin-token')") is None
     assert page.evaluate("() => document.activeElement.id") == "token"
-    assert page.locator("#pair video").count() == 0
+    assert page.locator("#pair .clip-player").count() == 0
     page.reload()  # nothing remembered: the form again, not the panels
     page.locator("#login").wait_for()
     assert page.locator("#admin").is_hidden() and page.locator("#token").input_value() == ""

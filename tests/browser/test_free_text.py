@@ -8,7 +8,7 @@ import json
 
 import pytest
 
-from tests.browser.conftest import PLAYED, PLAYING, axe_violations, new_page
+from tests.browser.conftest import CLIP, PLAYED, PLAYING, axe_violations, new_page
 from tests.browser.test_walker_page import feedback_posts, url  # noqa: F401 (url: the walker server)
 
 pytestmark = pytest.mark.slow
@@ -74,7 +74,7 @@ def test_an_unsure_reading_offers_two_to_choose_from(url, browser):  # noqa: F81
     posts = feedback_posts(page)
     start_session(page)
     page.wait_for_function(PLAYING, arg="", timeout=90_000)
-    first = page.eval_on_selector("#video", "v => v.dataset.rollout")
+    first = page.eval_on_selector(CLIP, "p => p.dataset.rolloutId")
     page.wait_for_function(PLAYED, timeout=30_000)
     page.get_by_label("Or say it in your own words").fill("make the landings different")
     page.get_by_role("button", name="Interpret").click()

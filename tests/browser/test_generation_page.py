@@ -13,7 +13,7 @@ import re
 import pytest
 
 from server.common.app_settings import Settings
-from tests.browser.conftest import PLAYED, PLAYING, axe_violations
+from tests.browser.conftest import CLIP, PLAYED, PLAYING, axe_violations
 from tests.fakes import InProcessCompute
 
 
@@ -38,7 +38,7 @@ def test_making_a_new_behaviour_shows_progress_and_locks_the_answers(url, browse
     page.get_by_role("button", name="Start tuning").click()
     page.wait_for_function(PLAYING, arg="", timeout=60_000)
     page.wait_for_function(PLAYED, timeout=30_000)
-    first = page.eval_on_selector("#video", "v => v.dataset.rollout")
+    first = page.eval_on_selector(CLIP, "p => p.dataset.rolloutId")
 
     less = page.get_by_role("button", name="less amplitude")
     less.click()
@@ -55,7 +55,7 @@ def test_making_a_new_behaviour_shows_progress_and_locks_the_answers(url, browse
     assert violations == [], json.dumps(violations, indent=1)
 
     page.wait_for_function(PLAYING, arg=first, timeout=60_000)
-    made = page.eval_on_selector("#video", "v => v.dataset.rollout")
+    made = page.eval_on_selector(CLIP, "p => p.dataset.rolloutId")
     assert made.startswith("gen-")
     assert page.locator("#step-badge").inner_text() == "Clip 2 · new behaviour"
     page.wait_for_function(PLAYED, timeout=30_000)

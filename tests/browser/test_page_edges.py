@@ -14,16 +14,22 @@ from rba.core.methods import get_method
 from rba.domains import get_domain
 from server.common.app_settings import Settings
 from server.runtime.catalog import Catalog
-from tests.browser.conftest import PLAYED, PLAYING, new_page
+from tests.browser.conftest import CLIP, PLAYED, PLAYING, new_page
 
 REPO = Path(__file__).resolve().parents[2]
-OVERLAY_LOG = """() => {  // every change of the overlay's visibility, with the clip the video shows then
+OVERLAY_LOG = """() => {  // every change of the overlay's visibility, with the clip the player shows then
   window.overlayLog = [];
   window.loops = [];
-  const overlay = document.getElementById('overlay'), video = document.getElementById('video');
-  new MutationObserver(() => window.overlayLog.push([overlay.classList.contains('hidden'), video.dataset.rollout]))
+  const overlay = document.getElementById('overlay'), clip = document.querySelector('#clip .clip-player');
+  new MutationObserver(() => window.overlayLog.push([overlay.classList.contains('hidden'), clip.dataset.rolloutId]))
     .observe(overlay, { attributes: true, attributeFilter: ['class'] });
-  video.addEventListener('seeked', () => window.loops.push(video.dataset.rollout));  // a loop seeks to the start
+  let frame = -1;  // a loop starts the clip again: its frame goes back (drawn), or its video seeks (fallback)
+  new MutationObserver(() => {
+    const f = Number(clip.dataset.frame);
+    if (f < frame) window.loops.push(clip.dataset.rolloutId);
+    frame = f;
+  }).observe(clip, { attributes: true, attributeFilter: ['data-frame'] });
+  clip.querySelector('video').addEventListener('seeked', () => window.loops.push(clip.dataset.rolloutId));
 }"""
 
 pytestmark = pytest.mark.slow
@@ -44,7 +50,7 @@ def start(page) -> str:
     page.get_by_role("button", name="Start tuning").click()
     page.wait_for_function(PLAYING, arg="", timeout=90_000)
     page.wait_for_function(PLAYED, timeout=30_000)
-    return page.eval_on_selector("#video", "v => v.dataset.rollout")
+    return page.eval_on_selector(CLIP, "p => p.dataset.rolloutId")
 
 
 def test_the_waiting_text_stays_until_the_next_clip_plays(url, browser):
@@ -52,7 +58,7 @@ def test_the_waiting_text_stays_until_the_next_clip_plays(url, browser):
     the overlay never hides before that clip plays."""
     page, errors = new_page(browser, url)
     first = start(page)
-    seconds = page.eval_on_selector("#video", "v => v.duration")
+    seconds = page.eval_on_selector(CLIP, "p => Number(p.dataset.duration)")
 
     def late(route) -> None:
         time.sleep(seconds + 1.5)  # the browser runs on: the previous clip loops at least once
@@ -123,12 +129,12 @@ def test_a_phone_shows_the_clip_the_answers_and_the_values_without_scrolling(url
     page.get_by_role("button", name="Start tuning").tap()
     page.wait_for_function(PLAYING, arg="", timeout=90_000)
     page.wait_for_function(PLAYED, timeout=30_000)
-    first = page.eval_on_selector("#video", "v => v.dataset.rollout")
+    first = page.eval_on_selector(CLIP, "p => p.dataset.rolloutId")
     page.get_by_role("button", name=answer).tap()
     page.wait_for_function(PLAYING, arg=first, timeout=90_000)
     page.wait_for_function(PLAYED, timeout=30_000)
     assert page.evaluate("window.scrollY") == 0
-    parts = ["#video", "#attributes .btn-less", "#attributes .btn-more", "#satisfied", "#measured .meter"]
+    parts = [CLIP, "#attributes .btn-less", "#attributes .btn-more", "#satisfied", "#measured .meter"]
     for selector in parts:
         boxes = [b.bounding_box() for b in page.locator(selector).all()]
         assert boxes, selector

@@ -14,15 +14,15 @@ import pytest
 from rba.data.export_zip import read_export
 from server.common.app_settings import Settings
 from server.runtime.catalog import Catalog
-from tests.browser.conftest import PLAYED, PLAYING, axe_violations, new_page
+from tests.browser.conftest import CLIP, PLAYED, PLAYING, axe_violations, new_page
 
 REPO = Path(__file__).resolve().parents[2]
 WATCH = """() => {  // what a person saw while waiting: overlay texts, and (dimmed?, clip shown) pairs
   window.seen = { texts: [], dimmed: [] };
-  const player = document.getElementById('player'), video = document.getElementById('video');
+  const player = document.getElementById('player'), clip = document.querySelector('#clip .clip-player');
   new MutationObserver(() => window.seen.texts.push(document.getElementById('overlay').innerText))
     .observe(document.getElementById('overlay'), { subtree: true, childList: true, characterData: true });
-  new MutationObserver(() => window.seen.dimmed.push([player.classList.contains('waiting'), video.dataset.rollout]))
+  new MutationObserver(() => window.seen.dimmed.push([player.classList.contains('waiting'), clip.dataset.rolloutId]))
     .observe(player, { attributes: true, attributeFilter: ['class'] });
 }"""
 
@@ -44,7 +44,7 @@ def start(page) -> str:
     """Start a walker session from the welcome card; the first clip's rollout id once it plays."""
     page.get_by_role("button", name="Start tuning").click()
     page.wait_for_function(PLAYING, arg="", timeout=90_000)  # the first clip renders on request
-    return page.eval_on_selector("#video", "v => v.dataset.rollout")
+    return page.eval_on_selector(CLIP, "p => p.dataset.rolloutId")
 
 
 def feedback_posts(page) -> list[dict]:
@@ -60,14 +60,14 @@ def test_answers_unlock_once_the_clip_has_played_and_name_that_clip(url, browser
     more_step = page.get_by_role("button", name="more step size")
     page.evaluate(WATCH)
     page.get_by_role("button", name="Start tuning").click()
-    page.wait_for_function("() => document.getElementById('video').dataset.rollout", timeout=90_000)
+    page.wait_for_function("() => document.querySelector('#clip .clip-player').dataset.rolloutId", timeout=90_000)
     assert more_step.get_attribute("aria-disabled") == "true"  # before its first second, nothing can be answered
     assert more_step.is_disabled()  # Playwright reads aria-disabled as a person's assistive technology does
     more_step.click(force=True)  # a person clicks it anyway
     page.keyboard.press("1")
     page.wait_for_function(PLAYED, timeout=90_000)
     assert posts == []  # neither the click nor the key went through
-    first = page.eval_on_selector("#video", "v => v.dataset.rollout")
+    first = page.eval_on_selector(CLIP, "p => p.dataset.rolloutId")
     assert more_step.get_attribute("aria-disabled") == "false"
 
     more_step.focus()
@@ -97,7 +97,7 @@ def test_answers_unlock_once_the_clip_has_played_and_name_that_clip(url, browser
 
     page.reload()  # the session is in the URL and the database: it resumes
     page.wait_for_function(PLAYING, arg="", timeout=60_000)
-    second = page.eval_on_selector("#video", "v => v.dataset.rollout")
+    second = page.eval_on_selector(CLIP, "p => p.dataset.rolloutId")
     assert second != first and page.locator("#history .hist").count() == 1
     assert not errors, errors
     page.close()
@@ -115,7 +115,7 @@ def test_phone_keeps_the_clip_in_view_after_a_tap(url, browser):
     assert page.evaluate("window.scrollY") > 300  # far enough that a clip scrolling along would be gone
     button.tap()
     page.wait_for_function(PLAYING, arg=first, timeout=90_000)
-    box = page.locator("#video").bounding_box()
+    box = page.locator(CLIP).bounding_box()
     assert box["y"] >= 0 and box["y"] + box["height"] <= 844, box  # the result of the tap is on screen
     button_box = button.bounding_box()  # and the button is still there to tap again, not under the clip
     assert button_box["y"] >= box["y"] + box["height"] and button_box["y"] + button_box["height"] <= 844
@@ -166,7 +166,7 @@ def test_the_address_bar_and_the_finished_screen(url, browser, tmp_path):
     page.evaluate("h => { location.hash = h; }", one)
     page.wait_for_function(PLAYING, arg="", timeout=60_000)
     page.wait_for_function(PLAYED, timeout=30_000)
-    assert page.eval_on_selector("#video", "v => v.dataset.rollout") == first
+    assert page.eval_on_selector(CLIP, "p => p.dataset.rolloutId") == first
     page.get_by_role("button", name="less step size").click()  # with the mouse: the button lets go of the focus
     page.wait_for_function(PLAYING, arg=first, timeout=90_000)
     page.wait_for_function(PLAYED, timeout=30_000)
@@ -184,7 +184,7 @@ def test_the_address_bar_and_the_finished_screen(url, browser, tmp_path):
     assert download.value.suggested_filename == f"rba-walker-{session_id}.zip"
     download.value.save_as(tmp_path / "export.zip")
     profile = read_export(tmp_path / "export.zip").profile
-    assert profile.rollout_id == page.eval_on_selector("#video", "v => v.dataset.rollout") != first
+    assert profile.rollout_id == page.eval_on_selector(CLIP, "p => p.dataset.rolloutId") != first
     assert page.request.get(f"{url}/favicon.ico").status == 200
     assert not errors, errors
     page.close()
@@ -302,7 +302,7 @@ def test_another_domain_in_the_page(live_server, browser, tmp_path):
     page.select_option("#method", "global/onehot")
     page.get_by_role("button", name="Start tuning").click()
     page.wait_for_function(PLAYING, arg="", timeout=90_000)
-    first = page.eval_on_selector("#video", "v => v.dataset.rollout")
+    first = page.eval_on_selector(CLIP, "p => p.dataset.rolloutId")
     page.wait_for_function(PLAYED, timeout=30_000)
     page.get_by_role("button", name="more sharpness").click()
     page.wait_for_function(PLAYING, arg=first, timeout=90_000)
