@@ -24,9 +24,9 @@ const svg = (tag, attrs = {}, ...children) => {
 };
 
 const num = (v, digits = 2) => (v == null || !Number.isFinite(v) ? "–" : v.toFixed(digits));
-/** "0.83 [0.61, 0.94]" from an estimate with its 95 % interval ({value, lo, hi}; null parts as "–"). */
-const withCi = (e, digits = 2) => (e == null ? "–"
-  : `${num(e.value, digits)} [${num(e.lo, digits)}, ${num(e.hi, digits)}]`);
+/** "0.83 [0.61, 0.94]" from an estimate with its 95 % interval ({value, low, high}; null parts as "–"). */
+const withCi = (e, digits = 2) => (e == null || e.value == null ? "–"
+  : `${num(e.value, digits)} [${num(e.low, digits)}, ${num(e.high, digits)}]`);
 
 // ---------------------------------------------------------------- the form
 function conditionChoices() {
@@ -48,6 +48,7 @@ async function create(event) {
     name: $("study-name").value.trim(), domain: $("study-domain").value, conditions, task: $("study-task").value,
     targets_per_condition: Number($("study-targets").value), answer_budget: Number($("study-budget").value),
     precision: $("study-precision").value, consent_text: $("study-consent").value.trim(),
+    seed: $("study-seed").value === "" ? null : Number($("study-seed").value),
   };
   try {
     const study = await st.adminApi("/api/admin/studies", { method: "POST", body: JSON.stringify(body) });
@@ -70,8 +71,11 @@ async function loadStudies(pick) {
   await showStudy();
 }
 
+/** "RBA-Global", "RBA-Local · language", "Random": the method's label as the catalog gives it. */
 function conditionName(c) {
-  return c.method === "random" ? "Random" : `${c.label || c.method}${c.rep && c.rep !== "onehot" ? ` · ${c.rep}` : ""}`;
+  if (c.method === RANDOM.method) return "Random";
+  const m = st.domains.flatMap((d) => d.available).find((x) => x.method === c.method && x.rep === c.rep);
+  return `${m ? m.label || c.method : c.method}${c.rep && c.rep !== "onehot" ? ` · ${c.rep}` : ""}`;
 }
 
 async function showStudy() {
@@ -130,26 +134,26 @@ async function download() {
 }
 
 // ---------------------------------------------------------------- results
-const sortedKs = (cond) => Object.keys(cond.sr_at || {}).map(Number).sort((a, b) => a - b);
+const ksOf = (r) => r.sr_at_k.map(String);
 
 function resultsTable(r) {
-  const ks = sortedKs(r.conditions[0] || {});
-  const head = ["Condition", "Trials", "SR", "AF (successes)", ...ks.map((k) => `SR@${k}`), "Median time / answer",
-    "Satisfaction", "Usability (SUS)"];
+  const ks = ksOf(r);
+  const head = ["Condition", "Trials", "Successes", "SR", "AF (successes)", ...ks.map((k) => `SR@${k}`), "Answers",
+    "Median time per answer"];
   return el("table", { class: "scores study-table" },
-    el("caption", {}, "Per condition, with 95 % confidence intervals"),
+    el("caption", {}, `Per condition, finished trials, with 95 % intervals (${r.intervals})`),
     el("thead", {}, el("tr", {}, head.map((h) => el("th", { scope: "col" }, h)))),
     el("tbody", {}, r.conditions.map((c) => el("tr", { dataset: { condition: `${c.method}/${c.rep}` } },
-      el("th", { scope: "row" }, conditionName(c)), el("td", {}, String(c.trials)), el("td", {}, withCi(c.sr)),
-      el("td", {}, withCi(c.af, 1)), ks.map((k) => el("td", {}, withCi(c.sr_at[k]))),
-      el("td", {}, c.median_seconds == null ? "–" : `${num(c.median_seconds, 1)} s`),
-      el("td", {}, withCi(c.satisfaction, 1)), el("td", {}, withCi(c.usability, 1))))));
+      el("th", { scope: "row" }, conditionName(c)), el("td", {}, String(c.trials)), el("td", {}, String(c.successes)),
+      el("td", {}, withCi(c.sr)), el("td", {}, withCi(c.af, 1)), ks.map((k) => el("td", {}, withCi(c.sr_at[k]))),
+      el("td", {}, String(c.answers)),
+      el("td", {}, c.median_ms_per_answer == null ? "–" : `${num(c.median_ms_per_answer / 1000, 1)} s`)))));
 }
 
 /** SR@k against k per condition: points with their CI bars, a line through each condition's points. */
 function srPlot(r) {
   const W = 360, H = 200, P = { left: 48, right: 12, top: 10, bottom: 36 };
-  const ks = sortedKs(r.conditions[0] || {});
+  const ks = ksOf(r);
   const w = W - P.left - P.right, h = H - P.top - P.bottom;
   const x = (i) => P.left + (ks.length > 1 ? (w * i) / (ks.length - 1) : w / 2);
   const y = (v) => P.top + h - h * v;
@@ -163,7 +167,7 @@ function srPlot(r) {
       svg("polyline", { points: pts.map(([px, e]) => `${px},${y(e.value)}`).join(" "), fill: "none", stroke: color,
         "stroke-width": 2 }),
       ...pts.flatMap(([px, e]) => [
-        svg("line", { x1: px, x2: px, y1: y(e.hi ?? e.value), y2: y(e.lo ?? e.value), stroke: color }),
+        svg("line", { x1: px, x2: px, y1: y(e.high ?? e.value), y2: y(e.low ?? e.value), stroke: color }),
         svg("circle", { cx: px, cy: y(e.value), r: 3.5, fill: color })]));
   });
   const plot = svg("svg", { viewBox: `0 0 ${W} ${H}`, role: "img", class: "curve study-plot",
@@ -183,22 +187,31 @@ function srPlot(r) {
   return el("figure", { class: "study-figure" }, plot, legend);
 }
 
-function comparisonLine(r) {
-  const t = r.comparison;
-  if (!t) return el("p", { class: "small muted" }, "The paired comparison needs two conditions and finished trials.");
-  const p = t.p_value == null ? "not computable yet" : `p = ${t.p_value < 0.001 ? t.p_value.toExponential(1)
-    : num(t.p_value, 3)}`;
-  return el("p", { class: "comparison", id: "study-comparison" },
-    `Paired comparison of ${t.metric || "SR@10"} per participant (${t.a} vs ${t.b}, n = ${t.n}): ${t.test}, `
-    + `${p}${t.statistic == null ? "" : ` (statistic ${num(t.statistic, 2)})`}.`
-    + (t.mean_difference == null ? "" : ` Mean difference ${num(t.mean_difference, 2)}.`));
+/** One line per pair of conditions: the per-participant difference of SR@k and the test the server ran on it. */
+function comparisons(r) {
+  const c = r.comparison;
+  const name = (i) => conditionName(r.conditions[i]);
+  return el("ul", { class: "comparisons", id: "study-comparison" }, c.pairs.map((p) => {
+    const pv = p.p_value == null ? "no p-value yet" : `p = ${p.p_value < 0.001 ? p.p_value.toExponential(1)
+      : num(p.p_value, 3)}`;
+    return el("li", { dataset: { a: String(p.a), b: String(p.b) } },
+      `${c.measure} per participant, ${name(p.a)} minus ${name(p.b)} (n = ${p.n}, median difference `
+      + `${num(p.median_difference)}): ${p.test}; ${pv}.`);
+  }));
+}
+
+function questionnaires(r) {
+  const q = r.questionnaires;
+  return el("p", { class: "small", id: "study-questionnaires" }, `Questionnaires (n = ${q.n}): satisfaction `
+    + `(${q.satisfaction.scale}) ${withCi(q.satisfaction, 1)}; usability (${q.usability.scale}) `
+    + `${withCi(q.usability, 1)}.`);
 }
 
 function progressTable(r) {
   return el("table", { class: "scores study-progress-table" },
-    el("caption", {}, "Participants' progress"),
+    el("caption", {}, `Participants' progress (${r.participants} links, withdrawn ones left out)`),
     el("thead", {}, el("tr", {}, ["#", "Consented", "Trials done", "Finished"].map((h) => el("th", { scope: "col" }, h)))),
-    el("tbody", {}, r.participants.map((p) => el("tr", { dataset: { participant: p.id } },
+    el("tbody", {}, r.progress.map((p) => el("tr", { dataset: { participant: p.participant_id } },
       el("th", { scope: "row" }, String(p.number + 1)), el("td", {}, p.consented ? "yes" : "not yet"),
       el("td", {}, `${p.trials_done} of ${p.trials_total}`), el("td", {}, p.finished ? "yes" : "no")))));
 }
@@ -207,7 +220,8 @@ function showResults(r) {
   const key = JSON.stringify(r);
   if (key === st.shown) return;
   st.shown = key;
-  $("study-results").replaceChildren(resultsTable(r), srPlot(r), comparisonLine(r), progressTable(r));
+  $("study-results").replaceChildren(resultsTable(r), srPlot(r), comparisons(r), questionnaires(r),
+    progressTable(r));
   $("study-results").dataset.updated = String(Date.now());
 }
 

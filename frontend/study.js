@@ -5,6 +5,7 @@
 // first frame to the answer (ms) and how often the participant played the clip again (replays).
 
 import { $, api, el, hideToast, pretty, toast } from "./common.js";
+import { ClipPlayer } from "./player.js";
 
 const TOKEN = (() => {
   const last = location.pathname.split("/").filter(Boolean).pop() || "";
@@ -22,90 +23,35 @@ const state = {
   replays: 0,
   busy: false,
   rate: 1, // playback speed of both clips (automation plays them fast: window.rbaStudy.rate)
-  players: null, // {target, current}
-  PlayerClass: null,
+  players: null, // {target, current}: ClipPlayers
 };
 
 // ---------------------------------------------------------------- the clips
-/** The fallback when frontend/player.js is not there: an MP4 in a <video>, with the ClipPlayer's interface. */
-class VideoPlayer extends EventTarget {
-  constructor(container, { label }) {
-    super();
-    this.mode = "video";
-    this.element = el("video", { muted: true, playsinline: true, preload: "auto", "aria-label": label });
-    this.element.muted = true;
-    this._rate = 1;
-    container.replaceChildren(this.element);
-    this.element.addEventListener("ended", () => this.dispatchEvent(new Event("playedonce")));
-  }
-
-  get rate() { return this._rate; }
-
-  set rate(r) {
-    this._rate = r;
-    this.element.defaultPlaybackRate = r;
-    this.element.playbackRate = r;
-  }
-
-  /** Show ``clip`` from its start; resolves once it plays. */
-  show(clip) {
-    const v = this.element;
-    v.dataset.rolloutId = clip.rollout_id;
-    return new Promise((resolve, reject) => {
-      const done = (ok) => () => {
-        v.removeEventListener("playing", onPlay);
-        v.removeEventListener("error", onError);
-        if (ok) resolve(); else reject(new Error("The clip could not be loaded."));
-      };
-      const onPlay = done(true);
-      const onError = done(false);
-      v.addEventListener("playing", onPlay);
-      v.addEventListener("error", onError);
-      v.src = clip.url;
-      this.rate = this._rate;
-      v.play().catch(() => { /* autoplay refused: the error event or the replay button takes over */ });
-    });
-  }
-
-  restart() {
-    this.element.currentTime = 0;
-    this.element.play().catch(() => {});
-  }
-}
-
-/** ClipPlayer (frontend/player.js) when the server has it, else the <video> fallback. */
-async function playerClass() {
-  try {
-    const mod = await import("/static/player.js");
-    if (mod.ClipPlayer) return mod.ClipPlayer;
-  } catch { /* not there: the MP4 */ }
-  return VideoPlayer;
-}
-
+/** One ClipPlayer per clip, kept across trials. A clip plays once and stays on its last frame (no loop): playing it
+ * again is the participant's choice, by this page's button or the player's own play button, and counted. */
 function makePlayers() {
   const make = (id, label) => {
-    const player = new state.PlayerClass($(id), { label });
+    const player = new ClipPlayer($(id), { label });
+    player.loop = false;
     player.rate = state.rate;
     return player;
   };
   state.players = { target: make("target", "Target clip"), current: make("current", "The agent's current clip") };
-  state.players.current.addEventListener("playedonce", () => {
+  const current = state.players.current;
+  current.addEventListener("playedonce", () => {
     if (state.played) return;
     state.played = true;
-    stopAtEnd(state.players.current);
     refresh();
   });
-  state.players.target.addEventListener("playedonce", () => stopAtEnd(state.players.target));
+  // the player's own play buttons start a finished clip again: capture runs before their handlers
+  current.element.addEventListener("click", (e) => {
+    if (current.playedOnce && current.paused && e.target.closest(".cp-play, .cp-big")) state.replays += 1;
+  }, true);
 }
 
-/** A clip plays once and stays on its last frame: watching it again is the participant's choice (and counted). */
-function stopAtEnd(player) {
-  if (player.mode !== "video" && typeof player.pause === "function") player.pause();
-}
-
-function restart(player, clip) {
-  if (typeof player.restart === "function") player.restart();
-  else player.show(clip).catch(() => {});
+function restart(player) {
+  player.seek(0);
+  player.play();
 }
 
 async function showClip(which, clip) {
@@ -261,10 +207,10 @@ $("satisfied").addEventListener("click", () => answer({ kind: "satisfied" }));
 $("current-again").addEventListener("click", () => {
   if (!state.body?.trial) return;
   state.replays += 1;
-  restart(state.players.current, state.body.trial.clip);
+  restart(state.players.current);
 });
 $("target-again").addEventListener("click", () => {
-  if (state.body?.trial?.target) restart(state.players.target, state.body.trial.target);
+  if (state.body?.trial?.target) restart(state.players.target);
 });
 
 // ---------------------------------------------------------------- questionnaire
@@ -367,7 +313,6 @@ window.rbaStudy = {
 };
 
 (async function main() {
-  state.PlayerClass = await playerClass();
   makePlayers();
   if (!TOKEN) { showGone(404); return; }
   await load();
