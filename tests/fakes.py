@@ -6,7 +6,8 @@ import threading
 import time
 from concurrent.futures import Future
 
-from rba.compute import Compute, RenderJob, SimJob, Task
+from rba.compute import Compute, DataJob, RenderJob, SimJob, Task
+from rba.compute.tasks import describe
 from rba.generate.cma import in_process
 
 
@@ -19,6 +20,7 @@ class FakeCompute(Compute):
     def __init__(self) -> None:
         self.submitted: list[tuple[bool, Future]] = []
         self.jobs: list[RenderJob] = []
+        self.data_jobs: list[tuple[DataJob, Future, str]] = []  # clip data asked for: job, future, asking thread
         self._cond = threading.Condition()
 
     @property
@@ -45,6 +47,11 @@ class FakeCompute(Compute):
             self._seen = seen + 1
             return self.jobs[seen].rollout.id
 
+    def clip_data(self, job: DataJob, urgent: bool = True) -> Task:
+        future: Future = Future()
+        self.data_jobs.append((job, future, threading.current_thread().name))
+        return Task(future, future.cancel, future.running)
+
     def warm(self, target: str) -> None:
         pass
 
@@ -60,6 +67,15 @@ class InstantCompute(FakeCompute):
     def render(self, job: RenderJob, urgent: bool = True) -> Task:
         task = super().render(job, urgent)
         task.future.set_result(self.CLIP)
+        return task
+
+    def clip_data(self, job: DataJob, urgent: bool = True) -> Task:
+        """The real data, computed at once in this process (``NoClipData`` for a domain without any)."""
+        task = super().clip_data(job, urgent)
+        try:
+            task.future.set_result(describe(job.target, job.width, job.height, job.rollout))
+        except Exception as exc:
+            task.future.set_exception(exc)
         return task
 
 

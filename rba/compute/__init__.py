@@ -17,10 +17,10 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
-from rba.compute.base import Compute, RenderJob, SimJob, Task, for_render
+from rba.compute.base import Compute, DataJob, RenderJob, SimJob, Task, for_render
 from rba.core.settings import LibrarySettings
 
-__all__ = ["Compute", "RenderJob", "SimJob", "Task", "for_render", "make_compute", "simulation_pool"]
+__all__ = ["Compute", "DataJob", "RenderJob", "SimJob", "Task", "for_render", "make_compute", "simulation_pool"]
 
 
 def make_compute(settings: LibrarySettings | None = None, ray_address: str | None = None) -> Compute:

@@ -64,6 +64,21 @@ class RenderJob:
         return [replace(self, rows=(a, b)) for a, b in itertools.pairwise(cuts)]
 
 
+@dataclass(frozen=True)
+class DataJob:
+    """Describe a clip as data the page draws itself (``rba.media.clip_data``), as gzipped JSON bytes: one
+    rollout's per-frame poses, or the domain's scene (``rollout`` None) for clips ``width`` x ``height``."""
+
+    target: str
+    width: int
+    height: int
+    rollout: Rollout | None = None  # only ``replay``, ``proxies`` and the ids are read (``for_render``)
+
+    @classmethod
+    def of(cls, domain: str, rollout: Rollout | None, width: int, height: int) -> DataJob:
+        return cls(domain_target(domain), int(width), int(height), None if rollout is None else for_render(rollout))
+
+
 def for_render(rollout: Rollout) -> Rollout:
     """The rollout without what rendering never reads (states): less to ship to a worker."""
     return Rollout(rollout.id, rollout.domain, dict(rollout.params), rollout.seed,
@@ -157,6 +172,10 @@ class Compute(ABC):
     @abstractmethod
     def render(self, job: RenderJob, urgent: bool = True) -> Task:
         """Start rendering; the future's result is the MP4's bytes. ``urgent``: a person is waiting for it."""
+
+    @abstractmethod
+    def clip_data(self, job: DataJob, urgent: bool = True) -> Task:
+        """Start describing a clip as data; the future's result is its gzipped JSON. ``urgent``: a person waits."""
 
     @abstractmethod
     def warm(self, target: str) -> None:

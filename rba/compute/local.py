@@ -19,7 +19,7 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from concurrent.futures.process import BrokenProcessPool
 
 from rba.compute import tasks
-from rba.compute.base import Compute, RenderJob, SimJob, Task, joined, sim_chunk
+from rba.compute.base import Compute, DataJob, RenderJob, SimJob, Task, joined, sim_chunk
 from rba.domains import Rollout
 
 log = logging.getLogger(__name__)
@@ -151,6 +151,10 @@ class LocalCompute(Compute):
         pool = self._urgent if urgent else self._background
         parts = [pool.submit(tasks.render_clip, p.target, p.rollout, p.width, p.height, p.rows) for p in job.parts()]
         return joined(parts, lambda clips: pool.submit(tasks.join_clips, *clips))
+
+    def clip_data(self, job: DataJob, urgent: bool = True) -> Task:
+        return (self._urgent if urgent else self._background).submit(tasks.clip_data, job.target, job.width,
+                                                                      job.height, job.rollout)
 
     def warm(self, target: str) -> None:
         """Start the urgent workers, importing ``target`` in each: the first clip's parts render on all of them

@@ -15,7 +15,7 @@ from collections import deque
 from collections.abc import Iterable, Iterator
 
 from rba.compute import tasks
-from rba.compute.base import Compute, RenderJob, SimJob, Task, sim_chunk
+from rba.compute.base import Compute, DataJob, RenderJob, SimJob, Task, sim_chunk
 from rba.domains import Rollout
 
 log = logging.getLogger(__name__)
@@ -48,6 +48,7 @@ class RayCompute(Compute):
         self._simulate = remote(tasks.simulate_many)
         self._render = remote(tasks.render_clip)
         self._join = remote(tasks.join_clips)
+        self._data = remote(tasks.clip_data)
         self._warm = remote(tasks.warm)
         log.info("compute: Ray cluster with %d CPUs", self.capacity)
 
@@ -82,6 +83,10 @@ class RayCompute(Compute):
             return True
 
         return Task(future, cancel)
+
+    def clip_data(self, job: DataJob, urgent: bool = True) -> Task:
+        ref = self._data.remote(job.target, job.width, job.height, job.rollout)
+        return Task(ref.future(), lambda: self._ray.cancel(ref) or True)
 
     def warm(self, target: str) -> None:
         for _ in range(self.capacity):

@@ -7,6 +7,7 @@ off-screen renderers are made once per worker thread and reused for every clip.
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import shutil
 import tempfile
@@ -129,6 +130,29 @@ def _encode(domain: Domain, rollout: Rollout, width: int, height: int, frames: s
         return path.read_bytes()
     finally:
         shutil.rmtree(folder, ignore_errors=True)
+
+
+def clip_data(target: str, width: int, height: int, rollout: Rollout | None = None) -> bytes:
+    """The gzipped JSON of ``rollout``'s clip data, or of the domain's scene when ``rollout`` is None
+    (``rba.media.clip_data``); ``NoClipData`` for a domain whose clips are MP4s only."""
+    _prepare()
+    return describe(target, width, height, rollout)
+
+
+def describe(target: str, width: int, height: int, rollout: Rollout | None = None) -> bytes:
+    """``clip_data`` in this process as it is (no worker set-up): for a process without a compute layer."""
+    from rba.media import clip_data as data
+
+    scene = _scene(target, width, height)
+    return data.encode(scene if rollout is None else data.clip(load_domain(target), rollout, scene["version"]))
+
+
+@functools.cache
+def _scene(target: str, width: int, height: int) -> dict:
+    """The domain's scene, once per worker: every clip of it names the scene's version."""
+    from rba.media import clip_data as data
+
+    return data.scene(load_domain(target), width, height)
 
 
 def warm(target: str) -> float:

@@ -128,7 +128,8 @@ class UploadFiles:
 
 
 class ClipStore:
-    """Rendered clips by key; file names come from validated parts and the key's hash, never from user text."""
+    """Rendered clips (and their data) by key; file names come from validated parts and the key's hash, never from
+    user text."""
 
     def __init__(self, root: Path) -> None:
         self.root = root
@@ -138,7 +139,7 @@ class ClipStore:
         """The clip's local file (served as is); it may not exist yet."""
         domain = key.domain if _SAFE.match(key.domain) else hashlib.sha256(key.domain.encode()).hexdigest()[:16]
         version = key.version if _HEX.match(key.version) else hashlib.sha256(key.version.encode()).hexdigest()[:12]
-        return self.root / domain / f"{version}-{key.digest}-{key.width}x{key.height}.mp4"
+        return self.root / domain / f"{version}-{key.digest}-{key.width}x{key.height}{key.suffix}"
 
     def exists(self, key: ClipKey) -> bool:
         return self.path(key).exists()

@@ -1,5 +1,8 @@
 """The clip cache: MP4s rendered on the compute layer, stored content-addressed and atomically in a ``ClipStore``.
 
+A clip's data (``rba.media.clip_data``: the poses the page draws itself) is cached alike under the same key of
+another ``kind``, and a domain's scene, which every clip's data names, is kept in memory once made.
+
 A clip's key is (domain, library version, rollout id, size); the store names its file from the
 key's hash, so any number of API replicas can share one cache folder: a clip two of them render
 at once is written twice with the same bytes, and readers never see half a file. Within one
@@ -14,13 +17,14 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 from concurrent.futures import Future, wait
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from rba.compute import Compute, RenderJob, Task
+from rba.compute import Compute, DataJob, RenderJob, Task
 from rba.core.store import ClipStore
 from rba.data.library import SkillLibrary
 from rba.domains import Rollout
+from rba.media.clip_data import DATA_VERSION, decode
 
 log = logging.getLogger(__name__)
 
@@ -30,6 +34,7 @@ STALE_TMP_SECONDS = 600
 # bumped for generated clips encoded in ``rba.compute.base.CLIP_PARTS`` parts: the same frames, and library clips,
 # nearly all of a cache, are the same bytes as before.
 RENDERER_VERSION = 2
+MP4, DATA = "mp4", "data"  # the kinds of a clip's files (``ClipKey.kind``)
 CLAIM_TTL_SECONDS = 120  # a guess claimed longer ago than this was left by a crashed process: render it here
 Source = SkillLibrary | Rollout  # what a clip is rendered from: a library holding the rollout, or the rollout
 
@@ -47,11 +52,22 @@ class ClipKey:
     # parts its render is split into on separate workers (a clip someone waits for); not in the digest: a key's
     # parts never change, and the joined MP4 differs from one encoded whole, so one key is always rendered alike
     parts: int = 1
+    kind: str = MP4  # MP4: the video; DATA: the clip's data (gzipped JSON), computed not rendered
 
     @property
     def digest(self) -> str:
         raw = f"{self.domain}\0{self.version}\0{self.rollout_id}\0{self.width}x{self.height}\0{RENDERER_VERSION}"
+        if self.kind != MP4:  # an MP4's digest is as it always was: stores keep their files
+            raw += f"\0{self.kind}\0{DATA_VERSION}"
         return hashlib.sha256(raw.encode()).hexdigest()[:24]
+
+    @property
+    def suffix(self) -> str:
+        return ".mp4" if self.kind == MP4 else ".json.gz"
+
+    def data(self) -> ClipKey:
+        """The key of this clip's data."""
+        return replace(self, kind=DATA, parts=1)
 
     @property
     def etag(self) -> str:
@@ -82,8 +98,19 @@ class _Render:
 def render_job(key: ClipKey, source: Source) -> RenderJob:
     """What renders ``key``'s clip: in ``key.parts`` parts. The parts' joined MP4 differs in bytes from one encoded
     whole, so whatever caches under a key renders this."""
-    rollout = source if isinstance(source, Rollout) else source.rollout(source.index_of(key.rollout_id))
-    return RenderJob.of(key.domain, rollout, key.width, key.height, split=key.parts)
+    return RenderJob.of(key.domain, _rollout(key, source), key.width, key.height, split=key.parts)
+
+
+def _rollout(key: ClipKey, source: Source) -> Rollout:
+    return source if isinstance(source, Rollout) else source.rollout(source.index_of(key.rollout_id))
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A domain's scene for the page (``rba.media.clip_data.scene``): its gzipped JSON and its version."""
+
+    body: bytes
+    version: str
 
 
 class ClipCache:
@@ -95,6 +122,8 @@ class ClipCache:
         self._lock = threading.RLock()  # a cancelled render's callback runs in the canceller's thread
         self._inflight: dict[ClipKey, _Render] = {}
         self.renders = 0  # clips rendered for this process (tests and benchmarks read it)
+        self.described = 0  # clips' data computed for this process
+        self._scenes: dict[str, Future] = {}  # domain -> its Scene, made once per process
         self.render_seconds = 0.0
         self._domain_seconds: dict[str, tuple[int, float]] = {}  # domain -> (renders, seconds): the typical time
         store.sweep(STALE_TMP_SECONDS)  # renders cut short by a crash leave temporaries; old ones are garbage
@@ -162,7 +191,11 @@ class ClipCache:
             return render.done
 
     def _submit(self, key: ClipKey, source: Source, urgent: bool) -> _Render:
-        render = _Render(self.compute.render(render_job(key, source), urgent), urgent)
+        if key.kind == DATA:
+            task = self.compute.clip_data(DataJob.of(key.domain, _rollout(key, source), key.width, key.height), urgent)
+        else:
+            task = self.compute.render(render_job(key, source), urgent)
+        render = _Render(task, urgent)
         self._inflight[key] = render
         render.task.future.add_done_callback(lambda f: self._finish(key, render, f))
         return render
@@ -189,6 +222,10 @@ class ClipCache:
             return
         render.path = self.store.path(key)
         seconds = time.perf_counter() - render.started
+        if key.kind == DATA:
+            with self._lock:
+                self.described += 1
+            return
         with self._lock:
             self.renders += 1
             self.render_seconds += seconds
@@ -209,6 +246,18 @@ class ClipCache:
             render.done.set_exception(error)
         else:
             render.done.set_result(render.path)
+
+    def scene(self, domain: str) -> Future:
+        """A future of the domain's ``Scene``, computed once on the compute layer (again after a failure)."""
+        with self._lock:
+            made = self._scenes.get(domain)
+            if made is not None and not (made.done() and (made.cancelled() or made.exception() is not None)):
+                return made
+            scene: Future = Future()
+            self._scenes[domain] = scene
+        task = self.compute.clip_data(DataJob.of(domain, None, self.width, self.height))
+        task.future.add_done_callback(lambda f: _settle_scene(f, scene))
+        return scene
 
     def fill(self, keys: Iterable[tuple[ClipKey, SkillLibrary]], window: int | None = None,
              stop: Callable[[], bool] = lambda: False, on_done: Callable[[ClipKey, bool], None] = lambda k, r: None,
@@ -240,3 +289,13 @@ class ClipCache:
         if running:
             drain("ALL_COMPLETED")
         return rendered
+
+
+def _settle_scene(result: Future, scene: Future) -> None:
+    if result.cancelled():
+        scene.cancel()
+    elif result.exception() is not None:
+        scene.set_exception(result.exception())
+    else:
+        body = result.result()
+        scene.set_result(Scene(body, decode(body)["version"]))

@@ -148,6 +148,7 @@ class LabelPublic(LabelBase):
 class ClipToLabel(SQLModel):
     rollout_id: str
     url: str
+    data_url: str | None = None  # the clip's per-frame data (null where the domain has MP4s only)
 
 
 class ClipsToLabelPublic(SQLModel):

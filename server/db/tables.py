@@ -251,6 +251,8 @@ class DomainsPublic(BaseModel):
 class ClipPublic(BaseModel):
     rollout_id: str
     url: str
+    data_url: str | None = Field(default=None, description="the clip's per-frame data the page draws itself "
+                                 "(GET /api/clips/{domain}/{rollout_id}.json); null where the domain has MP4s only")
     measured: dict[str, float] = Field(description="the clip's measured attribute values (proxies)")
     ready: bool = Field(description="already rendered: the URL answers at once")
     generated: bool = Field(default=False, description="made for this session by a search, not from the serve "

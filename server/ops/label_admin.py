@@ -49,7 +49,7 @@ from server.db.admin_tables import (
     LabelRecord,
 )
 from server.db.engine import commit_or_conflict
-from server.ops.views import clip_url
+from server.ops.views import clip_data_url, clip_url
 from server.runtime.services import Services
 from server.runtime.stored_labels import LABEL_GROUPS, declared_attributes
 from server.runtime.uploads import UploadLimits, check_labels, check_npz, claimed, workspace
@@ -145,7 +145,9 @@ def clips_to_label(svc: Services, db: Session, domain: str, size: int, anchor: b
     else:
         picks = rng.sample(range(len(lib)), size)
     ids = [lib.ids[i] for i in picks]
-    return ClipsToLabelPublic(domain=d.name, clips=[ClipToLabel(rollout_id=r, url=clip_url(d.name, r)) for r in ids])
+    return ClipsToLabelPublic(domain=d.name, clips=[ClipToLabel(rollout_id=r, url=clip_url(d.name, r),
+                                                                data_url=clip_data_url(d.name, r) if d.draws_clips
+                                                                else None) for r in ids])
 
 
 # -- uploads --------------------------------------------------------------------------------------

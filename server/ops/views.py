@@ -56,14 +56,17 @@ def clip_data_url(domain: str, rollout_id: str) -> str:
 
 
 def clip_public(svc: Services, db: Session, domain: str, rollout_id: str) -> ClipPublic:
-    """A clip's URL, its measured attribute values and whether it is rendered already."""
+    """A clip's URLs (MP4, and data where the domain has it), its measured attribute values and whether it is
+    rendered already."""
     url = clip_url(domain, rollout_id)
+    data_url = clip_data_url(domain, rollout_id) if svc.catalog.domain(domain).draws_clips else None
     try:
         clip = svc.sources.resolve(db, domain, rollout_id)
     except UnknownRollout as exc:  # the library was rebuilt since: nothing to measure
-        return ClipPublic(rollout_id=rollout_id, url=url, measured={}, ready=False, generated=exc.generated)
-    return ClipPublic(rollout_id=rollout_id, url=url, measured=clip.measured, ready=svc.clips.cached(clip.key),
-                      generated=clip.generated)
+        return ClipPublic(rollout_id=rollout_id, url=url, data_url=data_url, measured={}, ready=False,
+                          generated=exc.generated)
+    return ClipPublic(rollout_id=rollout_id, url=url, data_url=data_url, measured=clip.measured,
+                      ready=svc.clips.cached(clip.key), generated=clip.generated)
 
 
 def attributes_public(domain: Domain, svc: Services | None = None,

@@ -1,6 +1,7 @@
 """GET /api/clips/{domain}/{rollout_id}.mp4: a rollout of the serve library, or one a session generated
 (``gen-<hash>``), as H.264 video (and ``/status``: how far its render is, for the page's progress while a
-person waits).
+person waits). ``{rollout_id}.json`` is the same clip as data the page draws itself (per-frame poses,
+``rba.media.clip_data``), and ``scene.json`` the domain's scene those name, once per domain.
 
 The rollout id is resolved by ``server.runtime.clip_sources`` (404 if unknown) and never used as a path; a
 generated rollout no longer in memory is simulated again from its params and seed, unless its clip is stored. The
@@ -11,16 +12,18 @@ file is rendered on first request and cached; responses carry a content ETag and
 from __future__ import annotations
 
 import asyncio
+import gzip
 import os
 from typing import Annotated
 
 import anyio
-from fastapi import APIRouter, Header, Path, Response
+from fastapi import APIRouter, Header, Path, Query, Response
 from fastapi.responses import FileResponse
 from starlette.datastructures import Headers
 from starlette.responses import MalformedRangeHeader, RangeNotSatisfiable
 from starlette.types import Receive, Scope, Send
 
+from rba.media.clip_data import NoClipData
 from server.api.deps import DbDep, ServicesDep
 from server.common.errors import error_response, not_found, responses
 from server.db.tables import ClipStatusPublic, DomainName
@@ -61,6 +64,74 @@ class ClipFile(FileResponse):
                                      {"Content-Range": f"bytes */{size}"})(scope, receive, send)
                 return
         await super().__call__(scope, receive, send)
+
+
+IMMUTABLE = "public, max-age=31536000, immutable"
+JSON_RESPONSES = {200: {"content": {"application/json": {}}, "description": "the data (gzip-encoded when accepted)"},
+                  304: {"description": "not modified"}}
+
+
+def _gzipped(body: bytes, headers: dict[str, str], accept_encoding: str | None) -> Response:
+    """Stored gzipped JSON as is to a client that accepts gzip, else decompressed."""
+    headers = {**headers, "Vary": "Accept-Encoding"}
+    if accept_encoding and "gzip" in accept_encoding.lower():
+        return Response(body, media_type="application/json", headers={**headers, "Content-Encoding": "gzip"})
+    return Response(gzip.decompress(body), media_type="application/json", headers=headers)
+
+
+def _drawable(svc, domain: str) -> None:
+    """404 for a domain whose clips are MP4s only."""
+    if not svc.catalog.domain(domain).draws_clips:
+        raise not_found(f"domain {domain!r} has no clip data: its clips are MP4s only (the clip's url)")
+
+
+# before {rollout_id}.json: a rollout id never reads "scene" (library ids name their split, made ones start gen-)
+@router.get("/{domain}/scene.json", response_class=Response,
+            responses={**JSON_RESPONSES, **responses(404, said={404: "no such domain, or one without clip data"})},
+            summary="A domain's scene for drawing its clips (geoms, camera, lights; or the road), per version")
+async def get_scene(domain: Annotated[DomainName, Path()], svc: ServicesDep,
+                    v: Annotated[str | None, Query(max_length=64, description="the scene's version, as a clip's "
+                                                   "scene_url gives it: then cached for a year")] = None,
+                    if_none_match: Annotated[str | None, Header()] = None,
+                    accept_encoding: Annotated[str | None, Header()] = None) -> Response:
+    await anyio.to_thread.run_sync(_drawable, svc, domain)
+    try:  # computed once per process on the compute layer
+        scene = await asyncio.wrap_future(svc.clips.scene(domain))
+    except NoClipData as exc:
+        raise not_found(str(exc)) from exc
+    etag = f'"{scene.version}"'
+    headers = {"ETag": etag, "Cache-Control": IMMUTABLE if v == scene.version else "no-cache"}
+    if if_none_match and none_match(if_none_match, etag):
+        return Response(status_code=304, headers=headers)
+    return _gzipped(scene.body, headers, accept_encoding)
+
+
+@router.get("/{domain}/{rollout_id}.json", response_class=Response,
+            responses={**JSON_RESPONSES, **responses(404, said={404: "no serve library, no such rollout in it, no "
+                                                                 "such generated rollout, or a domain without clip "
+                                                                 "data"})},
+            summary="A rollout's clip as per-frame data the page draws itself (computed on first request, cached)")
+async def get_clip_data(domain: Annotated[DomainName, Path()], rollout_id: Annotated[str, Path(max_length=128)],
+                        svc: ServicesDep, db: DbDep, if_none_match: Annotated[str | None, Header()] = None,
+                        accept_encoding: Annotated[str | None, Header()] = None) -> Response:
+    await anyio.to_thread.run_sync(_drawable, svc, domain)
+    try:
+        clip = await anyio.to_thread.run_sync(svc.sources.resolve, db, domain, rollout_id)
+    except UnknownRollout as exc:
+        raise not_found(str(exc)) from exc
+    key = clip.key.data()
+    headers = {"ETag": key.etag, "Cache-Control": "no-cache"}  # as the MP4's: the URL outlives a library rebuild
+    if if_none_match and none_match(if_none_match, key.etag):
+        return Response(status_code=304, headers=headers)
+    source = clip.source(simulate=False)
+    if source is None and not svc.clips.cached(key):  # a made clip no longer in memory: simulated again
+        source = await anyio.to_thread.run_sync(clip.source)
+    try:  # computed on the compute layer (or already in flight there): waiting holds no thread
+        path = await asyncio.wrap_future(svc.clips.request(key, source))
+    except NoClipData as exc:
+        raise not_found(str(exc)) from exc
+    body = await anyio.to_thread.run_sync(path.read_bytes)
+    return _gzipped(body, headers, accept_encoding)
 
 
 @router.get("/{domain}/{rollout_id}.mp4", response_class=ClipFile,
