@@ -387,7 +387,11 @@ function load(clip, label, previous = null) {
 /** Show the session's current clip: the previous one stays, dimmed, with the render's progress until it is ready. */
 async function showCurrentClip(clip) {
   const token = ++state.clipToken;
-  if (state.shownUrl === clip.url) { stopWaiting(); return; }
+  if (state.shownUrl === clip.url) {  // already shown (another session's same first clip): played if it did
+    if (player.element.dataset.played === clip.rollout_id) state.played.add(clip.rollout_id);
+    stopWaiting();
+    return;
+  }
   if (!clip.ready && !clip.data_url) {  // drawn from data: no render to wait for
     state.waiting = true;
     els.player.classList.toggle("waiting", Boolean(state.shownUrl));

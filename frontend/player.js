@@ -60,6 +60,7 @@ async function loadClip(dataUrl) {
     clip.pos = floats(data.pos);
     clip.quat = floats(data.quat);
     clip.lookat = floats(data.lookat);
+    clip.lightPos = data.light_pos ? floats(data.light_pos) : null;
     clip.geoms = data.geoms;
   } else {
     clip.vehicles = floats(data.vehicles);
@@ -69,6 +70,7 @@ async function loadClip(dataUrl) {
 
 // ---------------------------------------------------------------- 3-D: MuJoCo's visual geoms in three.js
 function checkerTexture(t, size) {
+  if (t.kind !== "checker") return null;
   const c = document.createElement("canvas");
   c.width = c.height = 64;
   const g = c.getContext("2d");
@@ -131,18 +133,21 @@ class Stage3D {
     this.camera.up.set(0, 0, 1);
     this.world = new THREE.Scene();
     this.world.background = new THREE.Color(0, 0, 0);
-    const amb = scene.ambient || [0.1, 0.1, 0.1];
+    // MuJoCo's ambient term is the headlight's plus each light's; the headlight shines along the camera's view
+    const amb = [...(scene.ambient || [0.1, 0.1, 0.1])];
+    for (const l of scene.lights || []) (l.ambient || [0, 0, 0]).forEach((v, i) => { amb[i] += v; });
     this.world.add(new THREE.AmbientLight(rgb(amb), 1));
-    for (const l of scene.lights || []) {
+    const head = scene.headlight;
+    this.headlight = head && head.active !== false ? new THREE.DirectionalLight(rgb(head.diffuse || head), 1) : null;
+    if (this.headlight) this.world.add(this.headlight, this.headlight.target);
+    this.lights = (scene.lights || []).map((l) => {
       const light = l.directional ? new THREE.DirectionalLight(rgb(l.diffuse), 1)
-        : new THREE.PointLight(rgb(l.diffuse), 1, 0, 0);
-      light.position.set(l.pos[0], l.pos[1], l.pos[2]);
-      if (l.directional) {
-        light.target.position.set(l.pos[0] + l.dir[0], l.pos[1] + l.dir[1], l.pos[2] + l.dir[2]);
-        this.world.add(light.target);
-      }
-      this.world.add(light);
-    }
+        : new THREE.SpotLight(rgb(l.diffuse), 1, 0, THREE.MathUtils.degToRad(l.cutoff || 45), 0, 0);
+      this.world.add(light, light.target);
+      light.userData.dir = l.dir;
+      this.place(light, l.pos);
+      return light;
+    });
     this.sky = scene.sky ? sky(scene.sky, cam.zfar * 0.9) : null;
     if (this.sky) this.world.add(this.sky);
     const meshes = (scene.meshes || []).map((m) => ({ vertices: floats(m.vertices), faces: ints(m.faces) }));
@@ -154,6 +159,12 @@ class Stage3D {
     this.world.add(this.overlay);
   }
 
+  place(light, pos) {
+    const d = light.userData.dir;
+    light.position.set(pos[0], pos[1], pos[2]);
+    light.target.position.set(pos[0] + d[0], pos[1] + d[1], pos[2] + d[2]);
+  }
+
   /** One mesh per geom (none where the type is unknown), opaque or see-through (a ghost). */
   bodies(opacity) {
     const group = new THREE.Group();
@@ -161,10 +172,14 @@ class Stage3D {
       const geo = this.geometries[i];
       if (!geo || (opacity < 1 && !g.agent)) return null;
       const see = opacity < 1 || g.rgba[3] < 1;
-      const material = new THREE.MeshPhongMaterial({
-        color: rgb(g.rgba), transparent: see, opacity: opacity * g.rgba[3], depthWrite: !see,
-        specular: new THREE.Color(0.25, 0.25, 0.25), shininess: 30,
-        map: g.texture && g.texture.kind === "checker" ? checkerTexture(g.texture, g.size) : null,
+      const flat = g.texture && g.texture.kind === "flat" ? g.texture.rgb1 : null;
+      const base = flat ? g.rgba.map((v, k) => (k < 3 ? v * flat[k] : v)) : g.rgba;
+      const spec = g.specular ?? 0.5;
+      const material = new THREE.MeshPhongMaterial({  // MuJoCo's fixed-function terms; shininess is of 128
+        color: rgb(base), transparent: see, opacity: opacity * g.rgba[3], depthWrite: !see,
+        specular: new THREE.Color(spec, spec, spec), shininess: 128 * (g.shininess ?? 0.5),
+        emissive: rgb(base).multiplyScalar(g.emission ?? 0),
+        map: g.texture ? checkerTexture(g.texture, g.size) : null,
       });
       const mesh = new THREE.Mesh(geo, material);
       mesh.userData = { agent: g.agent, material };
@@ -185,6 +200,13 @@ class Stage3D {
       mesh.position.set(clip.pos[p], clip.pos[p + 1], clip.pos[p + 2]);
       mesh.quaternion.set(clip.quat[q + 1], clip.quat[q + 2], clip.quat[q + 3], clip.quat[q]);
     });
+    if (clip.lightPos && bodies === this.current) {  // a light may follow a body
+      const L = this.lights.length;
+      this.lights.forEach((light, i) => {
+        const k = (f * L + i) * 3;
+        this.place(light, [clip.lightPos[k], clip.lightPos[k + 1], clip.lightPos[k + 2]]);
+      });
+    }
   }
 
   /** MuJoCo's free camera: it looks at ``lookat`` from ``distance`` along azimuth / elevation (degrees). */
@@ -199,6 +221,10 @@ class Stage3D {
       z - d * Math.sin(el));
     this.camera.lookAt(x, y, z);
     if (this.sky) this.sky.position.copy(this.camera.position);
+    if (this.headlight) {
+      this.headlight.position.copy(this.camera.position);
+      this.headlight.target.position.set(x, y, z);
+    }
   }
 }
 
@@ -763,25 +789,30 @@ function origin(s, clip, frame) {
   return [x - s.view.offset[0], y - s.view.offset[1]];
 }
 
+const rgb255 = (a, alpha = 1) => `rgba(${a.slice(0, 3).map(Math.round).join(",")},${alpha})`;
+
+/** The road's painted lines as highway-env draws them: continuous, or stripes ``length`` long every ``spacing``
+ * metres from x = 0, 0.3 m wide. */
 function drawRoad(g, s, clip, frame, ghost, overlays) {
   const ppm = s.view.pixels_per_metre;
   const [ox, oy] = origin(s, clip, frame);
   const px = (x) => (x - ox) * ppm, py = (y) => (y - oy) * ppm;
-  g.fillStyle = css(s.background_rgb);
-  g.fillRect(0, 0, s.width, s.height);
   const L = s.lanes;
-  const top = L.y0 - L.width / 2, bottom = L.y0 + (L.count - 0.5) * L.width;
-  g.fillStyle = css(L.road_rgb || s.background_rgb);
-  g.fillRect(0, py(top), s.width, (bottom - top) * ppm);
-  g.strokeStyle = css(L.line_rgb);
-  g.lineWidth = Math.max(1, 0.3 * ppm);
-  for (let i = 0; i <= L.count; i++) {
-    const y = py(top + i * L.width);
-    g.setLineDash(i === 0 || i === L.count ? [] : [3 * ppm, 6 * ppm]);  // highway-env: 3 m stripes, 9 m apart
-    g.lineDashOffset = (ox * ppm) % (9 * ppm);
-    g.beginPath(); g.moveTo(0, y); g.lineTo(s.width, y); g.stroke();
+  g.fillStyle = rgb255(s.background_rgb || L.road_rgb);
+  g.fillRect(0, 0, s.width, s.height);
+  const lines = L.lines || Array.from({ length: L.count + 1 }, (_, i) => ({
+    y: L.y0 - L.width / 2 + i * L.width, kind: i === 0 || i === L.count ? "continuous" : "striped" }));
+  const stripe = L.stripe || { length: 3, spacing: 9 };
+  const thick = Math.max(1, Math.round(0.3 * ppm));
+  g.fillStyle = rgb255(L.line_rgb);
+  const x0 = ox, x1 = ox + s.width / ppm;
+  for (const line of lines) {
+    const y = Math.round(py(line.y) - thick / 2);
+    if (line.kind === "continuous") { g.fillRect(0, y, s.width, thick); continue; }
+    for (let k = Math.floor(x0 / stripe.spacing) - 1; k * stripe.spacing <= x1; k++) {
+      g.fillRect(px(k * stripe.spacing), y, stripe.length * ppm, thick);
+    }
   }
-  g.setLineDash([]);
   if (ghost) { g.globalAlpha = 0.35; drawCars(g, s, ghost, frame, false, [ox, oy]); g.globalAlpha = 1; }
   drawCars(g, s, clip, frame, false, [ox, oy]);
   for (const o of clip.data.overlays || []) {
@@ -811,12 +842,16 @@ function drawCars(g, s, clip, frame, agentOnly, at = null) {
     g.save();
     g.translate((x - ox) * ppm, (y - oy) * ppm);
     g.rotate(heading);
-    g.fillStyle = agentOnly ? "#fff" : css(v.rgb);
-    g.fillRect(-v.length * ppm / 2, -v.width * ppm / 2, v.length * ppm, v.width * ppm);
-    if (!agentOnly) {
-      g.strokeStyle = "#3c3c3c";
+    const [w, h] = [v.length * ppm, v.width * ppm];
+    if (agentOnly) {  // its body inside highway-env's one-pixel black outline
+      g.fillStyle = "#fff";
+      g.fillRect(-w / 2 + 1, -h / 2 + 1, w - 2, h - 2);
+    } else {
+      g.fillStyle = rgb255(v.rgb);
+      g.fillRect(-w / 2, -h / 2, w, h);
+      g.strokeStyle = "#000";
       g.lineWidth = 1;
-      g.strokeRect(-v.length * ppm / 2, -v.width * ppm / 2, v.length * ppm, v.width * ppm);
+      g.strokeRect(-w / 2 + 0.5, -h / 2 + 0.5, w - 1, h - 1);
     }
     g.restore();
   });

@@ -78,7 +78,8 @@ def test_answers_unlock_once_the_clip_has_played_and_name_that_clip(url, browser
     assert focused == ["step_size", "more"]  # focus stayed on the button, not on the body
     assert len(posts) == 1 and posts[0]["clip"] == first and posts[0]["step"] == 0
     seen = page.evaluate("window.seen")
-    assert any("Rendering the clip" in t or "Waiting for a free renderer" in t for t in seen["texts"])  # the 1st
+    assert any(("Rendering the clip" in t or "Waiting for a free renderer" in t)  # the 1st: an MP4's render,
+               or "Loading the clip" in t for t in seen["texts"])  # or its data
     assert any("Choosing a new behaviour" in t for t in seen["texts"])
     assert [True, first] in seen["dimmed"]  # the previous clip stayed, dimmed, while the next one came
     assert more_step.get_attribute("aria-disabled") == "true"  # the new clip has not played its second yet
