@@ -117,7 +117,36 @@ def admin_page(browser, url: str, out: Path) -> list[Path]:
             _admin_shot(browser, url, out / "screenshot-admin-phone.png", PHONE)]
 
 
-PAGES: dict[str, Callable[[object, str, Path], list[Path]]] = {"user": user_page, "admin": admin_page}
+STUDY = {"name": "Walker: which agent listens better?", "domain": "walker", "task": "target", "seed": 1,
+         "targets_per_condition": 3, "answer_budget": 10, "precision": "normal",
+         "conditions": [{"method": "global", "rep": "onehot"}, {"method": "random", "rep": None}],
+         "consent_text": "You are invited to a study of how people tune a simulated walker. You may withdraw at any "
+                         "time: everything you answered is then deleted."}
+
+
+def study_page(browser, url: str, out: Path) -> list[Path]:
+    """A study participant's first trial (target above, the agent's clip below on the phone) at both widths."""
+    import httpx
+
+    auth = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
+    study = httpx.post(f"{url}/api/admin/studies", json=STUDY, headers=auth, timeout=60).raise_for_status().json()
+    links = httpx.post(f"{url}/api/admin/studies/{study['id']}/participants", json={"count": 2}, headers=auth,
+                       timeout=60).raise_for_status().json()["participants"]
+    written = []
+    for link, viewport, name in zip(links, (LAPTOP, PHONE), ("screenshot-study.png", "screenshot-study-phone.png"),
+                                    strict=True):
+        page = browser.new_page(viewport=viewport, is_mobile=viewport is PHONE, has_touch=viewport is PHONE)
+        page.goto(f"{url}{link['link']}")
+        page.get_by_role("button", name="I agree").click()
+        page.wait_for_function("() => document.body.dataset.answerable === 'true'", timeout=120_000)
+        written.append(out / name)
+        page.screenshot(path=str(written[-1]))
+        page.close()
+    return written
+
+
+PAGES: dict[str, Callable[[object, str, Path], list[Path]]] = {"user": user_page, "admin": admin_page,
+                                                               "study": study_page}
 
 
 def main() -> None:

@@ -33,6 +33,7 @@ function makePlayers() {
   const make = (id, label) => {
     const player = new ClipPlayer($(id), { label });
     player.loop = false;
+    player.ui.loop.checked = false;  // the player's own Loop box shows what it does
     player.rate = state.rate;
     return player;
   };

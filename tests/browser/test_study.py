@@ -34,13 +34,19 @@ PARTICIPANTS = 12
 KINDS = ("paper", "mistake:0.1", "skip:0.2")  # cycled over the participants
 WITHDRAWS = 5  # this participant withdraws during their second trial
 PHONE = 1  # this participant uses a phone-size window
-RATE = 16  # clips play this many times faster: they must still play to their end before answers unlock
+RATE = 40  # clips play this many times faster: they must still play to their end before answers unlock
 STATE = """() => {
   const q = (s) => document.querySelector(s);
   const id = (s) => { const e = q(s); return e ? e.dataset.rolloutId || null : null; };
   return { state: document.body.dataset.state, answerable: document.body.dataset.answerable === 'true',
            trial: (q('#h-trial') || {}).textContent || '', target: id('#target [data-rollout-id]'),
            current: id('#current [data-rollout-id]') };
+}"""
+SHOWN = """(stage) => {  // the clip player in ``stage`` shows its clip: drawn from data, or a decoded MP4 frame
+  const p = document.querySelector(`${stage} .clip-player`);
+  if (!p || p.dataset.ready !== 'true') return false;
+  const v = p.querySelector('video');
+  return p.dataset.mode !== 'video' || (v.readyState >= 2 && v.videoWidth > 0);
 }"""
 BOOT = "() => window.rbaStudy && document.body.dataset.state !== 'loading'"
 
@@ -91,17 +97,31 @@ def open_participant(browser, link: str, width: int = 1280, height: int = 800):
 
 
 # ---------------------------------------------------------------- quick checks of the page
-def test_participant_page_consent_trial_and_unknown_links(url, browser):
+def test_participant_page_consent_trial_and_unknown_links(url, browser, tmp_path):
     link = new_links(url, 1)[0]
     page, errors = open_participant(browser, link)
     assert page.evaluate(STATE)["state"] == "consent"
     assert "Second paragraph." in page.locator("#consent-text").inner_text()
     assert axe_violations(page) == []
+    posts: list[str] = []
+    page.on("request", lambda r: posts.append(r.url) if r.method == "POST" and r.url.endswith("/answer") else None)
+    page.evaluate("() => { window.rbaStudy.rate = 0.25; }")  # a slow first play: the answers stay locked meanwhile
     page.get_by_role("button", name="I agree").click()
+    page.wait_for_function("() => document.querySelector('#current .clip-player').dataset.ready === 'true'",
+                           timeout=60_000)
+    assert page.get_by_role("button", name="more step size").get_attribute("aria-disabled") == "true"
+    page.get_by_role("button", name="This matches the target").click(force=True)  # clicked anyway: not sent
+    page.evaluate(f"() => {{ window.rbaStudy.rate = {RATE}; }}")
     page.wait_for_function("() => document.body.dataset.answerable === 'true'", timeout=60_000)
+    assert posts == []
     s = page.evaluate(STATE)
     assert s["target"].startswith("test-") and s["current"].startswith("serve-")
-    print("player modes:", page.evaluate("[...document.querySelectorAll('.clip-player')].map((e) => e.dataset.mode)"))
+    for stage in ("#target", "#current"):  # both clips show, side by side
+        page.wait_for_function(SHOWN, arg=stage, timeout=60_000)
+    target, current = page.locator("#target").bounding_box(), page.locator("#current").bounding_box()
+    assert target["x"] + target["width"] <= current["x"] and abs(target["y"] - current["y"]) < 2
+    assert page.locator("#satisfied").bounding_box()["y"] < 800  # the answers on the same screen
+    page.screenshot(path=str(tmp_path / "study.png"))
     assert page.locator("#progress").inner_text() == "Trial 1 of 2 · 10 answers left"
     page.wait_for_timeout(400)  # the unlocked buttons' colour transition ends
     assert axe_violations(page) == []
@@ -243,6 +263,8 @@ def check_phone(page, tmp_path) -> bool:
     """On a phone the target sits above the agent's clip, both whole on the screen's width and both showing."""
     if not page.evaluate("() => document.body.dataset.answerable === 'true'"):
         return False
+    for stage in ("#target", "#current"):
+        page.wait_for_function(SHOWN, arg=stage, timeout=60_000)
     target = page.locator("#target").bounding_box()
     current = page.locator("#current").bounding_box()
     for box in (target, current):
@@ -312,3 +334,4 @@ def check_results(admin, people, tmp_path) -> None:
     print(f"SR@10 RBA-Global {global_sr:.2f}, Random {random_sr:.2f}; {pair['test']}: p = {pair['p_value']:.2g}, "
           f"n = {pair['n']}, median difference {pair['median_difference']:.2f}")
     assert global_sr > random_sr and pair["median_difference"] > 0 and pair["p_value"] < 0.05, pair
+    assert axe_violations(admin) == []  # the Studies panel, its form open and its results drawn
