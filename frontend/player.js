@@ -501,9 +501,15 @@ export class ClipPlayer extends EventTarget {
     if (this.mode === "webgl") this.draw3d(); else this.draw2d();
   }
 
+  /** Size the canvas to its box, but at most the MP4's pixels a pane (the browser scales it up as it scales the
+   * video): a software rasteriser draws every pixel, and at the laptop size 1.5 times skipped a fifth of the frames
+   * on a busy 2-core machine (benchmarks/clip_player.py). */
   fit(canvas) {
     const box = this.ui.stage.getBoundingClientRect();
-    const ratio = Math.min(window.devicePixelRatio || 1, 2);
+    const s = this.clip.scene, panes = this.compareMode === "beside" && this.previous ? 2 : 1;
+    const ratio = Math.min(window.devicePixelRatio || 1, 2,
+      (1.0 * s.width * panes) / Math.max(1, box.width), (1.0 * s.height) / Math.max(1, box.height));
+    this.pixelRatio = Math.max(ratio, 0.01);
     const w = Math.max(1, Math.round(box.width * ratio)), h = Math.max(1, Math.round(box.height * ratio));
     if (canvas.width !== w || canvas.height !== h) {
       if (this.renderer) this.renderer.setSize(w, h, false); else { canvas.width = w; canvas.height = h; }
@@ -694,7 +700,7 @@ export class ClipPlayer extends EventTarget {
 
   placeLabels(w, h) {
     if (!this.labelSpots || !this.labelSpots.length) return;
-    const ratio = Math.min(window.devicePixelRatio || 1, 2);
+    const ratio = this.pixelRatio;
     const [x0, , pw, ph] = this.panes(w, h).at(-1);
     const target = this.clip.scene.width / this.clip.scene.height;
     const [vw, vh] = pw / ph > target ? [ph * target, ph] : [pw, pw / target];

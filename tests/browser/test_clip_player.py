@@ -12,13 +12,13 @@ import base64
 import json
 from pathlib import Path
 
-import mujoco
 import numpy as np
 import pytest
 
 from rba.data.library import SkillLibrary
 from rba.domains import get_domain
 from rba.media import clip_data
+from rba.media.silhouette import agent_masks, iou
 from server.common.app_settings import Settings
 from tests.browser.conftest import axe_violations
 
@@ -95,47 +95,9 @@ def show(page, domain: str, rollout_id: str) -> None:
                   [domain, rollout_id])
 
 
-def reference(domain: str, rollout, frames: list[int]) -> list[np.ndarray]:
-    """The agent's pixels in the MP4's frames: MuJoCo's segmentation of the same frame (agent = a geom of a body
-    other than the world's; no reflection, as a mirror image is not the agent), or the ego car's colour."""
-    dom = get_domain(domain)
-    view = dom.clip_view(rollout)
-    if domain == "lane_change":
-        ego = next(c for c in view.cars if c.agent)
-        shots = list(dom.render(rollout, WIDTH, HEIGHT, frames=np.array(frames)))
-        return [np.all(np.abs(s.astype(int) - np.array(ego.rgb)) <= 40, axis=-1) for s in shots]
-    model = view.model
-    renderer = mujoco.Renderer(model, height=HEIGHT, width=WIDTH)
-    renderer.enable_segmentation_rendering()
-    renderer.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = 0
-    data = mujoco.MjData(model)
-    cam = mujoco.MjvCamera()
-    cam.type = mujoco.mjtCamera.mjCAMERA_FREE
-    cam.distance, cam.azimuth, cam.elevation = view.camera.distance, view.camera.azimuth, view.camera.elevation
-    out = []
-    try:
-        for f in frames:
-            data.qpos[:] = rollout.replay[f]
-            mujoco.mj_fwdPosition(model, data)
-            cam.lookat[:] = view.camera.aim(data) if view.camera.aim is not None else view.camera.lookat
-            renderer.update_scene(data, camera=cam)
-            seg = renderer.render()
-            ids, types = seg[..., 0], seg[..., 1]
-            geom = (types == mujoco.mjtObj.mjOBJ_GEOM) & (ids >= 0)
-            out.append(geom & (model.geom_bodyid[np.clip(ids, 0, None)] != 0))
-    finally:
-        renderer.close()
-    return out
-
-
 def drawn(page, frame: int) -> np.ndarray:
     raw = base64.b64decode(page.evaluate("f => player.silhouette(f)", frame))
     return np.frombuffer(raw, dtype=np.uint8).reshape(HEIGHT, WIDTH).astype(bool)
-
-
-def iou(a: np.ndarray, b: np.ndarray) -> float:
-    union = np.logical_or(a, b).sum()
-    return float(np.logical_and(a, b).sum() / union) if union else 1.0
 
 
 def silhouette_ious(page, server: ClipServer, domain: str) -> list[float]:
@@ -146,7 +108,7 @@ def silhouette_ious(page, server: ClipServer, domain: str) -> list[float]:
         assert page.evaluate("player.mode") == ("canvas" if domain == "lane_change" else "webgl")
         n = len(rollout.replay)
         frames = [0, n // 2, n - 1][:FRAMES]
-        for f, ref in zip(frames, reference(domain, rollout, frames), strict=True):
+        for f, ref in zip(frames, agent_masks(get_domain(domain), rollout, frames, WIDTH, HEIGHT), strict=True):
             assert ref.sum() > 50, (domain, rollout.id, f)  # the agent is in view
             scores.append(iou(drawn(page, f), ref))
     return scores
