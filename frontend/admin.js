@@ -44,7 +44,7 @@ async function unlock(event) {
   $("train-method").replaceChildren(...trainable.map((m) => el("option", { value: m.method }, m.label)));
   $("rep").replaceChildren(...reps.map((r) => el("option", { value: r }, r)));
   showPresets();
-  await Promise.all([loadDomain(), mountStudies(adminApi, domains)]);
+  await Promise.all([loadDomain(), mountStudies(adminApi, () => state.token, domains)]);
 }
 
 /** Forget the token (this tab's storage and memory), stop following the job and show the token form again: a

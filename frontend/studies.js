@@ -14,7 +14,7 @@ const CONSENT = "You are invited to a study of how people tune a simulated agent
   + "Taking part is voluntary. You may withdraw at any time with the button at the top of the page, and "
   + "everything you answered is then deleted.";
 
-const st = { adminApi: null, domains: [], studies: [], study: null, timer: null, shown: "" };
+const st = { adminApi: null, token: () => "", domains: [], studies: [], study: null, timer: null, shown: "" };
 
 const svg = (tag, attrs = {}, ...children) => {
   const node = document.createElementNS(SVG, tag);
@@ -120,7 +120,7 @@ async function download() {
   if (!st.study) return;
   try {
     const res = await fetch(`/api/admin/studies/${st.study.id}/export`,
-      { headers: { Authorization: `Bearer ${sessionStorage.getItem("rba-admin-token") || ""}` } });
+      { headers: { Authorization: `Bearer ${st.token()}` } });
     if (!res.ok) throw new Error(`${res.status} ${res.statusText}`);
     const url = URL.createObjectURL(await res.blob());
     const a = el("a", { href: url, download: `study-${st.study.id}.zip` });
@@ -243,9 +243,11 @@ function poll() {
 }
 
 // ---------------------------------------------------------------- mount
-/** Build the panel into #studies and start following the chosen study's results (admin.js calls it on unlock). */
-export async function mountStudies(adminApi, domains) {
+/** Fill the Studies panel and follow the chosen study's results (admin.js calls it on unlock): ``adminApi`` is its
+ * token-carrying call, ``token()`` the token itself (the export is a download, not JSON). */
+export async function mountStudies(adminApi, token, domains) {
   st.adminApi = adminApi;
+  st.token = token;
   st.domains = domains.filter((d) => d.available.length);
   if (!$("study-domain").options.length) {
     $("study-domain").replaceChildren(...st.domains.map((d) => el("option", { value: d.name }, pretty(d.name))));
