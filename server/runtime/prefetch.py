@@ -7,6 +7,8 @@ taking from the highest that has work (``server.ops.prerender`` says what goes i
    replaces the session's older one); taken round-robin over the sessions, the newest offer first;
 2. and 3. ``extend(clips)``: lazy sources (the shared trees, then the libraries), drained in order.
 
+Each guess's data (the page draws a clip from it, ``rba.media.clip_data``) is asked for beside its MP4.
+
 Only ``window`` guesses are in flight at once, so a clip a person asks for is never queued behind
 hundreds of guesses, and a guess nobody needs any more costs at most one render. While ``hold()`` says
 someone waits on a search (or the clip it made), no new guess starts: beside niced guesses a
@@ -23,6 +25,7 @@ from collections import OrderedDict, deque
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future
 
+from rba.domains import get_domain
 from rba.media.clip_cache import ClipCache, ClipKey, Source
 
 log = logging.getLogger(__name__)
@@ -164,12 +167,20 @@ class Prefetcher:
         except Exception:  # e.g. a library rebuilt under us, a made clip forgotten: skip the guess
             log.debug("cannot prerender %r", ref, exc_info=True)
             return
+        self._describe(key, source)
         if self.clips.cached(key) or self.clips.pending(key):
             return
         with self._cond:
             self._inflight += 1
             self.submitted += 1
         self.clips.request(key, source, urgent=False).add_done_callback(self._finished)
+
+    def _describe(self, key: ClipKey, source: Source) -> None:
+        """The guessed clip's data too, where its domain has any: about 1 % of its MP4's CPU
+        (``benchmarks/results/clip_data.md``), so it is not counted in the window."""
+        data = key.data()
+        if get_domain(key.domain).draws_clips and not self.clips.cached(data) and not self.clips.pending(data):
+            self.clips.request(data, source, urgent=False)
 
     def _finished(self, done: Future) -> None:
         with self._cond:

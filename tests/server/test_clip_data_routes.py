@@ -13,12 +13,14 @@ from fastapi.testclient import TestClient
 from sqlmodel import Session
 
 from rba.compute.tasks import describe
+from rba.core.store import ClipStore
 from rba.data.library import SkillLibrary
 from rba.domains import domain_target
-from rba.media.clip_cache import RENDERER_VERSION, ClipKey
+from rba.media.clip_cache import RENDERER_VERSION, ClipCache, ClipKey
 from server.common.app_settings import Settings
 from server.main import create_app
 from server.ops.views import clip_public
+from server.runtime.prefetch import Prefetcher
 from tests.fakes import FakeCompute, InstantCompute
 
 SHIPPED = Path(__file__).resolve().parents[2] / "data"
@@ -113,3 +115,16 @@ def test_a_session_clip_names_its_data_url_where_the_domain_has_data(settings, w
             toy = clip_public(svc, db, "toy", "serve-00001")
     assert walker.data_url == f"/api/clips/walker/{walker_id}.json" and walker.url.endswith(".mp4")
     assert toy.data_url is None
+
+
+def test_the_prefetcher_asks_for_a_guess_s_data_beside_its_mp4(tmp_path, walker_id):
+    library = SkillLibrary.load("walker", "serve", SHIPPED)
+    compute = FakeCompute()
+    cache = ClipCache(ClipStore(tmp_path / "clips"), compute, 320, 240)
+    prefetch = Prefetcher(cache, lambda rid: (cache.key(library, rid), library), window=1)
+    try:
+        prefetch.offer("s", [walker_id])
+        assert compute.next_rollout(timeout=5) == walker_id
+        assert [job.rollout.id for job, _, _ in compute.data_jobs] == [walker_id]
+    finally:
+        prefetch.stop()
