@@ -74,7 +74,7 @@ HOST = "127.0.0.1"  # loopback only
 REQUEST_TIMEOUT = 120.0
 START_TIMEOUT = 90.0  # seconds for the server to answer /healthz (imports take a while on a busy machine)
 GOALS = {"next_clip_p95_ms_at_10": 300.0, "feedback_p95_ms_at_50": 100.0}  # the issue's
-RENDERED = re.compile(r"rba\.clips INFO rendered \S+ \(\d+ kB(?P<guess>, background)?\) in (?P<s>[\d.]+) s")
+RENDERED = re.compile(r"rba\.media\.clip_cache INFO rendered \S+ \(\d+ kB(?P<guess>, background)?\) in (?P<s>[\d.]+) s")
 
 log = logging.getLogger("api_load")
 
