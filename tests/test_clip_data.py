@@ -7,6 +7,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from rba.compute import DataJob
 from rba.compute.tasks import describe
 from rba.data.library import SkillLibrary
 from rba.domains import domain_names, domain_target, get_domain, load_domain
@@ -144,3 +145,12 @@ def test_a_gym_mujoco_plugin_domain_has_clip_data_without_code_of_its_own():
     scene, clip = _decode(example_target(), rollout)
     assert scene["kind"] == "mujoco" and clip["frames"] == len(rollout.replay)
     assert any(g["agent"] for g in scene["geoms"]) and scene["sky"] is not None
+
+
+def test_a_compute_worker_makes_the_same_bytes_as_this_process(local_compute):
+    """What the app stores comes from a worker (``Compute.clip_data``): the same bytes as ``describe`` here, so a
+    clip's data, like its MP4, does not depend on where it was made."""
+    rollout = _rollout("walker")
+    for job in (DataJob.of("walker", rollout, 320, 240), DataJob.of("walker", None, 320, 240)):
+        made = local_compute.clip_data(job, urgent=False).future.result(120)
+        assert made == describe(job.target, 320, 240, job.rollout)

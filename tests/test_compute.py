@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rba.compute import RenderJob, SimJob, Task, make_compute
+from rba.compute import DataJob, RenderJob, SimJob, Task, make_compute
 from rba.compute.base import CLIP_PARTS, SIM_CHUNK, joined, sim_chunk
 from rba.compute.local import LocalCompute
 from rba.core.store import ClipStore
@@ -63,6 +63,8 @@ def test_a_tiny_walker_build_and_its_clips_are_identical_on_both_backends(ray_cl
     job = RenderJob.of("walker", rollout, 96, 72)
     clip = ray.render(job).future.result(120)
     assert clip[4:8] == b"ftyp" and clip == local_compute.render(job).future.result(120)
+    data = DataJob.of("walker", rollout, 96, 72)
+    assert ray.clip_data(data).future.result(120) == local_compute.clip_data(data).future.result(120)
 
 
 def test_a_killed_ray_worker_loses_no_clip_and_leaves_no_half_file(ray_cluster, local_compute, tmp_path):
