@@ -262,8 +262,7 @@ $("questions").addEventListener("submit", async (e) => {
   }
   $("questions-error").hidden = true;
   try {
-    await api(`${BASE}/questionnaire`, { method: "POST", body: JSON.stringify({ satisfaction, usability }) });
-    await load();
+    render(await api(`${BASE}/questionnaire`, { method: "POST", body: JSON.stringify({ satisfaction, usability }) }));
   } catch (err) {
     await failed(err);
   }
@@ -272,8 +271,7 @@ $("questions").addEventListener("submit", async (e) => {
 // ---------------------------------------------------------------- consent and withdrawal
 $("agree").addEventListener("click", async () => {
   try {
-    await api(`${BASE}/consent`, { method: "POST" });
-    await load();
+    render(await api(`${BASE}/consent`, { method: "POST" }));
   } catch (err) {
     await failed(err);
   }
