@@ -28,6 +28,9 @@ FORMAT = 1
 # Part of every clip data key (``rba.media.clip_cache.ClipKey``): bump it when what the data says changes.
 DATA_VERSION = 1
 SCENE_URL = "/api/clips/{domain}/scene.json"  # the route serving a domain's scene; clips name it with ``?v=``
+# per-frame arrays are rounded to powers of two, so float32's trailing mantissa bits are zeros gzip packs away
+# (walker 25 -> 17 KB, snake 35 -> 20 KB): 1/16384 m (0.06 mm, a pixel is some mm) and 1/32768 of a quaternion
+POSITION_STEP, QUATERNION_STEP = 2.0 ** -14, 2.0 ** -15
 _GEOM_TYPES = {0: "plane", 2: "sphere", 3: "capsule", 4: "ellipsoid", 5: "cylinder", 6: "box", 7: "mesh"}
 
 
@@ -60,7 +63,7 @@ def clip(domain: Domain, rollout: Rollout, scene_version: str) -> dict[str, Any]
         poses, track = _mujoco_frames(view, rollout.replay)
         body |= poses
     else:
-        body["vehicles"] = _b64(view.poses(rollout.replay))
+        body["vehicles"] = _b64(view.poses(rollout.replay), POSITION_STEP)
         track = {}
     body["description"] = description(domain, rollout)
     body["overlays"] = [_overlay(o) for o in domain.clip_overlays(rollout, track)]
@@ -120,8 +123,12 @@ def _is_mujoco(view: object) -> bool:
     return isinstance(view, MujocoView)
 
 
-def _b64(array: np.ndarray) -> str:
-    return base64.b64encode(np.ascontiguousarray(array, dtype="<f4").tobytes()).decode()
+def _b64(array: np.ndarray, step: float | None = None) -> str:
+    """Little-endian float32 in base64, rounded to multiples of ``step`` (a power of two) when given."""
+    values = np.asarray(array, dtype=np.float64)
+    if step is not None:
+        values = np.round(values / step) * step
+    return base64.b64encode(np.ascontiguousarray(values, dtype="<f4").tobytes()).decode()
 
 
 def _rounded(values) -> list[float]:
@@ -227,8 +234,8 @@ def _mujoco_frames(view, replay: np.ndarray) -> tuple[dict[str, Any], dict[str, 
     names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, int(g)) for g in ids]
     ground = np.concatenate([pos[..., :2], _lowest(pos, mats, geoms)[..., None]], -1)
     track = {name: ground[:, j] for j, name in enumerate(names) if name}
-    return {"geoms": len(ids), "pos": _b64(pos), "quat": _b64(mat_to_quat(mats)), "lookat": _b64(lookat),
-            "light_pos": _b64(light_pos)}, track
+    return {"geoms": len(ids), "pos": _b64(pos, POSITION_STEP), "quat": _b64(mat_to_quat(mats), QUATERNION_STEP),
+            "lookat": _b64(lookat, POSITION_STEP), "light_pos": _b64(light_pos, POSITION_STEP)}, track
 
 
 def _lowest(pos: np.ndarray, mats: np.ndarray, geoms: list) -> np.ndarray:
