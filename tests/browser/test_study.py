@@ -122,6 +122,9 @@ def test_participant_page_consent_trial_and_unknown_links(url, browser, tmp_path
     assert target["x"] + target["width"] <= current["x"] and abs(target["y"] - current["y"]) < 2
     assert page.locator("#satisfied").bounding_box()["y"] < 800  # the answers on the same screen
     page.screenshot(path=str(tmp_path / "study.png"))
+    page.reload()  # the link resumes where the participant was: the same trial and clip, to be watched again
+    page.wait_for_function(BOOT)
+    assert page.evaluate(STATE) | {"answerable": False} == s | {"answerable": False}
     assert page.locator("#progress").inner_text() == "Trial 1 of 2 · 10 answers left"
     page.wait_for_timeout(400)  # the unlocked buttons' colour transition ends
     assert axe_violations(page) == []
