@@ -116,7 +116,7 @@ def _condition(index: int, cond: dict, trials: list[dict], ms: list[int], ks: li
     return {"condition": index, "method": cond["method"], "rep": cond["rep"], "trials": len(done),
             "successes": len(wins), "sr": wilson(len(wins), len(done)),
             "af": bootstrap([t["feedbacks"] for t in wins], seed),
-            "sr_at": {str(k): wilson(sum(t["feedbacks"] <= k for t in wins), len(done)) for k in ks},
+            "sr_at": {str(k): wilson(sum(t["answers"] <= k for t in wins), len(done)) for k in ks},
             "answers": len(ms), "median_ms_per_answer": float(np.median(ms)) if ms else None}
 
 
@@ -125,7 +125,7 @@ def _sr_at_by_participant(trials: list[dict], k: int) -> dict[tuple[str, int], f
     groups: dict[tuple[str, int], list[dict]] = defaultdict(list)
     for t in trials:
         groups[(t["participant_id"], t["condition"])].append(t)
-    return {key: float(np.mean([bool(t["success"]) and t["feedbacks"] <= k for t in ts]))
+    return {key: float(np.mean([bool(t["success"]) and t["answers"] <= k for t in ts]))
             for key, ts in groups.items() if all(t["ended"] for t in ts)}
 
 

@@ -13,7 +13,7 @@ branch_labels = None
 depends_on = None
 
 
-def upgrade() -> None:
+def _study() -> None:
     op.create_table('rba_study',
     sa.Column('id', sa.String(length=32), nullable=False),
     sa.Column('name', sa.String(length=120), nullable=False),
@@ -22,6 +22,9 @@ def upgrade() -> None:
     sa.Column('created_at', sa.DateTime(timezone=True), nullable=False),
     sa.PrimaryKeyConstraint('id')
     )
+
+
+def _study_participant() -> None:
     op.create_table('rba_study_participant',
     sa.Column('id', sa.String(length=32), nullable=False),
     sa.Column('study_id', sa.String(length=32), nullable=False),
@@ -39,6 +42,8 @@ def upgrade() -> None:
     with op.batch_alter_table('rba_study_participant', schema=None) as batch_op:
         batch_op.create_index(batch_op.f('ix_rba_study_participant_study_id'), ['study_id'], unique=False)
 
+
+def _study_questionnaire() -> None:
     op.create_table('rba_study_questionnaire',
     sa.Column('participant_id', sa.String(length=32), nullable=False),
     sa.Column('satisfaction', sa.JSON(), nullable=False),
@@ -47,6 +52,9 @@ def upgrade() -> None:
     sa.ForeignKeyConstraint(['participant_id'], ['rba_study_participant.id'], ),
     sa.PrimaryKeyConstraint('participant_id')
     )
+
+
+def _study_trial() -> None:
     op.create_table('rba_study_trial',
     sa.Column('id', sa.String(length=32), nullable=False),
     sa.Column('participant_id', sa.String(length=32), nullable=False),
@@ -70,6 +78,8 @@ def upgrade() -> None:
     with op.batch_alter_table('rba_study_trial', schema=None) as batch_op:
         batch_op.create_index(batch_op.f('ix_rba_study_trial_participant_id'), ['participant_id'], unique=False)
 
+
+def _study_answer() -> None:
     op.create_table('rba_study_answer',
     sa.Column('id', sa.Integer(), nullable=False),
     sa.Column('trial_id', sa.String(length=32), nullable=False),
@@ -86,6 +96,13 @@ def upgrade() -> None:
     with op.batch_alter_table('rba_study_answer', schema=None) as batch_op:
         batch_op.create_index(batch_op.f('ix_rba_study_answer_trial_id'), ['trial_id'], unique=False)
 
+
+def upgrade() -> None:
+    _study()
+    _study_participant()
+    _study_questionnaire()
+    _study_trial()
+    _study_answer()
 
 
 def downgrade() -> None:
