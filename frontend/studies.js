@@ -155,7 +155,7 @@ function srPlot(r) {
   const W = 360, H = 200, P = { left: 48, right: 12, top: 10, bottom: 36 };
   const ks = ksOf(r);
   const w = W - P.left - P.right, h = H - P.top - P.bottom;
-  const x = (i) => P.left + (ks.length > 1 ? (w * i) / (ks.length - 1) : w / 2);
+  const x = (i) => P.left + (w * (i + 0.5)) / ks.length;  // k as categories, each in the middle of its band
   const y = (v) => P.top + h - h * v;
   const desc = r.conditions.map((c) => `${conditionName(c)}: ${ks.map((k) => `SR@${k} ${num(c.sr_at[k]?.value)}`)
     .join(", ")}`).join("; ");
@@ -209,7 +209,7 @@ function questionnaires(r) {
 
 function progressTable(r) {
   return el("table", { class: "scores study-progress-table" },
-    el("caption", {}, `Participants' progress (${r.participants} links, withdrawn ones left out)`),
+    el("caption", {}, `Participants' progress (${r.participants}; those who withdrew are left out)`),
     el("thead", {}, el("tr", {}, ["#", "Consented", "Trials done", "Finished"].map((h) => el("th", { scope: "col" }, h)))),
     el("tbody", {}, r.progress.map((p) => el("tr", { dataset: { participant: p.participant_id } },
       el("th", { scope: "row" }, String(p.number + 1)), el("td", {}, p.consented ? "yes" : "not yet"),
