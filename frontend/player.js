@@ -12,6 +12,10 @@ const COMPARE = { off: "No compare", beside: "Previous beside", ghost: "Previous
 const KEYS = [["Space", "play / pause"], ["← →", "one frame back / on"], ["Home End", "first / last frame"],
   ["[ ]", "slower / faster"], ["L", "loop on / off"], ["C", "compare with the previous clip"],
   ["0", "reset the camera"], ["D", "show the description"]];
+const ICONS = {  // drawn, not characters: not every font has a pause sign
+  play: '<svg viewBox="0 0 16 16" width="14" height="14" aria-hidden="true"><path d="M4 2l10 6-10 6z" fill="currentColor"/></svg>',
+  pause: '<svg viewBox="0 0 16 16" width="14" height="14" aria-hidden="true"><path d="M3 2h4v12H3zM9 2h4v12H9z" fill="currentColor"/></svg>',
+};
 const scenes = new Map();  // scene_url -> Promise of the scene JSON: fetched once a page
 
 /** Whether this browser can draw the 3-D clips (else the player shows the MP4). */
@@ -292,13 +296,14 @@ export class ClipPlayer extends EventTarget {
     u.descButton = node("button", { type: "button", "aria-expanded": "false", "aria-controls": `${id}-desc`,
       "aria-keyshortcuts": "D", text: "Description" });
     u.desc = node("p", { id: `${id}-desc`, class: "cp-desc", hidden: true });
-    u.help = node("details", { class: "cp-help" }, node("summary", { text: "Player keys" }),
-      node("ul", {}, ...KEYS.map(([k, t]) => node("li", {}, node("kbd", { text: k }), ` ${t}`))));
+    u.keys = node("ul", { "aria-label": "The player's keys" },
+      ...KEYS.map(([k, t]) => node("li", {}, node("kbd", { text: k }), ` ${t}`)));
+    u.more = node("details", { class: "cp-more" }, node("summary", { text: "Overlays and keys" }), u.overlays, u.keys);
     u.stage = node("div", { class: "cp-stage" }, u.canvas, u.video, u.labels, u.big);
     u.bar = node("div", { class: "cp-bar", role: "group", "aria-label": `${this.label}: player controls` },
       u.play, u.back, u.on, u.scrub, u.time, u.speed,
       node("label", { class: "cp-check" }, u.loop, " Loop"), u.compare, u.reset, u.descButton);
-    this.element = node("div", { class: "clip-player", "data-mode": "" }, u.stage, u.bar, u.overlays, u.desc, u.help);
+    this.element = node("div", { class: "clip-player", "data-mode": "" }, u.stage, u.bar, u.desc, u.more);
     container.append(this.element);
     this.setPlayIcon();
 
@@ -354,6 +359,7 @@ export class ClipPlayer extends EventTarget {
     this.ui.video.removeAttribute("src");
     this.ui.canvas.hidden = false;
     this.ui.bar.hidden = false;
+    this.ui.more.hidden = false;
     this.ui.descButton.hidden = false;
     if (clip.scene.kind === "mujoco") {
       if (!this.stage || this.stage.spec !== clip.scene) this.makeStage(clip.scene);
@@ -391,7 +397,7 @@ export class ClipPlayer extends EventTarget {
     this.ui.canvas.hidden = true;
     v.hidden = false;
     this.ui.bar.hidden = true;
-    this.ui.overlays.hidden = true;
+    this.ui.more.hidden = true;
     v.controls = true;
     v.loop = this.loop;
     v.src = url;
@@ -487,7 +493,7 @@ export class ClipPlayer extends EventTarget {
   step(n) { this.pause(); this.seek(this.frame + n); }
 
   setPlayIcon() {
-    this.ui.play.textContent = this.playing ? "⏸" : "▶";
+    this.ui.play.innerHTML = this.playing ? ICONS.pause : ICONS.play;
     this.ui.play.setAttribute("aria-label", this.playing ? "Pause" : "Play");
   }
 
@@ -881,19 +887,21 @@ function injectStyle() {
   cursor: pointer; }
 .clip-player .cp-bar { display: flex; flex-wrap: wrap; align-items: center; gap: 4px; padding: 4px 6px;
   background: #111a30; color: #f1f3ff; font: 13px system-ui, sans-serif; }
-.clip-player .cp-bar button, .clip-player .cp-bar select { min-height: 28px; min-width: 28px; border-radius: 6px;
-  border: 1px solid #56608a; background: #1e2848; color: #f1f3ff; font: inherit; cursor: pointer; }
+.clip-player .cp-bar button, .clip-player .cp-bar select { min-height: 28px; min-width: 28px; width: auto;
+  border-radius: 6px; border: 1px solid #56608a; background: #1e2848; color: #f1f3ff; font: inherit; cursor: pointer;
+  padding: 2px 6px; appearance: auto; background-image: none; }
+.clip-player .cp-bar svg { display: block; margin: auto; }
 .clip-player .cp-bar button:focus-visible, .clip-player .cp-bar select:focus-visible,
 .clip-player input:focus-visible, .clip-player .cp-big:focus-visible { outline: 3px solid #ffd23f; outline-offset: 1px; }
 .clip-player .cp-scrub { flex: 1; min-width: 80px; accent-color: #ffd23f; }
 .clip-player .cp-time { min-width: 3.6em; text-align: right; font-variant-numeric: tabular-nums; }
 .clip-player .cp-check { display: inline-flex; align-items: center; gap: 3px; }
-.clip-player .cp-overlays { display: flex; flex-wrap: wrap; gap: 2px 12px; margin: 0; padding: 4px 8px;
-  border: 0; background: #111a30; color: #f1f3ff; font: 13px system-ui, sans-serif; }
+.clip-player .cp-overlays { display: flex; flex-wrap: wrap; gap: 2px 12px; margin: 0; padding: 2px 0; border: 0; }
 .clip-player .cp-overlays legend { float: left; margin-right: 8px; padding: 0; color: #c7cdf0; }
 .clip-player .cp-desc { margin: 0; padding: 6px 8px; background: #f4f5fa; color: #1b1f33; font: 14px system-ui, sans-serif; }
-.clip-player .cp-help { padding: 2px 8px; font: 12px system-ui, sans-serif; background: #111a30; color: #f1f3ff; }
-.clip-player .cp-help ul { margin: 4px 0; padding-left: 1.2em; columns: 2; }
-.clip-player .cp-help kbd { font: 600 12px ui-monospace, monospace; }
+.clip-player .cp-more { padding: 2px 8px 4px; font: 13px system-ui, sans-serif; background: #111a30; color: #f1f3ff; }
+.clip-player .cp-more summary { cursor: pointer; color: #c7cdf0; }
+.clip-player .cp-more ul { margin: 4px 0; padding-left: 1.2em; columns: 2; font-size: 12px; }
+.clip-player .cp-more kbd { font: 600 12px ui-monospace, monospace; }
 `));
 }

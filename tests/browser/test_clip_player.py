@@ -188,7 +188,8 @@ def test_the_controls(url, browser):
     page.keyboard.press("Space")
     page.wait_for_function("() => window.played === 1", timeout=30_000)
     assert player.get_attribute("data-played") == first.id
-    # overlays: one toggle per attribute, off by default
+    # overlays: one toggle per attribute, off by default, under "Overlays and keys"
+    page.get_by_text("Overlays and keys").click()
     boxes = page.locator(".cp-overlays input[type=checkbox]")
     assert boxes.count() >= 1 and not any(b.is_checked() for b in boxes.all())
     boxes.first.check()
