@@ -218,6 +218,8 @@ def _searched_step(svc: Services, s: TuningSession, body: FeedbackCreate, feedba
         log.exception("session %s: the search of step %d failed", s.id, s.step)
         raise HTTPException(500, f"the search for a new behaviour failed ({type(exc).__name__}); answer again") from exc
     try:  # the step is saved: whatever happens to this render, the answer was taken
+        if shown is not None and svc.catalog.domain(s.domain).draws_clips:  # its data first: the page draws from it
+            svc.clips.request(shown.key.data(), shown.source(), urgent=True)
         search.clip = None if shown is None else svc.clips.request(shown.key, shown.source(), urgent=True)
     except Exception:  # the page's clip request renders (or reports) it again
         log.exception("session %s: step %d is saved, but rendering ahead failed", s.id, s.step)
