@@ -8,10 +8,13 @@ downloaded; an answer that started a search (202) is polled at ``--poll`` s on i
 ends, then the session is read and its clip downloaded. Between a clip and the answer about it the person
 watches it for ``--watch`` s (default 1: the page unlocks the answers once a clip has played for a second,
 ``app.js``). The goal (the issue's): a generated clip playable p95 ≤ 2 s after the answer on 2 cores.
+With ``--clip data`` each answer is timed until the next clip's data JSON is downloaded instead (what the page draws
+itself, ``/api/clips/{domain}/{rollout_id}.json``; the MP4 is not fetched): a generated clip drawable p95 ≤ 1 s.
 
     python benchmarks/generation_latency.py                     # the four domains, 6 targets each
     python benchmarks/generation_latency.py --domains walker --targets 2 --rounds 6 --out /tmp/gen_latency
     python benchmarks/generation_latency.py --search-seconds 1 2 60   # three bounds (60: the budget alone)
+    python benchmarks/generation_latency.py --clip data                # writes generation_latency_data.md
 """
 
 from __future__ import annotations
@@ -37,10 +40,12 @@ from rba.interact.users import parse_user
 
 RESULTS = Path(__file__).resolve().parents[1] / "benchmarks" / "results"
 OUTPUTS = (  # what this script writes into benchmarks/results/ (tests/test_results_files.py)
-    "generation_latency.json", "generation_latency.md",
+    "generation_latency.json", "generation_latency.md", "generation_latency_data.json", "generation_latency_data.md",
 )
 DOMAINS = ("walker", "manipulator", "lane_change", "snake")
-GOAL_P95_S = 2.0
+GOAL_P95_S = {"mp4": 2.0, "data": 1.0}  # the issue's, per what an answer waits for (--clip)
+OUT = {"mp4": "generation_latency", "data": "generation_latency_data"}
+LINK = {"mp4": "url", "data": "data_url"}  # the session clip's field each --clip downloads
 log = logging.getLogger("generation_latency")
 
 
@@ -78,8 +83,10 @@ def wait_search(client: httpx.Client, location: str, poll: float, timeout: float
     raise RuntimeError(f"search still running after {timeout:g} s")
 
 
-def answer(client: httpx.Client, session: dict, feedback: list[dict], poll: float) -> tuple[dict, Answer]:
-    """POST one answer, wait out its search if it started one, download the next clip: the new session."""
+def answer(client: httpx.Client, session: dict, feedback: list[dict], poll: float,
+           clip_kind: str = "mp4") -> tuple[dict, Answer]:
+    """POST one answer, wait out its search if it started one, download the next clip (its MP4 or its data, per
+    ``clip_kind``): the new session."""
     t = time.perf_counter()
     r = client.post(f"/api/sessions/{session['id']}/feedback", json={"step": session["step"], "feedback": feedback})
     r.raise_for_status()
@@ -89,10 +96,10 @@ def answer(client: httpx.Client, session: dict, feedback: list[dict], poll: floa
         r = client.get(f"/api/sessions/{session['id']}")
         r.raise_for_status()
     session = r.json()
-    clip = client.get(session["clip"]["url"])
+    clip = client.get(session["clip"][LINK[clip_kind]])
     clip.raise_for_status()
     if not clip.content:
-        raise RuntimeError(f"empty clip {session['clip']['url']}")
+        raise RuntimeError(f"empty clip {session['clip'][LINK[clip_kind]]}")
     took = time.perf_counter() - t
     return session, Answer(round(took, 3), search_seconds is not None, bool(session["clip"]["generated"]),
                            search_seconds)
@@ -104,7 +111,7 @@ def run_target(client: httpx.Client, domain: str, target: np.ndarray, eps: np.nd
     r = client.post("/api/sessions", json={"domain": domain, "method": "global", "rep": "onehot", "generate": True})
     r.raise_for_status()
     session = r.json()
-    client.get(session["clip"]["url"]).raise_for_status()
+    client.get(session["clip"][LINK[args.clip]]).raise_for_status()
     user = parse_user("paper").build(target, eps, serve, seed)
     out.sessions += 1
     for _ in range(args.rounds):
@@ -115,7 +122,7 @@ def run_target(client: httpx.Client, domain: str, target: np.ndarray, eps: np.nd
             out.satisfied += 1
             return
         feedback = [{"attribute": f.attribute, "direction": "more" if f.direction > 0 else "less"} for f in said]
-        session, a = answer(client, session, feedback, args.poll)
+        session, a = answer(client, session, feedback, args.poll, args.clip)
         out.answers.append(a)
 
 
@@ -143,10 +150,13 @@ def summary(answers: list[Answer]) -> dict:
 
 
 def markdown(report: dict) -> str:
-    lines = ["# Generated behaviours: answer to playable clip", "",
+    kind = report.get("args", {}).get("clip", "mp4")
+    lines = [f"# Generated behaviours: answer to {'drawable' if kind == 'data' else 'playable'} clip", "",
              f"`{report['command']}`  ", f"{report['date']} · {report['machine']} · load average (1 min) "
              f"{report['load'][0]:.2f} → {report['load'][1]:.2f}", "",
-             __doc__.split("\n\n")[1].replace("\n", " "), ""]
+             __doc__.split("\n\n")[1].replace("\n", " "), "",
+             f"Here each answer is timed until the next clip's {'data JSON' if kind == 'data' else 'MP4'} is "
+             "downloaded.", ""]
     for bound in report["bounds"]:
         lines += [f"## Searches bounded at {bound_text(bound['bound_s'], [d['domain'] for d in bound['domains']])}",
                   "",
@@ -162,9 +172,9 @@ def markdown(report: dict) -> str:
                          f"{f['answers']}, {f['p95_s']} | {pl['answers']}, {pl['p95_s']} | {o['answers']}, "
                          f"{o['p50_s']} / {o['p95_s']} | {len(d['errors'])} |")
         a, m = bound["all_searched"], bound["all_made"]
-        met = a["p95_s"] is not None and a["p95_s"] <= GOAL_P95_S
+        met = a["p95_s"] is not None and a["p95_s"] <= GOAL_P95_S[kind]
         lines += ["", f"All domains, answers that searched: n = {a['answers']}, p95 **{a['p95_s']} s** "
-                  f"(goal ≤ {GOAL_P95_S:g} s: {'met' if met else 'not met'}); answers that showed a made clip "
+                  f"(goal ≤ {GOAL_P95_S[kind]:g} s: {'met' if met else 'not met'}); answers that showed a made clip "
                   f"(searched or pooled): n = {m['answers']}, p95 {m['p95_s']} s.", ""]
     return "\n".join(lines)
 
@@ -194,9 +204,14 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="RBA_GENERATE_SECONDS for the server, one server (and table) each, in turn: seconds, or "
                         "'default' for the server's own per domain (Domain.generate_seconds); "
                         "default: default")
+    p.add_argument("--clip", choices=tuple(LINK), default="mp4",
+                   help="what an answer waits for: the next clip's MP4 (played) or its data (drawn by the page)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", type=Path, default=RESULTS / "generation_latency", help="writes <out>.json and <out>.md")
+    p.add_argument("--out", type=Path, default=None,
+                   help="writes <out>.json and <out>.md (default: benchmarks/results/generation_latency, with "
+                        "--clip data generation_latency_data)")
     args = p.parse_args(argv)
+    args.out = args.out or RESULTS / OUT[args.clip]
     if (not 1 <= args.targets <= 120 or not 1 <= args.rounds <= 100 or not 0.01 <= args.poll <= 1.0
             or not 0 <= args.watch <= 30):
         p.error("targets must be in 1..120, rounds in 1..100, poll in 0.01..1 s, watch in 0..30 s")

@@ -42,3 +42,15 @@ def test_answers_whose_search_fell_short_and_pooled_clips_have_their_own_columns
     assert "| snake | 1 (0) | 2, " in text
     assert f"| 1 | 1, {row['fell_short']['p95_s']} | 1, {row['pooled']['p95_s']} | 1, " in text
     assert f"showed a made clip (searched or pooled): n = 2, p95 {made['p95_s']} s" in text
+
+
+def test_clip_data_answers_wait_for_the_data_and_have_their_own_report_and_goal():
+    assert latency.parse_args([]).out.name == "generation_latency"
+    data = latency.parse_args(["--clip", "data"])
+    assert data.out.name == "generation_latency_data" and latency.LINK[data.clip] == "data_url"
+    row = latency.domain_report(latency.DomainRun("walker", [latency.Answer(0.8, True, True, 0.5)], sessions=1))
+    report = {"command": "x", "date": "d", "machine": "m", "load": [0.0, 0.0], "args": {"clip": "data"},
+              "bounds": [{"bound_s": 1.0, "domains": [row], "all_searched": row["searched"],
+                          "all_made": row["searched"]}]}
+    text = latency.markdown(report)
+    assert "answer to drawable clip" in text and "(goal ≤ 1 s: met)" in text and "data JSON" in text
