@@ -139,6 +139,7 @@ def study_page(browser, url: str, out: Path) -> list[Path]:
         page.goto(f"{url}{link['link']}")
         page.get_by_role("button", name="I agree").click()
         page.wait_for_function("() => document.body.dataset.answerable === 'true'", timeout=120_000)
+        page.wait_for_timeout(400)  # the unlocked buttons' colour transition ends
         written.append(out / name)
         page.screenshot(path=str(written[-1]))
         page.close()

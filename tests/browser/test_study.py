@@ -273,7 +273,9 @@ def check_phone(page, tmp_path) -> bool:
     for box in (target, current):
         assert box["x"] >= 0 and box["x"] + box["width"] <= 390 and box["height"] > 100, box
     assert current["y"] >= target["y"] + target["height"], (target, current)  # stacked, not overlapping
-    assert page.locator("#satisfied").is_visible()
+    for button in ("#satisfied", "#attributes button >> nth=0", "#attributes button >> nth=-1"):  # thumb's reach
+        box = page.locator(button).bounding_box()
+        assert box["y"] >= 0 and box["y"] + box["height"] <= 844, (button, box)
     page.screenshot(path=str(tmp_path / "study-phone.png"), full_page=True)
     return True
 
