@@ -19,6 +19,7 @@ from rba.domains import domain_target
 from rba.media.clip_cache import RENDERER_VERSION, ClipCache, ClipKey
 from server.common.app_settings import Settings
 from server.main import create_app
+from server.ops.label_admin import clips_to_label
 from server.ops.views import clip_public
 from server.runtime.prefetch import Prefetcher
 from tests.fakes import FakeCompute, InstantCompute
@@ -107,14 +108,16 @@ def test_clip_data_is_computed_on_the_compute_layer_once_and_then_served_from_th
         assert len(compute.data_jobs) == 1 and not compute.jobs  # stored once; no MP4 was rendered for it
 
 
-def test_a_session_clip_names_its_data_url_where_the_domain_has_data(settings, walker_id):
+def test_session_and_labelling_clips_name_their_data_url_where_the_domain_has_data(settings, walker_id):
     with TestClient(create_app(settings, InstantCompute())) as client:
         svc = client.app.state.services
         with Session(svc.engine) as db:
             walker = clip_public(svc, db, "walker", walker_id)
             toy = clip_public(svc, db, "toy", "serve-00001")
+            pairs = clips_to_label(svc, db, "walker", 2, anchor=False, seed=0).clips
     assert walker.data_url == f"/api/clips/walker/{walker_id}.json" and walker.url.endswith(".mp4")
     assert toy.data_url is None
+    assert [c.data_url for c in pairs] == [c.url.removesuffix(".mp4") + ".json" for c in pairs]  # admin labelling
 
 
 def test_the_prefetcher_asks_for_a_guess_s_data_beside_its_mp4(tmp_path, walker_id):
