@@ -50,6 +50,8 @@ SHOWN = """(stage) => {  // the clip player in ``stage`` shows its clip: drawn f
 }"""
 BOOT = "() => window.rbaStudy && document.body.dataset.state !== 'loading'"
 
+pytestmark = pytest.mark.slow  # a live server with the walker's models and Chromium: tens of seconds at least
+
 
 @pytest.fixture(scope="module")
 def url(live_server, tmp_path_factory) -> str:
@@ -233,7 +235,6 @@ def create_study_on_admin_page(browser, url: str):
     return admin, admin_errors, links
 
 
-@pytest.mark.slow
 def test_twelve_participants_through_the_page(url, browser, walker, tmp_path):
     started = time.monotonic()
     admin, admin_errors, links = create_study_on_admin_page(browser, url)
