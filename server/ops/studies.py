@@ -9,16 +9,15 @@ from __future__ import annotations
 
 import hashlib
 import secrets
-from functools import lru_cache
-from pathlib import Path
 
 import numpy as np
 from sqlalchemy import func
+from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session, select
 
 from rba.core.methods import get_method
 from rba.data.library import LibraryNotFoundError, SkillLibrary
-from server.common.errors import invalid, not_found
+from server.common.errors import conflict, invalid, not_found
 from server.db.study_tables import (
     Participant,
     ParticipantLink,
@@ -29,23 +28,17 @@ from server.db.study_tables import (
     StudyPublic,
     StudyTrial,
 )
+from server.runtime.clip_sources import TARGETS
 from server.runtime.services import Services
-
-TARGET_SPLIT = "test"  # targets come from the held-out test split (reports are on test; tuning is on val)
 
 
 def token_hash(token: str) -> str:
     return hashlib.sha256(token.encode()).hexdigest()
 
 
-@lru_cache(maxsize=8)
-def _split(data_dir: Path, domain: str, version: str | None) -> SkillLibrary:
-    return SkillLibrary.load(domain, TARGET_SPLIT, data_dir)
-
-
 def target_library(svc: Services, domain: str) -> SkillLibrary:
-    """The domain's test split (memoised per serve library version: a rebuild makes both anew)."""
-    return _split(svc.catalog.store.data_dir, domain, svc.catalog.library(domain).version)
+    """The domain's test split, through the catalog (the clip route serves its clips too)."""
+    return svc.catalog.split(domain, TARGETS)
 
 
 def balanced_latin_square(n: int) -> list[list[int]]:
@@ -90,11 +83,11 @@ def _draw_targets(svc: Services, body: StudyCreate, seed: int) -> list[list[str]
     try:
         test = target_library(svc, body.domain)
     except LibraryNotFoundError as exc:
-        raise invalid(f"domain {body.domain!r} has no {TARGET_SPLIT} split to draw targets from; run "
+        raise invalid(f"domain {body.domain!r} has no {TARGETS} split to draw targets from; run "
                       f"`rba build {body.domain}`") from exc
     k, n = body.targets_per_condition, len(body.conditions)
     if n * k > len(test):
-        raise invalid(f"{n} conditions x {k} targets_per_condition = {n * k} targets, but the {TARGET_SPLIT} split "
+        raise invalid(f"{n} conditions x {k} targets_per_condition = {n * k} targets, but the {TARGETS} split "
                       f"of {body.domain} has {len(test)} rollouts; ask for at most {len(test) // n} per condition")
     pick = np.random.default_rng(seed).choice(len(test), size=n * k, replace=False)
     return [[test.ids[int(i)] for i in pick[c * k:(c + 1) * k]] for c in range(n)]
@@ -145,5 +138,9 @@ def add_participants(db: Session, study_id: str, count: int) -> ParticipantsPubl
         for position, (condition, target) in enumerate(plan(config, number)):
             db.add(StudyTrial(participant_id=p.id, position=position, condition=condition, target_rollout_id=target))
         links.append(ParticipantLink(id=p.id, number=number, token=token, link=f"/study/{token}"))
-    db.commit()
+    try:
+        db.commit()
+    except IntegrityError as exc:  # another request numbered the same participants first
+        db.rollback()
+        raise conflict("another request made links for this study at the same time; ask again") from exc
     return ParticipantsPublic(participants=links)

@@ -37,6 +37,7 @@ class Catalog:
         self._spread = settings.generate_spread  # None: each domain's Domain.generate_spread
         self._contexts: dict[tuple[str, str, str, str], Any] = {}
         self._libraries: dict[str, SkillLibrary] = {}
+        self._splits: dict[tuple[str, str], SkillLibrary] = {}  # held-out splits: studies' targets
         self._forms: dict[tuple[str, str, str, str], Any] = {}  # generating forms' contexts
         self._stores: dict[str, GeneratedStore] = {}
         self._locks = KeyedLocks()
@@ -142,6 +143,15 @@ class Catalog:
         """Recent generated rollouts of ``domain`` in memory, shared by its contexts and the clip route."""
         with self._guard:
             return self._stores.setdefault(domain, GeneratedStore())
+
+    def split(self, domain: str, split: str) -> SkillLibrary:
+        """A held-out split of ``domain`` (a study's targets come from ``test``), loaded once; ``LibraryNotFoundError``
+        when it was not built."""
+        key = (domain, split)
+        with self._locks(("split", *key)):
+            if key not in self._splits:
+                self._splits[key] = SkillLibrary.load(domain, split, self.store.data_dir)
+        return self._splits[key]
 
     def library(self, domain: str) -> SkillLibrary:
         """The serve library of ``domain`` (shared with a loaded context when there is one)."""

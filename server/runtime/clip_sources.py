@@ -1,11 +1,11 @@
 """The one place that tells where a rollout comes from: a rollout id -> its clip's key, measured values and rollout.
 
-A rollout id names a clip of the domain's serve library, or one a generating session's search made
-(``gen-<hash of domain, params, seed>``: its row is ``GeneratedClip``, its rollout is in the domain's
-``GeneratedStore`` while recent, else simulated again from its params and seed). The views, the clip route,
-exports, prerendering and the session steps ask this module for a ``ResolvedClip`` and never look at the id
-themselves, so a new kind of rollout changes this module only (``tests/test_architecture.py`` counts the
-places outside it that tell the kinds apart).
+A rollout id names a clip of the domain's serve library (or of its test split: a study's target), or one a
+generating session's search made (``gen-<hash of domain, params, seed>``: its row is ``GeneratedClip``, its
+rollout is in the domain's ``GeneratedStore`` while recent, else simulated again from its params and seed). The
+views, the clip route, exports, prerendering and the session steps ask this module for a ``ResolvedClip`` and
+never look at the id themselves, so a new kind of rollout changes this module only
+(``tests/test_architecture.py`` counts the places outside it that tell the kinds apart).
 
 A made clip's key has its own version (``MADE``: its id already hashes what makes it, so a library rebuild
 never changes it) and renders in ``CLIP_PARTS`` parts on separate workers: someone waits for it.
@@ -29,6 +29,7 @@ from rba.media.clip_cache import ClipKey, Source
 from server.db.tables import GeneratedClip
 from server.runtime.catalog import Catalog
 
+TARGETS = "test"  # the split studies draw their targets from: its clips are served too
 MADE = "generated"  # the key's version of a made clip (kept: it names the files already in clip stores)
 
 
@@ -83,8 +84,7 @@ class ClipSources:
             return self._made(db, domain, rollout_id)
         library = self._library(domain)
         if rollout_id not in library:
-            raise UnknownRollout(f"unknown rollout id {rollout_id!r} in {domain}/serve; ids look like "
-                                 f"{library.ids[0]}", generated=False)
+            library = self._target(domain, rollout_id, library)
         key = ClipKey(library.domain, library.version, rollout_id, self.width, self.height)
         measured = library.proxies_of(library.index_of(rollout_id))
         return ResolvedClip(key, measured, False, lambda _simulate: library)
@@ -101,6 +101,17 @@ class ClipSources:
         if rollout is None:
             raise LookupError(f"generated rollout {ref.rollout_id} of {ref.domain} is no longer in memory")
         return self._made_key(ref.domain, ref.rollout_id), rollout
+
+    def _target(self, domain: str, rollout_id: str, serve: SkillLibrary) -> SkillLibrary:
+        """The test split, when ``rollout_id`` is one of its clips (a study's target, shown beside the agent's)."""
+        try:
+            test = self.catalog.split(domain, TARGETS)
+        except LibraryNotFoundError:
+            test = None
+        if test is None or rollout_id not in test:
+            raise UnknownRollout(f"unknown rollout id {rollout_id!r} in {domain}/serve; ids look like "
+                                 f"{serve.ids[0]}", generated=False)
+        return test
 
     def _library(self, domain: str) -> SkillLibrary:
         try:

@@ -11,6 +11,7 @@ import csv
 import io
 import json
 import zipfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,13 +23,16 @@ from rba.data.library import SkillLibrary
 from rba.domains import get_domain
 from rba.interact import SATISFIED
 from rba.interact.users import parse_user
+from server.common.app_settings import Settings
 from server.db.study_tables import Participant, StudyAnswer, StudyConfig, StudyTrial
 from server.db.tables import TuningSession
 from server.main import create_app
 from server.ops import study_stats
 from server.ops.studies import balanced_latin_square, plan
 from server.ops.study_export import results_from_export
+from server.runtime.catalog import Catalog
 
+REPO = Path(__file__).resolve().parents[2]
 TOKEN = "study-admin-token-0123456789"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
 CONFIG = {"name": "pilot", "domain": "toy", "conditions": [{"method": "global"}, {"method": "random"}],
@@ -162,6 +166,8 @@ def test_consent_comes_first_and_the_link_resumes(client):
     assert trial["target"]["rollout_id"].startswith("test-") and trial["clip"]["rollout_id"].startswith("serve-")
     assert trial["clip"]["url"] == f"/api/clips/toy/{trial['clip']['rollout_id']}.mp4"
     assert trial["clip"]["data_url"] == f"/api/clips/toy/{trial['clip']['rollout_id']}.json"
+    target = client.get(f"/api/clips/toy/{trial['target']['rollout_id']}/status")  # the clip route serves targets
+    assert target.status_code == 200 and client.get("/api/clips/toy/test-99999/status").status_code == 404
     assert "distance" not in str(view) and "success" not in str(view) and "method" not in str(view)
     moved = answer(client, token, more(trial, ms=1234, replays=2))
     resumed = client.get(f"/api/participate/{token}").json()
@@ -378,3 +384,23 @@ def test_the_scores_and_intervals():
     assert boot == study_stats.bootstrap([1.0, 2.0, 3.0, 4.0], seed=0) and boot["value"] == 2.5
     assert 1.0 <= boot["low"] < 2.5 < boot["high"] <= 4.0
     assert study_stats.sr_ks(20) == [5, 10, 20] and study_stats.sr_ks(8) == [5] and study_stats.sr_ks(3) == [3]
+
+
+def test_a_walker_study_driven_by_simulated_users(tmp_path):
+    """The shipped walker models and library behind a study: RBA-Global and the floor, two participants."""
+    settings = Settings(data_dir=REPO / "data", models_dir=REPO / "models", database_url=f"sqlite:///{tmp_path}/s.db",
+                        cache_dir=tmp_path / "clips", warm_start=False, prerender=False, prerender_library=False,
+                        admin_token=TOKEN)
+    if ("global", "onehot") not in Catalog(settings).available("walker"):
+        pytest.skip("walker artifacts are absent: run `rba build walker` and `rba train walker` first")
+    serve, test = (SkillLibrary.load("walker", split, REPO / "data") for split in ("serve", "test"))
+    eps = get_domain("walker").epsilons(serve.proxies, "normal")
+    with TestClient(create_app(settings)) as c:
+        study = make_study(c, domain="walker", targets_per_condition=1, answer_budget=10)
+        for n, token in enumerate(make_links(c, study["id"], 2)):
+            drive(c, token, (serve, test), eps, "paper", seed=n)
+        results = c.get(f"/api/admin/studies/{study['id']}/results", headers=AUTH).json()
+        path = tmp_path / "study.zip"
+        path.write_bytes(c.get(f"/api/admin/studies/{study['id']}/export", headers=AUTH).content)
+    assert results_from_export(path) == results
+    assert [c["trials"] for c in results["conditions"]] == [2, 2] and results["comparison"]["pairs"][0]["n"] == 2

@@ -36,7 +36,8 @@ def read_study(study_id: StudyId, db: DbDep) -> StudyPublic:
     return studies.study_public(db, studies.load_study(db, study_id))
 
 
-@router.post("/{study_id}/participants", response_model=ParticipantsPublic, status_code=201, responses=NO_STUDY,
+@router.post("/{study_id}/participants", response_model=ParticipantsPublic, status_code=201,
+             responses=responses(404, 409, said={404: "no such study", 409: "another request made links at once"}),
              summary="Make participant links (the only time their tokens are shown)")
 def add_participants(study_id: StudyId, body: ParticipantsCreate, db: DbDep) -> ParticipantsPublic:
     return studies.add_participants(db, study_id, body.count)
