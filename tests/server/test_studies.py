@@ -402,5 +402,8 @@ def test_a_walker_study_driven_by_simulated_users(tmp_path):
         results = c.get(f"/api/admin/studies/{study['id']}/results", headers=AUTH).json()
         path = tmp_path / "study.zip"
         path.write_bytes(c.get(f"/api/admin/studies/{study['id']}/export", headers=AUTH).content)
+        target = study["config"]["targets"][0][0]
+        drawn = c.get(f"/api/clips/walker/{target}.json")  # a target is drawn from its data as any clip
+        assert drawn.status_code == 200 and drawn.headers["content-type"].startswith("application/json")
     assert results_from_export(path) == results
     assert [c["trials"] for c in results["conditions"]] == [2, 2] and results["comparison"]["pairs"][0]["n"] == 2
