@@ -14,8 +14,9 @@ from server.common.app_settings import Settings
 
 REPO = Path(__file__).resolve().parents[2]
 TOKEN = "pages-admin-token"
-SCRIPTS = {"/": {"/static/app.js", "/static/common.js", "/static/meters.js"},
-           "/admin": {"/static/admin.js", "/static/common.js", "/static/curves.js"}}
+PLAYER = {"/static/player.js", "/static/vendor/three-0.187.0/three.module.min.js"}  # the ClipPlayer and its three.js
+SCRIPTS = {"/": {"/static/app.js", "/static/common.js", "/static/meters.js", *PLAYER},
+           "/admin": {"/static/admin.js", "/static/common.js", "/static/curves.js", "/static/studies.js", *PLAYER}}
 
 
 @pytest.fixture(scope="module")
