@@ -298,12 +298,14 @@ export class ClipPlayer extends EventTarget {
     u.desc = node("p", { id: `${id}-desc`, class: "cp-desc", hidden: true });
     u.keys = node("ul", { "aria-label": "The player's keys" },
       ...KEYS.map(([k, t]) => node("li", {}, node("kbd", { text: k }), ` ${t}`)));
-    u.more = node("details", { class: "cp-more" }, node("summary", { text: "Overlays and keys" }), u.overlays, u.keys);
-    u.stage = node("div", { class: "cp-stage" }, u.canvas, u.video, u.labels, u.big);
+    u.more = node("details", { class: "cp-more" }, node("summary", { text: "Options" }),
+      node("div", { class: "cp-panel" }, node("div", { class: "cp-row" }, u.compare,
+        node("label", { class: "cp-check" }, u.loop, " Loop"), u.reset, u.descButton), u.overlays, u.keys));
+    u.stage = node("div", { class: "cp-stage" }, u.canvas, u.video, u.labels, u.big, u.desc);
+    // over the clip's bottom edge, as a video's controls: the player takes no more room than the clip
     u.bar = node("div", { class: "cp-bar", role: "group", "aria-label": `${this.label}: player controls` },
-      u.play, u.back, u.on, u.scrub, u.time, u.speed,
-      node("label", { class: "cp-check" }, u.loop, " Loop"), u.compare, u.reset, u.descButton);
-    this.element = node("div", { class: "clip-player", "data-mode": "" }, u.stage, u.bar, u.desc, u.more);
+      u.play, u.back, u.on, u.scrub, u.time, u.speed, u.more);
+    this.element = node("div", { class: "clip-player", "data-mode": "" }, u.stage, u.bar);
     container.append(this.element);
     this.setPlayIcon();
 
@@ -359,8 +361,6 @@ export class ClipPlayer extends EventTarget {
     this.ui.video.removeAttribute("src");
     this.ui.canvas.hidden = false;
     this.ui.bar.hidden = false;
-    this.ui.more.hidden = false;
-    this.ui.descButton.hidden = false;
     if (clip.scene.kind === "mujoco") {
       if (!this.stage || this.stage.spec !== clip.scene) this.makeStage(clip.scene);
       this.mode = "webgl";
@@ -397,7 +397,6 @@ export class ClipPlayer extends EventTarget {
     this.ui.canvas.hidden = true;
     v.hidden = false;
     this.ui.bar.hidden = true;
-    this.ui.more.hidden = true;
     v.controls = true;
     v.loop = this.loop;
     v.src = url;
@@ -419,7 +418,6 @@ export class ClipPlayer extends EventTarget {
     });
     if (token !== this._token) return;
     this.element.dataset.duration = String(v.duration);
-    this.ui.descButton.hidden = true;
   }
 
   // ---------------------------------------------------------------- playback
@@ -882,26 +880,32 @@ function injectStyle() {
 .clip-player .cp-labels { position: absolute; inset: 0; pointer-events: none; }
 .clip-player .cp-label { position: absolute; left: 0; top: 0; font: 600 11px system-ui, sans-serif; color: #111;
   background: #ffd23f; border-radius: 4px; padding: 0 3px; white-space: nowrap; }
-.clip-player .cp-big { position: absolute; left: 50%; top: 50%; transform: translate(-50%, -50%); width: 64px;
+.clip-player .cp-big { position: absolute; left: 50%; top: 45%; transform: translate(-50%, -50%); width: 64px;
   height: 64px; border-radius: 50%; border: 2px solid #fff; background: rgba(0,0,0,0.65); color: #fff; font-size: 28px;
   cursor: pointer; }
-.clip-player .cp-bar { display: flex; flex-wrap: wrap; align-items: center; gap: 4px; padding: 4px 6px;
-  background: #111a30; color: #f1f3ff; font: 13px system-ui, sans-serif; }
-.clip-player .cp-bar button, .clip-player .cp-bar select { min-height: 28px; min-width: 28px; width: auto;
+.clip-player .cp-desc { position: absolute; left: 0; right: 0; top: 0; margin: 0; padding: 6px 8px;
+  background: rgba(244,245,250,0.94); color: #1b1f33; font: 14px system-ui, sans-serif; }
+.clip-player .cp-bar { position: absolute; left: 0; right: 0; bottom: 0; display: flex; align-items: center; gap: 4px;
+  padding: 3px 6px; background: rgba(10,15,32,0.78); color: #f1f3ff; font: 13px system-ui, sans-serif; }
+.clip-player .cp-bar button, .clip-player .cp-bar select { min-height: 26px; min-width: 26px; width: auto;
   border-radius: 6px; border: 1px solid #56608a; background: #1e2848; color: #f1f3ff; font: inherit; cursor: pointer;
-  padding: 2px 6px; appearance: auto; background-image: none; }
+  padding: 1px 5px; appearance: auto; background-image: none; }
 .clip-player .cp-bar svg { display: block; margin: auto; }
-.clip-player .cp-bar button:focus-visible, .clip-player .cp-bar select:focus-visible,
+.clip-player .cp-bar button:focus-visible, .clip-player .cp-bar select:focus-visible, .clip-player summary:focus-visible,
 .clip-player input:focus-visible, .clip-player .cp-big:focus-visible { outline: 3px solid #ffd23f; outline-offset: 1px; }
-.clip-player .cp-scrub { flex: 1; min-width: 80px; accent-color: #ffd23f; }
-.clip-player .cp-time { min-width: 3.6em; text-align: right; font-variant-numeric: tabular-nums; }
+.clip-player .cp-scrub { flex: 1; min-width: 60px; accent-color: #ffd23f; }
+.clip-player .cp-time { min-width: 3.4em; text-align: right; font-variant-numeric: tabular-nums; }
 .clip-player .cp-check { display: inline-flex; align-items: center; gap: 3px; }
-.clip-player .cp-overlays { display: flex; flex-wrap: wrap; gap: 2px 12px; margin: 0; padding: 2px 0; border: 0; }
+.clip-player .cp-more summary { cursor: pointer; padding: 2px 6px; border: 1px solid #56608a; border-radius: 6px;
+  background: #1e2848; list-style: none; }
+.clip-player .cp-more summary::-webkit-details-marker { display: none; }
+.clip-player .cp-panel { position: absolute; right: 0; bottom: 100%; left: 0; max-height: 60vh; overflow: auto;
+  padding: 6px 8px; background: rgba(10,15,32,0.94); }
+.clip-player .cp-row { display: flex; flex-wrap: wrap; align-items: center; gap: 6px; }
+.clip-player .cp-overlays { display: flex; flex-wrap: wrap; gap: 2px 12px; margin: 4px 0 0; padding: 0; border: 0; }
 .clip-player .cp-overlays legend { float: left; margin-right: 8px; padding: 0; color: #c7cdf0; }
-.clip-player .cp-desc { margin: 0; padding: 6px 8px; background: #f4f5fa; color: #1b1f33; font: 14px system-ui, sans-serif; }
-.clip-player .cp-more { padding: 2px 8px 4px; font: 13px system-ui, sans-serif; background: #111a30; color: #f1f3ff; }
-.clip-player .cp-more summary { cursor: pointer; color: #c7cdf0; }
-.clip-player .cp-more ul { margin: 4px 0; padding-left: 1.2em; columns: 2; font-size: 12px; }
-.clip-player .cp-more kbd { font: 600 12px ui-monospace, monospace; }
+.clip-player .cp-panel ul { margin: 4px 0 0; padding-left: 1.2em; columns: 2; font-size: 12px; }
+.clip-player .cp-panel kbd { font: 600 12px ui-monospace, monospace; }
+@media (max-width: 480px) { .clip-player .cp-time { display: none; } .clip-player .cp-panel ul { columns: 1; } }
 `));
 }

@@ -180,6 +180,7 @@ def test_the_controls(url, browser):
     assert page.evaluate("player.rate") == 0.5
     page.keyboard.press("d")
     assert page.locator(".cp-desc").is_visible() and "In this clip" in page.locator(".cp-desc").inner_text()
+    page.keyboard.press("d")
     page.keyboard.press("l")
     assert page.evaluate("player.loop") is False
     # played once: the event fires at the last frame of a play, not before
@@ -188,8 +189,8 @@ def test_the_controls(url, browser):
     page.keyboard.press("Space")
     page.wait_for_function("() => window.played === 1", timeout=30_000)
     assert player.get_attribute("data-played") == first.id
-    # overlays: one toggle per attribute, off by default, under "Overlays and keys"
-    page.get_by_text("Overlays and keys").click()
+    # overlays: one toggle per attribute, off by default, under "Options"
+    page.get_by_text("Options", exact=True).click()
     boxes = page.locator(".cp-overlays input[type=checkbox]")
     assert boxes.count() >= 1 and not any(b.is_checked() for b in boxes.all())
     boxes.first.check()
