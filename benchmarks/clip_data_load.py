@@ -220,7 +220,9 @@ def markdown(report: dict) -> str:
         rows = ", ".join(f"{t} {v}" for t, v in first["db_rows_added"].items()) or "none"
         before, during = first["mp4_renders"]["before_users"], first["mp4_renders"]["during_users"]
         lines += ["", f"At N = {first['users']}: the scene is {fmt(first['scene_bytes'])} bytes on the wire (once per "
-                  f"user), a clip {fmt(first['clip_seconds'])} s long; database rows the users added ({first['users']} "
+                  f"user), a clip {first['clip_seconds']:.2f} s long; the server used {first['server_cpu_seconds']:g} "
+                  f"CPU-s in {first['wall_seconds']:g} s ({first['server_cpu_seconds'] / first['wall_seconds']:.2f} "
+                  f"of a core on average); database rows the users added ({first['users']} "
                   f"sessions started and ended, {first['answers']} answers): {rows}. MP4 renders the server logged "
                   f"before the users (its warm-up) / while they ran: {before['urgent'] + before['guesses']} / "
                   f"{during['urgent'] + during['guesses']}."]
