@@ -83,6 +83,12 @@ def create_app(settings: Settings | None = None, compute: Compute | None = None)
                    admin_datasets.router, admin_training.router, studies.router, participate.router):
         app.include_router(router, dependencies=[Depends(known_query)])  # the API's, not the pages' (?utm_… is fine)
     _document_upload_form(app)
+    _pages(app)
+    return app
+
+
+def _pages(app: FastAPI) -> None:
+    """The pages, their files and the health check (outside the API: no query check, no OpenAPI entry)."""
 
     @app.get("/healthz", include_in_schema=False)
     def healthz() -> dict[str, str]:
@@ -112,7 +118,6 @@ def create_app(settings: Settings | None = None, compute: Compute | None = None)
 
     app.mount("/static/vendor", VendorFiles(directory=FRONTEND / "vendor"), name="vendor")  # before /static
     app.mount("/static", StaticFiles(directory=FRONTEND), name="static")
-    return app
 
 
 class VendorFiles(StaticFiles):
