@@ -63,7 +63,7 @@ def plan(config: StudyConfig, number: int) -> list[tuple[int, str | None]]:
     k = config.targets_per_condition
     for c in rows[(number + config.seed) % len(rows)]:
         targets = config.targets[c]
-        out += [(c, targets[(j + number) % k] if targets else None) for j in range(k)]
+        out += [(c, targets[(j + number + c) % k] if targets else None) for j in range(k)]
     return out
 
 
@@ -77,7 +77,8 @@ def _check_conditions(svc: Services, body: StudyCreate) -> None:
 
 
 def _draw_targets(svc: Services, body: StudyCreate, seed: int) -> list[list[str]]:
-    """Per condition, ``targets_per_condition`` distinct test rollouts (none shared between conditions), seeded."""
+    """``targets_per_condition`` distinct test rollouts, seeded, the same for every condition: a paired comparison
+    then compares the conditions on equal targets, not on targets that happened to be easier for one of them."""
     if body.task == "free":
         return [[] for _ in body.conditions]
     try:
@@ -85,12 +86,12 @@ def _draw_targets(svc: Services, body: StudyCreate, seed: int) -> list[list[str]
     except LibraryNotFoundError as exc:
         raise invalid(f"domain {body.domain!r} has no {TARGETS} split to draw targets from; run "
                       f"`rba build {body.domain}`") from exc
-    k, n = body.targets_per_condition, len(body.conditions)
-    if n * k > len(test):
-        raise invalid(f"{n} conditions x {k} targets_per_condition = {n * k} targets, but the {TARGETS} split "
-                      f"of {body.domain} has {len(test)} rollouts; ask for at most {len(test) // n} per condition")
-    pick = np.random.default_rng(seed).choice(len(test), size=n * k, replace=False)
-    return [[test.ids[int(i)] for i in pick[c * k:(c + 1) * k]] for c in range(n)]
+    k = body.targets_per_condition
+    if k > len(test):
+        raise invalid(f"{k} targets_per_condition, but the {TARGETS} split of {body.domain} has {len(test)} "
+                      f"rollouts; ask for at most {len(test)}")
+    pick = [test.ids[int(i)] for i in np.random.default_rng(seed).choice(len(test), size=k, replace=False)]
+    return [list(pick) for _ in body.conditions]
 
 
 def create_study(svc: Services, db: Session, body: StudyCreate) -> StudyPublic:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 from fastapi import HTTPException
 from sqlalchemy import delete, update
+from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session, select
 
 from rba.core.methods import get_method
@@ -142,6 +143,9 @@ def _outcome(svc: Services, config: StudyConfig, trial: StudyTrial, final: str, 
 
 
 def _answerable(db: Session, p: Participant, trial_id: str) -> tuple[StudyTrial, TuningSession]:
+    db.refresh(p)  # read again under the lock: a withdrawal may have landed since the link was looked up
+    if p.withdrawn_at is not None:
+        raise HTTPException(WITHDRAWN, "this participant withdrew from the study; their data was deleted")
     if p.consented_at is None:
         raise conflict("consent first: POST /api/participate/{token}/consent")
     current = _current(_trials(db, p))
@@ -216,7 +220,11 @@ def answer_questionnaire(db: Session, p: Participant, body: QuestionnaireCreate)
     db.add(Questionnaire(participant_id=p.id, satisfaction=body.satisfaction, usability=body.usability))
     p.questionnaire_at = utcnow()
     db.add(p)
-    db.commit()
+    try:
+        db.commit()
+    except IntegrityError as exc:  # the same questionnaire sent twice at once: the other one was stored
+        db.rollback()
+        raise conflict("the questionnaire was answered already") from exc
 
 
 def withdraw(svc: Services, db: Session, p: Participant) -> None:
