@@ -8,6 +8,7 @@ import * as THREE from "./vendor/three-0.187.0/three.module.min.js";
 THREE.ColorManagement.enabled = false;  // MuJoCo writes its colours as they are: no sRGB conversion either way
 
 const RATES = [0.25, 0.5, 0.75, 1];
+const VIDEO_FPS = 30;  // frame step in the MP4 fallback, where the clip data (and its rate) did not arrive
 const COMPARE = { off: "No compare", beside: "Previous beside", ghost: "Previous ghosted" };
 const KEYS = [["Space", "play / pause"], ["← →", "one frame back / on"], ["Home End", "first / last frame"],
   ["[ ]", "slower / faster"], ["L", "loop on / off"], ["C", "compare with the previous clip"],
@@ -235,10 +236,14 @@ class Stage3D {
 // ---------------------------------------------------------------- the player
 /** Plays one clip (and, to compare, the previous one): data drawn by three.js or a canvas, else its MP4. */
 export class ClipPlayer extends EventTarget {
-  constructor(container, { label = "Clip" } = {}) {
+  /** ``describe: false`` leaves out the text description (a study must not show a clip's measured values);
+   * ``loop: false`` plays each clip once and offers no Loop box (a study counts every replay). */
+  constructor(container, { label = "Clip", describe = true, loop = true } = {}) {
     super();
     injectStyle();
     this.label = label;
+    this.describe = describe;
+    this.loopable = loop;
     this.reduced = window.matchMedia && window.matchMedia("(prefers-reduced-motion: reduce)").matches;
     this.mode = null;
     this.clip = null;
@@ -247,7 +252,7 @@ export class ClipPlayer extends EventTarget {
     this.frame = 0;
     this.time = 0;
     this.playing = false;
-    this.loop = !this.reduced;
+    this.loop = loop && !this.reduced;
     this._rate = 1;
     this.orbit = { azimuth: 0, elevation: 0, zoom: 1 };
     this.shownOverlays = new Set();
@@ -260,6 +265,9 @@ export class ClipPlayer extends EventTarget {
   set rate(r) {
     if (!(r > 0)) return;
     this._rate = r;
+    const v = Math.min(16, r);  // the MP4 fallback plays at the same speed, within what media elements allow
+    this.ui.video.defaultPlaybackRate = v;  // (a new src keeps it)
+    this.ui.video.playbackRate = v;
     const option = [...this.ui.speed.options].find((o) => Number(o.value) === r);
     if (option) this.ui.speed.value = option.value;
   }
@@ -320,6 +328,9 @@ export class ClipPlayer extends EventTarget {
     u.reset.addEventListener("click", () => this.resetCamera());
     u.descButton.addEventListener("click", () => this.toggleDescription());
     this.element.addEventListener("keydown", (e) => this.key(e));
+    u.loop.parentElement.hidden = !this.loopable;
+    u.descButton.hidden = !this.describe;
+    if (!this.describe) u.canvas.removeAttribute("aria-describedby");
     this.orbiting();
   }
 
@@ -332,6 +343,8 @@ export class ClipPlayer extends EventTarget {
     delete this.element.dataset.played;
     this.element.dataset.ready = "false";
     this.playedOnce = false;
+    this.watched = 0;  // seconds of the clip played since it was shown: scrubbing and stepping add nothing
+    this.videoAt = 0;
     let clip = null;
     if (dataUrl) {
       try { clip = await loadClip(dataUrl); } catch (err) { console.warn("clip data:", err.message); clip = null; }
@@ -373,7 +386,7 @@ export class ClipPlayer extends EventTarget {
     this.ui.compare.disabled = !this.previous;
     this.ui.scrub.max = String(clip.frames - 1);
     this.element.dataset.duration = String(clip.frames / clip.rate);
-    this.ui.desc.textContent = clip.data.description || "";
+    this.ui.desc.textContent = this.describe ? clip.data.description || "" : "";
     this.buildOverlays(clip.data.overlays || []);
     this.frame = 0;
     this.time = 0;
@@ -402,13 +415,13 @@ export class ClipPlayer extends EventTarget {
     v.src = url;
     if (!this.videoHooked) {
       this.videoHooked = true;
-      let last = 0;
       v.addEventListener("timeupdate", () => {
-        const end = Number.isFinite(v.duration) && v.currentTime >= v.duration - 0.15;
-        if (end || v.currentTime + 0.2 < last) this.reachedEnd();
-        last = v.currentTime;
+        const d = v.currentTime - this.videoAt;  // a jump (a seek, a loop's restart) is not watching
+        if (d > 0 && d < 0.75 * Math.max(1, v.playbackRate) && !v.seeking) this.watched += d;
+        this.videoAt = v.currentTime;
+        this.checkPlayed(v.duration);
       });
-      v.addEventListener("ended", () => this.reachedEnd());
+      v.addEventListener("ended", () => this.checkPlayed(v.duration));
       v.addEventListener("error", () => { if (v.getAttribute("src")) this.failed = true; });
     }
     await new Promise((resolve) => {
@@ -448,12 +461,16 @@ export class ClipPlayer extends EventTarget {
   toggle() { if (this.playing) this.pause(); else this.play(); }
 
   advance(now) {
-    if (this.last !== null) this.time += ((now - this.last) / 1000) * this._rate;
+    if (this.last !== null) {
+      const dt = ((now - this.last) / 1000) * this._rate;
+      this.time += dt;
+      this.watched += dt;
+    }
     this.last = now;
     const n = this.clip.frames;
     let f = Math.floor(this.time * this.clip.rate);
     if (f >= n) {
-      this.reachedEnd();
+      this.checkPlayed((n - 1) / this.clip.rate);
       if (!this.loop) { this.seek(n - 1); this.pause(); return; }
       this.time %= n / this.clip.rate;
       f = Math.floor(this.time * this.clip.rate) % n;
@@ -466,7 +483,13 @@ export class ClipPlayer extends EventTarget {
     this.draw();
     this.stats.ms += performance.now() - t0;
     this.stats.drawn += 1;
-    if (f === n - 1) this.reachedEnd();
+    if (f === n - 1) this.checkPlayed((n - 1) / this.clip.rate);
+  }
+
+  /** The clip counts as played once a clip's length of it has played (``duration`` seconds, a little slack for
+   * the last frame's timing): scrubbing to the end and playing the last frames does not unlock answers. */
+  checkPlayed(duration) {
+    if (Number.isFinite(duration) && this.watched >= duration - 0.25) this.reachedEnd();
   }
 
   reachedEnd() {
@@ -479,7 +502,8 @@ export class ClipPlayer extends EventTarget {
   seek(frame) {
     if (this.mode === "video") {
       const v = this.ui.video;
-      v.currentTime = Math.max(0, frame) / 30;
+      const end = Number.isFinite(v.duration) ? v.duration : 0;
+      v.currentTime = Math.max(0, Math.min(end, frame / VIDEO_FPS));
       return;
     }
     if (!this.clip) return;
@@ -488,7 +512,10 @@ export class ClipPlayer extends EventTarget {
     this.draw();
   }
 
-  step(n) { this.pause(); this.seek(this.frame + n); }
+  step(n) {
+    this.pause();
+    this.seek((this.mode === "video" ? Math.round(this.ui.video.currentTime * VIDEO_FPS) : this.frame) + n);
+  }
 
   setPlayIcon() {
     this.ui.play.innerHTML = this.playing ? ICONS.pause : ICONS.play;
@@ -767,9 +794,9 @@ export class ClipPlayer extends EventTarget {
       Home: () => { this.pause(); this.seek(0); }, End: () => { this.pause(); this.seek(Infinity); },
       "[": () => { this.rate = RATES[Math.max(0, RATES.findIndex((r) => r >= this._rate) - 1)]; },
       "]": () => { this.rate = RATES[Math.min(RATES.length - 1, RATES.findIndex((r) => r >= this._rate) + 1)]; },
-      l: () => { this.loop = !this.loop; this.ui.loop.checked = this.loop; },
+      l: () => { if (this.loopable) { this.loop = !this.loop; this.ui.loop.checked = this.loop; } },
       c: () => { if (this.previous) this.setCompare({ off: "beside", beside: "ghost", ghost: "off" }[this.compareMode]); },
-      0: () => this.resetCamera(), d: () => this.toggleDescription(),
+      0: () => this.resetCamera(), d: () => { if (this.describe) this.toggleDescription(); },
     };
     const act = actions[k.length === 1 ? k.toLowerCase() : k];
     if (!act || (k === " " && e.target instanceof HTMLButtonElement)) return;

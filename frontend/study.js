@@ -31,9 +31,8 @@ const state = {
  * again is the participant's choice, by this page's button or the player's own play button, and counted. */
 function makePlayers() {
   const make = (id, label) => {
-    const player = new ClipPlayer($(id), { label });
-    player.loop = false;
-    player.ui.loop.checked = false;  // the player's own Loop box shows what it does
+    // no description (it names the clip's measured values, which would give the target away) and no loop
+    const player = new ClipPlayer($(id), { label, describe: false, loop: false });
     player.rate = state.rate;
     return player;
   };

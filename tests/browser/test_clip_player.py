@@ -1,5 +1,5 @@
 """The clip player (frontend/player.js) in Chromium with software WebGL: the frame it draws from a clip's data matches
-the MP4's frame (the agent's silhouette), it plays in real time, and its controls work.
+the MP4's frame (the agent's silhouette), it plays on the clip's own clock, and its controls work.
 
 The clip data is made here with ``rba.media.clip_data`` (the server's own code) and handed to the page by
 Playwright, so these tests read no cache and wait for no render; the player and its three.js come from a live
@@ -129,21 +129,26 @@ def test_the_drawn_frame_matches_the_mp4s(url, browser, domain):
 def play_through(page, timeout_ms: int = 60_000) -> dict:
     """Play the shown clip once at 1x from its first frame: the player's counts of drawn and skipped frames."""
     page.evaluate("() => { player.pause(); player.seek(0); player.loop = false; player.rate = 1; "
-                  "player.stats = { drawn: 0, dropped: 0, ms: 0 }; window.played = 0; player.play(); }")
+                  "player.stats = { drawn: 0, dropped: 0, ms: 0 }; window.played = 0; "
+                  "window.t0 = performance.now(); player.play(); }")
     page.wait_for_function("() => player.paused", timeout=timeout_ms)
-    return page.evaluate("({ ...player.stats, frames: player.clip.frames })")
+    return page.evaluate("({ ...player.stats, frames: player.clip.frames, rate: player.clip.rate, "
+                         "elapsed: performance.now() - window.t0 })")
 
 
 @pytest.mark.parametrize("size", list(SIZES))
-def test_it_plays_in_real_time(url, browser, size):
+def test_it_plays_on_the_clips_clock(url, browser, size):
+    """Every frame is due once and a play lasts the clip's length (frames are skipped, never slowed, when drawing
+    falls behind). How many are skipped is a speed goal: ``benchmarks/clip_player.py`` measures it."""
     server = ClipServer()
     page, errors = open_player(browser, url, server, size)
     rollout = server.add("walker", 1)[0]
     show(page, "walker", rollout.id)
     stats = play_through(page)
     shown = stats["drawn"] + stats["dropped"]
-    assert shown >= stats["frames"] - 2, stats  # every frame was due once
-    assert stats["dropped"] <= 0.1 * shown, stats
+    assert shown >= stats["frames"] - 2 and stats["drawn"] > 0, stats
+    assert stats["elapsed"] >= 0.95 * 1000 * (stats["frames"] - 1) / stats["rate"], stats
+    assert page.evaluate("window.played") == 1
     assert not errors, errors
     page.close()
 
@@ -183,8 +188,14 @@ def test_the_controls(url, browser):
     page.keyboard.press("d")
     page.keyboard.press("l")
     assert page.evaluate("player.loop") is False
-    # played once: the event fires at the last frame of a play, not before
+    # played once: the event fires once a whole clip's length has played, not before; scrubbing to the end and
+    # playing its last frames is not watching it
+    page.get_by_role("slider", name="Frame").evaluate(
+        "s => { s.value = String(Number(s.max) - 2); s.dispatchEvent(new Event('input', { bubbles: true })); }")
+    page.get_by_role("button", name="Play").click()
+    page.wait_for_function("() => !player.playing && player.frame === player.clip.frames - 1")
     assert page.evaluate("window.played") == 0
+    page.keyboard.press("Home")
     page.evaluate("player.rate = 8")
     page.keyboard.press("Space")
     page.wait_for_function("() => window.played === 1", timeout=30_000)
@@ -225,12 +236,20 @@ def test_without_webgl_it_plays_the_mp4(url, browser):
     server.route(page, url, SIZES["laptop"][1])
     page.goto(f"{url}/player")
     page.wait_for_function("() => window.player !== undefined")
-    rollout = server.add("walker", 1)[0]
+    first, second = server.add("walker", 2)
     assert page.evaluate("window.webgl") is False
-    show(page, "walker", rollout.id)
+    page.evaluate("player.rate = 4")  # the video plays at the player's rate too
+    show(page, "walker", first.id)
     assert page.evaluate("player.mode") == "video"
     page.wait_for_function("() => document.querySelector('.clip-player video').currentTime > 0.2", timeout=60_000)
     assert page.locator(".clip-player video").is_visible()
+    page.wait_for_function("() => window.played === 1", timeout=60_000)
+    # the next clip in the same player unlocks only once it has played through too (its src resets the time to 0)
+    show(page, "walker", second.id)
+    page.wait_for_function("() => document.querySelector('.clip-player video').currentTime > 0.2", timeout=60_000)
+    assert page.evaluate("window.played") == 1
+    page.wait_for_function("() => window.played === 2", timeout=60_000)
+    assert page.locator(".clip-player").get_attribute("data-played") == second.id
     page.close()
 
 

@@ -123,6 +123,13 @@ def test_participant_page_consent_trial_and_unknown_links(url, browser, tmp_path
     target, current = page.locator("#target").bounding_box(), page.locator("#current").bounding_box()
     assert target["x"] + target["width"] <= current["x"] and abs(target["y"] - current["y"]) < 2
     assert page.locator("#satisfied").bounding_box()["y"] < 800  # the answers on the same screen
+    # the clips' text descriptions name measured values, which would give the target away: none here, nor a loop
+    assert page.locator(".cp-desc").all_text_contents() == ["", ""]
+    page.locator("#current").get_by_text("Options", exact=True).click()
+    assert page.locator("#current").get_by_role("button", name="Description").count() == 0
+    assert page.locator("#current").get_by_text("Loop", exact=True).count() == 1  # there, but hidden
+    assert not page.locator("#current").get_by_text("Loop", exact=True).is_visible()
+    page.locator("#current").get_by_text("Options", exact=True).click()
     page.screenshot(path=str(tmp_path / "study.png"))
     page.reload()  # the link resumes where the participant was: the same trial and clip, to be watched again
     page.wait_for_function(BOOT)
