@@ -23,8 +23,8 @@ import math
 import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
-import cma
 import numpy as np
 import torch
 
@@ -34,6 +34,9 @@ from rba.generate.surface import ZetaSurface
 from rba.learn.common import Ragged
 from rba.learn.global_reward import GlobalReward, LibraryScorer
 from rba.learn.ranker import AttributeRanker
+
+if TYPE_CHECKING:
+    import cma
 
 log = logging.getLogger(__name__)
 
@@ -122,7 +125,11 @@ def _first_step(space: ParamSpace, starts: list[dict[str, float]], config: Searc
 
 
 def _cma(x0: np.ndarray, sigma0: float, popsize: int, seed: int) -> cma.CMAEvolutionStrategy:
-    """CMA-ES in the unit box, drawing from its own seeded generator (numpy's global one is left alone)."""
+    """CMA-ES in the unit box, drawing from its own seeded generator (numpy's global one is left alone).
+    ``cma`` is imported here, not with the module: with ``scipy.stats`` it takes seconds, and a server that
+    imports this module for ``SearchConfig`` should answer before its first search."""
+    import cma
+
     rng = np.random.default_rng(seed)
     return cma.CMAEvolutionStrategy(x0, sigma0, {
         "bounds": [0.0, 1.0], "popsize": popsize, "seed": math.nan,  # nan: leave numpy's global seed alone

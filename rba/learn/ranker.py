@@ -18,7 +18,6 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 import torch
-from scipy.stats import kendalltau
 from torch import nn
 
 from rba.core.settings import LibrarySettings
@@ -193,7 +192,10 @@ def train_ranker(data: Ragged, labels: list[AttributeLabels], attr_embed: np.nda
 
 
 def ranking_metrics(zeta: np.ndarray, proxies: np.ndarray, attribute_names) -> dict[str, dict[str, float]]:
-    """Per attribute: pairwise ordering accuracy and Kendall τ between ζσ and the proxy."""
+    """Per attribute: pairwise ordering accuracy and Kendall τ between ζσ and the proxy (``scipy.stats`` is
+    imported here: it takes a second, and a server loads this module before it answers)."""
+    from scipy.stats import kendalltau
+
     out = {}
     for a, name in enumerate(attribute_names):
         z, p = zeta[:, a], proxies[:, a]

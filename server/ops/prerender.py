@@ -193,12 +193,28 @@ def library_clips(svc: Services, domains: list[str]) -> Iterator[ClipRef]:
             yield ClipRef(name, rid)
 
 
-def first_steps(svc: Services) -> list[tuple[ContextKey, str, dict]]:
-    """Every available context's first clip and state (a new session's step 0), rendered.
+def first_clip(svc: Services, ref: ClipRef) -> None:
+    """Make the clip the first person will ask for, urgently, and wait for it.
 
-    The default domain's first context comes first and its clip is rendered urgently and waited for
-    before the other contexts load: on a cold machine that is the clip the first person will ask for.
-    The others are guesses, so they never hold up a clip someone asked for.
+    Where the page draws the domain's clips, that is the domain's scene and the clip's data (both a small
+    part of an MP4's CPU), and the MP4 follows as a guess; elsewhere the page plays the MP4.
+    """
+    key, source = svc.sources.guess(ref)
+    if not svc.catalog.domain(ref.domain).draws_clips:
+        svc.clips.request(key, source, urgent=True).result(FIRST_CLIP_WAIT_SECONDS)
+        return
+    scene = svc.clips.scene(ref.domain)
+    svc.clips.request(key.data(), source, urgent=True).result(FIRST_CLIP_WAIT_SECONDS)
+    scene.result(FIRST_CLIP_WAIT_SECONDS)
+    svc.clips.request(key, source, urgent=False)
+
+
+def first_steps(svc: Services) -> list[tuple[ContextKey, str, dict]]:
+    """Every available context's first clip and state (a new session's step 0), made.
+
+    The default domain's first context comes first and its clip is made urgently and waited for
+    (``first_clip``) before the other contexts load: on a cold machine that is the clip the first
+    person will ask for. The others are guesses, so they never hold up a clip someone asked for.
     """
     names = sorted(svc.catalog.names(), key=lambda n: n != svc.settings.default_domain)
     starts = []
@@ -209,10 +225,10 @@ def first_steps(svc: Services) -> list[tuple[ContextKey, str, dict]]:
             try:
                 ctx = svc.catalog.context(name, method, rep)
                 rollout_id, state = svc.transitions.first(ctx, get_method(method))
-                first = not starts  # the default domain's: urgent, and waited for; the others are guesses
-                clip = svc.clips.request(*svc.sources.guess(ClipRef(name, rollout_id)), urgent=first)
-                if first:
-                    clip.result(FIRST_CLIP_WAIT_SECONDS)
+                if not starts:  # the default domain's: urgent, and waited for; the others are guesses
+                    first_clip(svc, ClipRef(name, rollout_id))
+                else:
+                    svc.clips.request(*svc.sources.guess(ClipRef(name, rollout_id)), urgent=False)
             except Exception:
                 log.exception("warm-up of %s/%s/%s failed", name, method, rep)
                 continue
@@ -221,7 +237,7 @@ def first_steps(svc: Services) -> list[tuple[ContextKey, str, dict]]:
 
 
 def warm_up(svc: Services) -> None:
-    """Render every context's first clip now, then queue the shared trees and (if asked) the whole libraries."""
+    """Make the first clips now (``first_steps``), then queue the shared trees and (if asked) the whole libraries."""
     if svc.settings.default_domain in domain_names():
         svc.compute.warm(domain_target(svc.settings.default_domain))
     starts = first_steps(svc)
