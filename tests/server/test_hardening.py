@@ -282,7 +282,7 @@ def test_the_document_lists_errors_enums_auth_and_the_upload_form(client):
     for path, item in spec["paths"].items():
         for method, op in item.items():
             codes = {int(c) for c in op["responses"]}
-            for code in codes - {200, 201, 202, 206, 304}:
+            for code in (c for c in codes if c >= 400):  # every error has the one body
                 assert op["responses"][str(code)]["content"]["application/json"]["schema"] == \
                     {"$ref": "#/components/schemas/ErrorPublic"}, (method, path, code)
             assert 413 in codes, (method, path)
