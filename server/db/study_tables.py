@@ -243,7 +243,7 @@ class QuestionnaireCreate(BaseModel):
 class ClipRef(BaseModel):
     rollout_id: str
     url: str
-    data_url: str
+    data_url: str | None = BodyField(description="its per-frame data for the page to draw; null: MP4 only")
 
 
 class TrialView(BaseModel):

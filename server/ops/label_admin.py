@@ -146,8 +146,7 @@ def clips_to_label(svc: Services, db: Session, domain: str, size: int, anchor: b
         picks = rng.sample(range(len(lib)), size)
     ids = [lib.ids[i] for i in picks]
     return ClipsToLabelPublic(domain=d.name, clips=[ClipToLabel(rollout_id=r, url=clip_url(d.name, r),
-                                                                data_url=clip_data_url(d.name, r) if d.draws_clips
-                                                                else None) for r in ids])
+                                                                data_url=clip_data_url(d, r)) for r in ids])
 
 
 # -- uploads --------------------------------------------------------------------------------------

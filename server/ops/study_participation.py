@@ -63,8 +63,9 @@ def _current(trials: list[StudyTrial]) -> StudyTrial | None:
     return next((t for t in trials if t.ended is None), None)
 
 
-def _clip(domain: str, rollout_id: str) -> ClipRef:
-    return ClipRef(rollout_id=rollout_id, url=clip_url(domain, rollout_id), data_url=clip_data_url(domain, rollout_id))
+def _clip(svc: Services, domain: str, rollout_id: str) -> ClipRef:
+    return ClipRef(rollout_id=rollout_id, url=clip_url(domain, rollout_id),
+                   data_url=clip_data_url(svc.catalog.domain(domain), rollout_id))
 
 
 def _start(svc: Services, db: Session, config: StudyConfig, trial: StudyTrial) -> None:
@@ -101,8 +102,8 @@ def _trial_view(svc: Services, db: Session, config: StudyConfig, trials: list[St
     s = db.get(TuningSession, trial.session_id)
     target = trial.target_rollout_id
     return TrialView(index=trial.position, of=len(trials), id=trial.id, label=_labels(trials)[trial.condition],
-                     target=None if target is None else _clip(config.domain, target),
-                     clip=_clip(config.domain, s.current_rollout_id), answers_used=trial.answers,
+                     target=None if target is None else _clip(svc, config.domain, target),
+                     clip=_clip(svc, config.domain, s.current_rollout_id), answers_used=trial.answers,
                      answer_budget=config.answer_budget)
 
 

@@ -50,16 +50,17 @@ def clip_url(domain: str, rollout_id: str) -> str:
     return f"/api/clips/{quote(domain)}/{quote(rollout_id)}.mp4"
 
 
-def clip_data_url(domain: str, rollout_id: str) -> str:
-    """The clip's per-frame data the page draws itself (docs/architecture.md, clip data)."""
-    return f"/api/clips/{quote(domain)}/{quote(rollout_id)}.json"
+def clip_data_url(domain: Domain, rollout_id: str) -> str | None:
+    """The clip's per-frame data the page draws itself (docs/architecture.md, clip data); None for a domain whose
+    clips are MP4s only."""
+    return f"/api/clips/{quote(domain.name)}/{quote(rollout_id)}.json" if domain.draws_clips else None
 
 
 def clip_public(svc: Services, db: Session, domain: str, rollout_id: str) -> ClipPublic:
     """A clip's URLs (MP4, and data where the domain has it), its measured attribute values and whether it is
     rendered already."""
     url = clip_url(domain, rollout_id)
-    data_url = clip_data_url(domain, rollout_id) if svc.catalog.domain(domain).draws_clips else None
+    data_url = clip_data_url(svc.catalog.domain(domain), rollout_id)
     try:
         clip = svc.sources.resolve(db, domain, rollout_id)
     except UnknownRollout as exc:  # the library was rebuilt since: nothing to measure
