@@ -165,7 +165,7 @@ def test_consent_comes_first_and_the_link_resumes(client):
     assert trial["index"] == 0 and trial["of"] == 4 and trial["label"] == "Agent A" and trial["answers_used"] == 0
     assert trial["target"]["rollout_id"].startswith("test-") and trial["clip"]["rollout_id"].startswith("serve-")
     assert trial["clip"]["url"] == f"/api/clips/toy/{trial['clip']['rollout_id']}.mp4"
-    assert trial["clip"]["data_url"] == f"/api/clips/toy/{trial['clip']['rollout_id']}.json"
+    assert trial["clip"]["data_url"] is None  # the toy's clips are MP4s only: no data URL that would 404
     target = client.get(f"/api/clips/toy/{trial['target']['rollout_id']}/status")  # the clip route serves targets
     assert target.status_code == 200 and client.get("/api/clips/toy/test-99999/status").status_code == 404
     assert "distance" not in str(view) and "success" not in str(view) and "method" not in str(view)
@@ -403,6 +403,8 @@ def test_a_walker_study_driven_by_simulated_users(tmp_path):
         path = tmp_path / "study.zip"
         path.write_bytes(c.get(f"/api/admin/studies/{study['id']}/export", headers=AUTH).content)
         target = study["config"]["targets"][0][0]
+        shown = consent(c, make_links(c, study["id"], 1)[0])["trial"]  # a new participant, after the results
+        assert shown["target"]["data_url"] == f"/api/clips/walker/{shown['target']['rollout_id']}.json"
         drawn = c.get(f"/api/clips/walker/{target}.json")  # a target is drawn from its data as any clip
         assert drawn.status_code == 200 and drawn.headers["content-type"].startswith("application/json")
     assert results_from_export(path) == results
