@@ -8,6 +8,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import CancelledError, Future
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -135,7 +136,7 @@ def joined(parts: list[Task], join: Callable[[list], Task]) -> Task:
             except Exception as exc:
                 outer.set_exception(exc)
                 return
-            tail[0].future.add_done_callback(lambda f: _copy(f, outer))
+            tail[0].future.add_done_callback(lambda f: settle(f, outer))
 
     for part in parts:
         part.future.add_done_callback(part_done)
@@ -143,13 +144,14 @@ def joined(parts: list[Task], join: Callable[[list], Task]) -> Task:
                 lambda: any(t.running is None or t.running() for t in [*parts, *tail]))
 
 
-def _copy(source: Future, target: Future) -> None:
+def settle(source: Future, target: Future, result: Callable[[Any], Any] = lambda x: x) -> None:
+    """``target`` ends as the finished ``source`` did: cancelled, failed, or with ``result`` of its result."""
     if source.cancelled():
         target.cancel()
     elif source.exception() is not None:
         target.set_exception(source.exception())
     else:
-        target.set_result(source.result())
+        target.set_result(result(source.result()))
 
 
 class Compute(ABC):

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from rba.compute import Compute, DataJob, RenderJob, Task
+from rba.compute.base import settle
 from rba.core.store import ClipStore
 from rba.data.library import SkillLibrary
 from rba.domains import Rollout
@@ -256,7 +257,7 @@ class ClipCache:
             scene: Future = Future()
             self._scenes[domain] = scene
         task = self.compute.clip_data(DataJob.of(domain, None, self.width, self.height))
-        task.future.add_done_callback(lambda f: _settle_scene(f, scene))
+        task.future.add_done_callback(lambda f: settle(f, scene, lambda body: Scene(body, decode(body)["version"])))
         return scene
 
     def fill(self, keys: Iterable[tuple[ClipKey, SkillLibrary]], window: int | None = None,
@@ -289,13 +290,3 @@ class ClipCache:
         if running:
             drain("ALL_COMPLETED")
         return rendered
-
-
-def _settle_scene(result: Future, scene: Future) -> None:
-    if result.cancelled():
-        scene.cancel()
-    elif result.exception() is not None:
-        scene.set_exception(result.exception())
-    else:
-        body = result.result()
-        scene.set_result(Scene(body, decode(body)["version"]))
